@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# One entry point for a fresh machine: installs what vdp needs, then runs a job.
+#   bash deploy/bootstrap.sh run    -> sets up and runs the main job
+#   bash deploy/bootstrap.sh test   -> sets up and runs the whole test suite
+# Extra arguments go to the job (pytest or vdp).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+mode=${1:-run}
+shift || true
+
+# Debian packages: iproute2 for the network-namespace end-to-end tests.
+if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+    missing=()
+    command -v ip >/dev/null 2>&1 || missing+=(iproute2)
+    command -v unshare >/dev/null 2>&1 || missing+=(util-linux)
+    if ((${#missing[@]})); then
+        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" \
+            || echo "bootstrap: could not install ${missing[*]}; the tests that need them will skip" >&2
+    fi
+fi
+
+PY=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+    "$PY" -m venv .venv
+fi
+stamp=.venv/.vdp-installed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+    .venv/bin/python -m pip install -q --upgrade pip >/dev/null 2>&1 || true
+    .venv/bin/python -m pip install -q -e ".[test,opendbc]"
+    touch "$stamp"
+fi
+export PATH="$PWD/.venv/bin:$PATH"
+
+case "$mode" in
+    test) exec .venv/bin/python -m pytest "$@" ;;
+    run)  exec .venv/bin/vdp serve --simulate "$@" ;;
+    simulate) exec .venv/bin/vdp simulate "$@" ;;
+    *) echo "usage: bash deploy/bootstrap.sh run|test|simulate [args...]" >&2; exit 2 ;;
+esac

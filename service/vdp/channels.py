@@ -1,0 +1,37 @@
+"""Canonical channels: the sensor set the estimator consumes, in SI units.
+
+A vehicle profile maps each of these to DBC signals; everything downstream of
+the decoder sees only these names and units.
+"""
+
+from __future__ import annotations
+
+# (name, SI unit) in the fixed order used by sample arrays.
+CHANNELS: tuple[tuple[str, str], ...] = (
+    ("wheel_speed_fl", "rad/s"),
+    ("wheel_speed_fr", "rad/s"),
+    ("wheel_speed_rl", "rad/s"),
+    ("wheel_speed_rr", "rad/s"),
+    ("wheel_torque_front", "N*m"),  # axle torque, drive positive, brake negative
+    ("wheel_torque_rear", "N*m"),
+    ("steering_angle", "rad"),  # road-wheel angle, positive left
+    ("accel_x", "m/s^2"),
+    ("accel_y", "m/s^2"),
+    ("yaw_rate", "rad/s"),  # positive left (counter-clockwise from above)
+    ("roll_rate", "rad/s"),
+    ("speed", "m/s"),  # GNSS ground speed
+)
+
+NAMES: tuple[str, ...] = tuple(n for n, _ in CHANNELS)
+UNITS: dict[str, str] = dict(CHANNELS)
+INDEX: dict[str, int] = {n: i for i, n in enumerate(NAMES)}
+N = len(NAMES)
+
+WS_FL, WS_FR, WS_RL, WS_RR, T_F, T_R, DELTA, AX, AY, YAW, ROLL, SPEED = range(N)
+
+# Which channels each stage needs; a profile lacking one disables the stage.
+STAGE1_NEEDS = ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr",
+                "wheel_torque_front", "wheel_torque_rear", "accel_x", "speed",
+                "steering_angle", "yaw_rate")
+STAGE2_NEEDS = ("wheel_speed_fl", "wheel_speed_fr", "steering_angle", "accel_y",
+                "yaw_rate", "roll_rate", "speed")

@@ -1,0 +1,1 @@
+"""Adapters between CAN frames/files and the pure core."""

@@ -1,0 +1,327 @@
+"""Vehicle profile: one TOML file that describes a vehicle to vdp.
+
+It holds the vehicle's known constants, the priors of the unknown parameters,
+and how each canonical channel is read from the car's DBC.  Truth values of
+the unknowns never belong here: the simulator keeps those in its own truth.
+
+Conversion of a decoded DBC signal value ``v`` to the canonical SI value::
+
+    si = sign * factor(unit) * (v * scale + offset)    [/ wheel_radius for linear wheel speeds]
+                                                        [/ steering_ratio for steering_wheel]
+
+``sign`` may instead come from another signal of the same message
+(``sign_signal``): a non-zero value there flips the sign.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+from . import channels
+from .errors import ProfileError
+
+# Unit -> (factor to SI, SI unit kind).  Linear speeds become rad/s for wheel
+# channels through the wheel radius (see ChannelMap.convert).
+UNIT_FACTORS: dict[str, tuple[float, str]] = {
+    "rad/s": (1.0, "angular_rate"),
+    "deg/s": (math.pi / 180.0, "angular_rate"),
+    "rpm": (2.0 * math.pi / 60.0, "angular_rate"),
+    "m/s": (1.0, "speed"),
+    "km/h": (1.0 / 3.6, "speed"),
+    "kph": (1.0 / 3.6, "speed"),
+    "mph": (0.44704, "speed"),
+    "kn": (0.514444, "speed"),
+    "N*m": (1.0, "torque"),
+    "Nm": (1.0, "torque"),
+    "N.m": (1.0, "torque"),
+    "kN*m": (1000.0, "torque"),
+    "rad": (1.0, "angle"),
+    "deg": (math.pi / 180.0, "angle"),
+    "m/s^2": (1.0, "accel"),
+    "m/s2": (1.0, "accel"),
+    "g": (9.80665, "accel"),
+}
+
+# What kind of unit each canonical channel accepts.
+CHANNEL_KINDS: dict[str, tuple[str, ...]] = {
+    "wheel_speed_fl": ("angular_rate", "speed"),
+    "wheel_speed_fr": ("angular_rate", "speed"),
+    "wheel_speed_rl": ("angular_rate", "speed"),
+    "wheel_speed_rr": ("angular_rate", "speed"),
+    "wheel_torque_front": ("torque",),
+    "wheel_torque_rear": ("torque",),
+    "steering_angle": ("angle",),
+    "accel_x": ("accel",),
+    "accel_y": ("accel",),
+    "yaw_rate": ("angular_rate",),
+    "roll_rate": ("angular_rate",),
+    "speed": ("speed",),
+}
+
+PARAMETERS = ("l_f", "h", "C_K", "C_alpha", "I_z", "I_x")
+
+
+@dataclass(frozen=True)
+class Vehicle:
+    """Known constants, SI units."""
+
+    name: str
+    mass: float  # m [kg]
+    wheelbase: float  # L [m]
+    wheel_radius: float  # r [m]
+    wheel_inertia: float  # J [kg m^2], per axle: both wheels of the axle lumped (NOTES item 9)
+    roll_stiffness: float  # k_phi [N m/rad]
+    roll_damping: float  # c_phi [N m s/rad]
+    steering_ratio: float  # steering-wheel angle / road-wheel angle [-]
+    track: float  # b [m]
+    g: float = 9.8
+
+
+@dataclass(frozen=True)
+class Prior:
+    value: float
+    std: float
+
+
+@dataclass(frozen=True)
+class ChannelMap:
+    """How one canonical channel is read from the DBC."""
+
+    channel: str
+    message: str
+    signal: str
+    unit: str
+    scale: float = 1.0
+    offset: float = 0.0
+    sign: float = 1.0
+    sign_signal: str | None = None
+    steering_wheel: bool = False  # the signal is the steering-wheel angle
+    alt: "ChannelMap | None" = None
+    where: str = ""  # "profile.toml [channels.x]" for error messages
+
+    def factor(self, vehicle: Vehicle) -> float:
+        """Multiplier from (v*scale+offset) in the source unit to canonical SI."""
+        f, kind = UNIT_FACTORS[self.unit]
+        if self.channel.startswith("wheel_speed") and kind == "speed":
+            f /= vehicle.wheel_radius
+        if self.steering_wheel:
+            f /= vehicle.steering_ratio
+        return f * self.sign
+
+
+@dataclass(frozen=True)
+class MessageCheck:
+    """Rolling counter and checksum of one message, checked or ignored."""
+
+    message: str
+    counter: str | None = None
+    checksum: str | None = None
+    checksum_kind: str = "vdp"  # "vdp" (see dbc/vdp.dbc) or "none"
+    check: bool = True
+
+
+@dataclass(frozen=True)
+class Profile:
+    path: Path
+    vehicle: Vehicle
+    priors: dict[str, Prior]
+    dbc: Path
+    bus_channel: str | None  # only frames from this log/bus channel are used (None = all)
+    channels: dict[str, ChannelMap]
+    checks: dict[str, MessageCheck] = field(default_factory=dict)
+
+    def missing(self, needs: tuple[str, ...]) -> list[str]:
+        return [c for c in needs if c not in self.channels]
+
+
+_VEHICLE_KEYS = {
+    "name": str, "mass": float, "wheelbase": float, "wheel_radius": float,
+    "wheel_inertia": float, "roll_stiffness": float, "roll_damping": float,
+    "steering_ratio": float, "track": float, "g": float,
+}
+
+
+def _num(where: str, key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ProfileError(f"{where}: '{key}' must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _vehicle(where: str, raw: dict[str, Any]) -> Vehicle:
+    if not isinstance(raw, dict):
+        raise ProfileError(f"{where} [vehicle]: missing table; add a [vehicle] section with m, L, r, J ...")
+    unknown = set(raw) - set(_VEHICLE_KEYS) - {"roll_stiffness_per_deg", "roll_damping_per_deg"}
+    if unknown:
+        raise ProfileError(f"{where} [vehicle]: unknown key(s) {sorted(unknown)}; allowed: {sorted(_VEHICLE_KEYS)}")
+    vals: dict[str, Any] = {}
+    # Table 6 gives k_phi and c_phi per degree; accept that form and convert (NOTES item 5).
+    for src, dst in (("roll_stiffness_per_deg", "roll_stiffness"), ("roll_damping_per_deg", "roll_damping")):
+        if src in raw:
+            if dst in raw:
+                raise ProfileError(f"{where} [vehicle]: give '{dst}' or '{src}', not both")
+            vals[dst] = _num(f"{where} [vehicle]", src, raw[src]) * 180.0 / math.pi
+    for key, typ in _VEHICLE_KEYS.items():
+        if key in vals:
+            continue
+        if key not in raw:
+            if key == "g":
+                continue
+            raise ProfileError(f"{where} [vehicle]: missing '{key}'")
+        if typ is str:
+            if not isinstance(raw[key], str) or not raw[key]:
+                raise ProfileError(f"{where} [vehicle]: 'name' must be a non-empty string")
+            vals[key] = raw[key]
+        else:
+            v = _num(f"{where} [vehicle]", key, raw[key])
+            if v <= 0:
+                raise ProfileError(f"{where} [vehicle]: '{key}' must be positive, got {v}")
+            vals[key] = v
+    return Vehicle(**vals)
+
+
+def _priors(where: str, raw: Any) -> dict[str, Prior]:
+    if not isinstance(raw, dict):
+        raise ProfileError(f"{where} [priors]: missing table; give value and std for {', '.join(PARAMETERS)}")
+    out = {}
+    for name in PARAMETERS:
+        entry = raw.get(name)
+        w = f"{where} [priors.{name}]"
+        if not isinstance(entry, dict) or "value" not in entry or "std" not in entry:
+            raise ProfileError(f"{w}: missing; write {name} = {{ value = ..., std = ... }}")
+        value, std = _num(w, "value", entry["value"]), _num(w, "std", entry["std"])
+        if value <= 0 or std <= 0:
+            raise ProfileError(f"{w}: value and std must be positive, got value={value}, std={std}")
+        out[name] = Prior(value, std)
+    extra = set(raw) - set(PARAMETERS)
+    if extra:
+        raise ProfileError(f"{where} [priors]: unknown parameter(s) {sorted(extra)}; known: {', '.join(PARAMETERS)}")
+    return out
+
+
+_MAP_KEYS = {"message", "signal", "unit", "scale", "offset", "sign", "sign_signal", "steering_wheel", "alt"}
+
+
+def _channel(where: str, name: str, raw: Any, nested: bool = False) -> ChannelMap:
+    w = f"{where} [channels.{name}{'.alt' if nested else ''}]"
+    if not isinstance(raw, dict):
+        raise ProfileError(f"{w}: must be a table with message, signal and unit")
+    unknown = set(raw) - _MAP_KEYS
+    if unknown:
+        raise ProfileError(f"{w}: unknown key(s) {sorted(unknown)}; allowed: {sorted(_MAP_KEYS)}")
+    for key in ("message", "signal", "unit"):
+        if not isinstance(raw.get(key), str) or not raw[key]:
+            raise ProfileError(f"{w}: missing '{key}' (a string)")
+    unit = raw["unit"]
+    if unit not in UNIT_FACTORS:
+        raise ProfileError(f"{w}: unit '{unit}' is not known; use one of {', '.join(UNIT_FACTORS)}")
+    kind = UNIT_FACTORS[unit][1]
+    if kind not in CHANNEL_KINDS[name]:
+        raise ProfileError(f"{w}: unit '{unit}' ({kind}) cannot be converted to {name}'s "
+                           f"{channels.UNITS[name]}")
+    sign = _num(w, "sign", raw.get("sign", 1.0))
+    if sign not in (1.0, -1.0):
+        raise ProfileError(f"{w}: 'sign' must be 1 or -1, got {sign}")
+    scale = _num(w, "scale", raw.get("scale", 1.0))
+    if scale == 0:
+        raise ProfileError(f"{w}: 'scale' must not be 0")
+    sw = raw.get("steering_wheel", False)
+    if not isinstance(sw, bool):
+        raise ProfileError(f"{w}: 'steering_wheel' must be true or false")
+    if sw and name != "steering_angle":
+        raise ProfileError(f"{w}: 'steering_wheel' applies to steering_angle only")
+    ss = raw.get("sign_signal")
+    if ss is not None and not isinstance(ss, str):
+        raise ProfileError(f"{w}: 'sign_signal' must be a signal name")
+    alt = None
+    if "alt" in raw:
+        if nested:
+            raise ProfileError(f"{w}: an alternative source cannot have its own 'alt'")
+        alt = _channel(where, name, raw["alt"], nested=True)
+    return ChannelMap(channel=name, message=raw["message"], signal=raw["signal"], unit=unit,
+                      scale=scale, offset=_num(w, "offset", raw.get("offset", 0.0)), sign=sign,
+                      sign_signal=ss, steering_wheel=sw, alt=alt, where=w)
+
+
+def _checks(where: str, raw: Any) -> dict[str, MessageCheck]:
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict):
+        raise ProfileError(f"{where} [checks]: must be a table of messages")
+    out = {}
+    for msg, entry in raw.items():
+        w = f"{where} [checks.{msg}]"
+        if not isinstance(entry, dict):
+            raise ProfileError(f"{w}: must be a table")
+        unknown = set(entry) - {"counter", "checksum", "checksum_kind", "check"}
+        if unknown:
+            raise ProfileError(f"{w}: unknown key(s) {sorted(unknown)}")
+        kind = entry.get("checksum_kind", "vdp")
+        if kind not in ("vdp", "none"):
+            raise ProfileError(f"{w}: checksum_kind must be 'vdp' or 'none', got {kind!r}")
+        check = entry.get("check", True)
+        if not isinstance(check, bool):
+            raise ProfileError(f"{w}: 'check' must be true or false")
+        out[msg] = MessageCheck(message=msg, counter=entry.get("counter"), checksum=entry.get("checksum"),
+                                checksum_kind=kind, check=check)
+    return out
+
+
+def load_profile(path: str | Path) -> Profile:
+    """Read and validate a profile; every problem is a ProfileError naming the line's table."""
+    path = Path(path)
+    where = str(path)
+    if not path.is_file():
+        raise ProfileError(f"{where}: no such profile file (try profiles/paper.toml)")
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ProfileError(f"{where}: not valid TOML: {exc}") from None
+    unknown = set(raw) - {"vehicle", "priors", "can", "channels", "checks"}
+    if unknown:
+        raise ProfileError(f"{where}: unknown section(s) {sorted(unknown)}")
+    vehicle = _vehicle(where, raw.get("vehicle"))
+    priors = _priors(where, raw.get("priors"))
+    can = raw.get("can")
+    if not isinstance(can, dict) or not isinstance(can.get("dbc"), str):
+        raise ProfileError(f"{where} [can]: missing 'dbc' (a path relative to the profile, or opendbc:NAME)")
+    dbc_s = can["dbc"]
+    if dbc_s.startswith("opendbc:"):
+        dbc = _opendbc_path(where, dbc_s[len("opendbc:"):])
+    else:
+        dbc = (path.parent / dbc_s).resolve()
+    if not dbc.is_file():
+        raise ProfileError(f"{where} [can]: dbc file '{dbc}' does not exist")
+    bus_channel = can.get("channel")
+    if bus_channel is not None and not isinstance(bus_channel, str):
+        raise ProfileError(f"{where} [can]: 'channel' must be a string such as 'can0'")
+    chans_raw = raw.get("channels")
+    if not isinstance(chans_raw, dict) or not chans_raw:
+        raise ProfileError(f"{where} [channels]: missing; map at least one of {', '.join(channels.NAMES)}")
+    bad = set(chans_raw) - set(channels.NAMES)
+    if bad:
+        raise ProfileError(f"{where} [channels]: unknown channel(s) {sorted(bad)}; known: {', '.join(channels.NAMES)}")
+    maps = {name: _channel(where, name, entry) for name, entry in chans_raw.items()}
+    return Profile(path=path, vehicle=vehicle, priors=priors, dbc=dbc, bus_channel=bus_channel,
+                   channels=maps, checks=_checks(where, raw.get("checks")))
+
+
+def _opendbc_path(where: str, name: str) -> Path:
+    try:
+        import opendbc  # optional extra: pip install vdp[opendbc]
+    except ImportError:
+        raise ProfileError(f"{where} [can]: dbc 'opendbc:{name}' needs the opendbc package; "
+                           f"install it with: pip install 'vdp[opendbc]'") from None
+    base = Path(opendbc.__file__).parent / "dbc"
+    p = base / (name if name.endswith(".dbc") else name + ".dbc")
+    if not p.is_file():
+        raise ProfileError(f"{where} [can]: opendbc has no DBC named '{name}' in {base}")
+    return p

@@ -1,0 +1,1 @@
+"""The simulator: the paper's manoeuvres, truth physics, sensors and CAN encoding."""
