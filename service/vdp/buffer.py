@@ -1,0 +1,147 @@
+"""Time alignment: decoded channel values in, fixed-rate samples out.
+
+Frames of different messages arrive at their own times and periods.  The
+:class:`Aligner` turns them into :class:`Sample` rows on a fixed tick grid
+(10 ms by default): each channel is linearly interpolated to the tick from the
+values around it, or held if no later value has come yet.  A tick is emitted
+once bus time has passed it by ``delay``, so the value after the tick is
+usually known.  A channel silent for longer than its ``stale_after`` is NaN in
+the sample, so no filter ever predicts across the gap.
+
+Bus time that goes backwards is rejected; a jump forward larger than
+``max_gap`` restarts the grid (a gap marker, never one huge step).
+
+:class:`SampleRing` keeps the most recent samples in a fixed-size array, so
+memory stays flat however long the car drives.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import channels
+
+log = logging.getLogger(__name__)
+
+_DEPTH = 4  # values kept per channel for interpolation
+
+
+@dataclass
+class Sample:
+    """One tick: channel values (NaN if unknown or stale), which are new, and their age [s]."""
+
+    t: float
+    values: np.ndarray
+    fresh: np.ndarray
+    age: np.ndarray
+    gap: bool = False  # the first tick after a gap or a clock jump
+
+
+class Aligner:
+    def __init__(self, stale_after: np.ndarray | None = None, tick: float = 0.01,
+                 delay: float = 0.012, max_gap: float = 1.0):
+        self.tick = tick
+        self.delay = delay
+        self.max_gap = max_gap
+        self.stale_after = (np.full(channels.N, 0.1) if stale_after is None
+                            else np.asarray(stale_after, dtype=float))
+        self.reset()
+
+    def reset(self) -> None:
+        self._t = np.full((channels.N, _DEPTH), -math.inf)  # newest last
+        self._v = np.full((channels.N, _DEPTH), math.nan)
+        self._emitted = np.full(channels.N, -math.inf)  # time of the newest value already reported fresh
+        self.next_tick: float | None = None
+        self.last_time = -math.inf
+        self.gap = True
+        self.clock_backwards = 0
+        self.clock_jumps = 0
+
+    def push(self, t: float, pairs) -> list[Sample]:
+        """Add one frame's (channel, value) pairs at bus time ``t``; return due ticks."""
+        if not math.isfinite(t):
+            self.clock_backwards += 1
+            return []
+        out: list[Sample] = []
+        if t < self.last_time - 1e-3:
+            self.clock_backwards += 1
+            return out
+        if self.next_tick is None or t - self.last_time > self.max_gap:
+            if self.next_tick is not None:
+                self.clock_jumps += 1
+                log.info("bus time jumped %.3f s forward; restarting the sample grid", t - self.last_time)
+            self._t[:] = -math.inf
+            self._v[:] = math.nan
+            self.next_tick = math.ceil(t / self.tick) * self.tick
+            self.gap = True
+        else:
+            while self.next_tick + self.delay <= t:
+                out.append(self._sample(self.next_tick))
+                self.next_tick += self.tick
+        self.last_time = max(self.last_time, t)
+        for ch, value in pairs:
+            self._t[ch, :-1] = self._t[ch, 1:]
+            self._v[ch, :-1] = self._v[ch, 1:]
+            self._t[ch, -1] = t
+            self._v[ch, -1] = value
+        return out
+
+    def _sample(self, T: float) -> Sample:
+        ts, vs = self._t, self._v
+        newest = ts[:, -1]
+        values = np.full(channels.N, math.nan)
+        age = T - newest
+        for ch in range(channels.N):
+            row = ts[ch]
+            # index of the first value after T
+            k = int(np.searchsorted(row, T, side="right"))
+            if k == 0:
+                if row[0] == -math.inf:
+                    continue
+                values[ch] = vs[ch, 0]  # only later values are known: use the earliest
+                age[ch] = 0.0
+            elif k == _DEPTH:
+                values[ch] = vs[ch, -1]  # hold
+            else:
+                t0, t1 = row[k - 1], row[k]
+                if t0 == -math.inf:
+                    values[ch] = vs[ch, k]
+                else:
+                    w = (T - t0) / (t1 - t0) if t1 > t0 else 1.0
+                    values[ch] = vs[ch, k - 1] + w * (vs[ch, k] - vs[ch, k - 1])
+                age[ch] = max(T - t0, 0.0) if t0 != -math.inf else 0.0
+        stale = age > self.stale_after
+        values[stale] = math.nan
+        # fresh: a value at or before T that has not been reported yet
+        before = np.where(ts <= T, ts, -math.inf).max(axis=1)
+        fresh = (before > self._emitted) & np.isfinite(before)
+        self._emitted = np.where(fresh, before, self._emitted)
+        s = Sample(T, values, fresh, age, self.gap)
+        self.gap = False
+        return s
+
+
+class SampleRing:
+    """The last ``capacity`` samples in a preallocated array (flat memory)."""
+
+    def __init__(self, capacity: int = 3000):
+        self.capacity = capacity
+        self.t = np.full(capacity, math.nan)
+        self.values = np.full((capacity, channels.N), math.nan)
+        self.count = 0
+
+    def append(self, s: Sample) -> None:
+        i = self.count % self.capacity
+        self.t[i] = s.t
+        self.values[i] = s.values
+        self.count += 1
+
+    def latest(self, n: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The newest ``n`` samples in time order."""
+        m = min(self.count, self.capacity if n is None else min(n, self.capacity))
+        idx = (np.arange(self.count - m, self.count)) % self.capacity
+        return self.t[idx], self.values[idx]

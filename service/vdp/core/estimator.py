@@ -1,0 +1,131 @@
+"""The two-stage estimator: supervisor plus a UKF and an EKF learner per stage.
+
+Aligned samples go in through ``handle(t, sample)``; ``snapshot()`` gives the
+parameters (UKF, the method), the EKF baseline, the supervisor's state and the
+windows.  Stage 2 starts only once stage 1 has converged (the hand-over), and
+takes stage 1's l_f, h, C_K of the same filter kind as known constants.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from dataclasses import dataclass, field
+
+from .learner import LearnerConfig, Stage1, Stage2
+from .params import NAMES
+from .supervisor import GateConfig, Supervisor
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    learner: LearnerConfig = field(default_factory=LearnerConfig)
+    gate: GateConfig = field(default_factory=GateConfig)
+    baseline: bool = True  # run the EKF baseline beside the UKF
+    trace_every: float = 0.1  # s between trace points (for plots and history)
+    trace_len: int | None = None  # None keeps all (replay); live service bounds it
+
+
+class TwoStageEstimator:
+    def __init__(self, vehicle, priors, cfg: EstimatorConfig | None = None):
+        self.vehicle = vehicle
+        self.priors = priors
+        self.cfg = cfg or EstimatorConfig()
+        kinds = ("ukf", "ekf") if self.cfg.baseline else ("ukf",)
+        self.s1 = {k: Stage1(k, vehicle, priors, self.cfg.learner) for k in kinds}
+        self.s2 = {k: Stage2(k, vehicle, priors, self.cfg.learner) for k in kinds}
+        self.supervisor = Supervisor(self.cfg.gate)
+        self.trace: deque = deque(maxlen=self.cfg.trace_len)
+        self._next_trace = None
+        self.handover_t: float | None = None
+        self.t: float | None = None
+
+    # -- learner interface ---------------------------------------------
+    def handle(self, t: float, s) -> None:
+        self.t = t
+        done = self.handover_t is not None
+        stage = self.supervisor.update(t, s, done)
+        for kind in self.s1:
+            l1, l2 = self.s1[kind], self.s2[kind]
+            if stage == 1:
+                l1.handle(t, s)
+            elif l1.filter is not None:
+                l1.end_window()
+            if stage == 2:
+                if l2.filter is None:
+                    e = l1.snapshot()
+                    l2.set_stage1(e["l_f"].value, e["h"].value, e["C_K"].value)
+                l2.handle(t, s)
+            elif l2.filter is not None:
+                l2.end_window()
+        if not done and self.s1["ukf"].converged():
+            self.handover_t = t
+            log.info("stage 1 converged at t=%.2f s; stage 2 may start", t)
+        if self._next_trace is None or t >= self._next_trace:
+            self._next_trace = t + self.cfg.trace_every
+            self.trace.append(self._trace_row(t, stage))
+
+    def reset(self, stage: int | None = None) -> None:
+        """Clear one stage (1 or 2) or both (None)."""
+        if stage in (None, 1):
+            for l in self.s1.values():
+                l.reset()
+            self.handover_t = None
+        if stage in (None, 2, 1):
+            for l in self.s2.values():
+                l.reset()
+        if stage is None:
+            self.supervisor.reset()
+            self.trace.clear()
+
+    def snapshot(self) -> dict:
+        return {
+            "parameters": self.parameters("ukf"),
+            "baseline_ekf": self.parameters("ekf") if "ekf" in self.s1 else None,
+            "stage": self.stage(),
+            "supervisor": self.supervisor.state(),
+            "windows": [w.as_dict() for w in self.supervisor.windows],
+            "resets": {k: self.s1[k].resets + self.s2[k].resets for k in self.s1},
+        }
+
+    # -- helpers -------------------------------------------------------
+    def parameters(self, kind: str = "ukf") -> dict:
+        out = {}
+        for learner in (self.s1[kind], self.s2[kind]):
+            out.update({n: e.as_dict() for n, e in learner.snapshot().items()})
+        return out
+
+    def stage(self) -> str:
+        if self.handover_t is None:
+            return "stage1"
+        return "done" if self.s2["ukf"].converged() else "stage2"
+
+    def restore(self, params: dict) -> None:
+        """Start from stored estimates (value, std) instead of the priors."""
+        import numpy as np
+
+        for kind in self.s1:
+            for learner in (self.s1[kind], self.s2[kind]):
+                vals, stds = [], []
+                for i, n in enumerate(learner.names):
+                    p = params.get(n) or {}
+                    v, sd = p.get("value"), p.get("std")
+                    ok = v is not None and sd is not None and sd > 0
+                    vals.append(v if ok else learner.theta[i])
+                    stds.append(sd if ok else np.sqrt(learner.theta_P[i, i]))
+                    if ok:
+                        learner.samples = max(learner.samples, int(p.get("samples") or 1))
+                learner.theta = np.array(vals, dtype=float)
+                learner.theta_P = np.diag(np.square(stds))
+                learner._good = (learner.theta.copy(), learner.theta_P.copy())
+        if self.s1["ukf"].converged():
+            self.handover_t = self.t if self.t is not None else 0.0
+
+    def _trace_row(self, t: float, stage) -> tuple:
+        row = [t, stage]
+        for kind in self.s1:
+            p = self.parameters(kind)
+            row.append(tuple((p[n]["value"], p[n]["std"]) for n in NAMES))
+        return tuple(row)

@@ -1,0 +1,199 @@
+"""Stage 2: the single-track model with roll, eqs (4)-(12), as a joint state-parameter model.
+
+Filter state (SI units)::
+
+    x = [v_y, yaw_rate, phi, phi_dot, C_alpha, I_z, I_x]
+
+v_y and the roll angle phi have no sensor on a production car, so they are
+filter states estimated jointly with the parameters (NOTES item 13; the
+paper's "future work").  Inputs ``u`` (columns below) and measurements
+``z = [yaw_rate, roll_rate, a_y]``.
+
+Errata applied (NOTES.md):
+- eq (5): v_y_dot = a_y - v_x * yaw_rate (the paper has +);
+- eq (6)/(7): front forces rotate by delta: body-x gets F_xf cos(d) - F_yf sin(d),
+  body-y gets F_xf sin(d) + F_yf cos(d);
+- eq (10): yaw moment l_f (F_xf sin(d) + F_yf cos(d)) - l_r F_yr (paper swaps sin/cos);
+- eq (12): alpha_f = d - (v_y + l_f r)/v_x, alpha_r = -(v_y - l_r r)/v_x, F_y = C_alpha alpha;
+- eq (9): phi is the roll angle; total mass and CG height as in the paper (strictly
+  sprung mass and height above the roll axis);
+- Table 6: k_phi, c_phi per radian.
+- NOTES 8: the front longitudinal force is C_sigma s_f with C_sigma = F_zf C_K from
+  stage 1 and the current load; the slip uses the wheel-frame speed.
+
+The roll mode is stiff for small I_x (poles near -c/I_x), so it is integrated
+with the trapezoidal rule, which is A-stable; yaw and lateral states use
+midpoint (RK2) sub-steps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+V_Y, YAW, PHI, PHI_D, C_A, I_Z, I_X = range(7)
+STATE_NAMES = ("v_y", "yaw_rate", "phi", "phi_dot", "C_alpha", "I_z", "I_x")
+STATE_UNITS = ("m/s", "rad/s", "rad", "rad/s", "N/rad", "kg*m^2", "kg*m^2")
+PARAM_SLICE = slice(4, 7)
+SCALE = np.array([0.5, 0.2, 0.005, 0.02, 5.0e4, 2.0e3, 3.0e3])
+
+# input columns
+U_DELTA, U_VX, U_WF, U_AX = range(4)
+N_U = 4
+
+# measurement rows
+Z_YAW, Z_ROLL, Z_AY = range(3)
+N_Z = 3
+
+V_MIN = 1.0  # m/s, guards the slip-angle denominators
+SUBSTEPS = 4
+PARAM_FLOOR = np.array([1.0e3, 50.0, 50.0])  # keeps a wild sigma point physical
+
+
+@dataclass(frozen=True)
+class Known:
+    """Known constants of stage 2, including stage 1's results (SI)."""
+
+    m: float
+    L: float
+    r: float
+    k_phi: float
+    c_phi: float
+    l_f: float
+    h: float
+    C_K: float
+    g: float = 9.8
+
+    @property
+    def l_r(self) -> float:
+        return self.L - self.l_f
+
+
+def _front_fx(v_y, yaw, u, k: Known):
+    """NOTES 8: F_xf = C_K F_zf s_f with the wheel-frame speed of the front axle."""
+    d, v_x = u[..., U_DELTA], np.maximum(u[..., U_VX], V_MIN)
+    f_zf = k.m * k.g * k.l_r / k.L - k.m * u[..., U_AX] * k.h / k.L  # eq (3a)
+    v_w = np.maximum(v_x * np.cos(d) + (v_y + k.l_f * yaw) * np.sin(d), V_MIN)
+    s_f = u[..., U_WF] * k.r / v_w - 1.0  # eq (13)
+    return k.C_K * f_zf * s_f, v_w, f_zf
+
+
+def forces(x, u, k: Known):
+    """Lateral force terms: (front body-y force Y_f, rear F_yr, a_y)."""
+    d, v_x = u[..., U_DELTA], np.maximum(u[..., U_VX], V_MIN)
+    v_y, yaw = x[..., V_Y], x[..., YAW]
+    c_a = np.maximum(x[..., C_A], PARAM_FLOOR[0])
+    alpha_f = d - (v_y + k.l_f * yaw) / v_x  # eq (12a), corrected
+    alpha_r = -(v_y - k.l_r * yaw) / v_x  # eq (12b), corrected
+    f_xf, _, _ = _front_fx(v_y, yaw, u, k)
+    y_f = f_xf * np.sin(d) + c_a * alpha_f * np.cos(d)
+    f_yr = c_a * alpha_r
+    return y_f, f_yr, (y_f + f_yr) / k.m  # eq (7)
+
+
+def deriv(x, u, k: Known):
+    """Continuous-time dynamics x_dot = f(x, u), eqs (5), (8)-(10) corrected."""
+    v_x = np.maximum(u[..., U_VX], V_MIN)
+    y_f, f_yr, a_y = forces(x, u, k)
+    i_z = np.maximum(x[..., I_Z], PARAM_FLOOR[1])
+    i_x = np.maximum(x[..., I_X], PARAM_FLOOR[2])
+    phi, phi_d = x[..., PHI], x[..., PHI_D]
+    out = np.zeros(np.shape(x))
+    out[..., V_Y] = a_y - v_x * x[..., YAW]  # eq (5) corrected
+    out[..., YAW] = (k.l_f * y_f - k.l_r * f_yr) / i_z  # eqs (8), (10) corrected
+    out[..., PHI] = phi_d
+    out[..., PHI_D] = (k.m * k.h * (a_y + k.g * phi) - k.k_phi * phi - k.c_phi * phi_d) / i_x  # eq (9)
+    return out
+
+
+def fx(x, dt, u, k: Known, substeps: int = SUBSTEPS):
+    """Discrete transition: midpoint sub-steps for (v_y, yaw), trapezoidal for roll."""
+    x = np.array(x, dtype=float, copy=True)
+    h = dt / substeps
+    i_x = np.maximum(x[..., I_X], PARAM_FLOOR[2])
+    stiff = k.k_phi - k.m * k.g * k.h
+    # trapezoidal step matrix for [phi, phi_dot]: (I - h/2 A) x' = (I + h/2 A) x + h/2 (b + b')
+    a21, a22 = -stiff / i_x, -k.c_phi / i_x
+    m11, m12, m21, m22 = 1.0, -h / 2, -h / 2 * a21, 1.0 - h / 2 * a22
+    det = m11 * m22 - m12 * m21
+    for _ in range(substeps):
+        _, _, ay0 = forces(x, u, k)
+        d0 = deriv(x, u, k)
+        mid = x.copy()
+        mid[..., V_Y] += h / 2 * d0[..., V_Y]
+        mid[..., YAW] += h / 2 * d0[..., YAW]
+        d1 = deriv(mid, u, k)
+        new_vy = x[..., V_Y] + h * d1[..., V_Y]
+        new_yaw = x[..., YAW] + h * d1[..., YAW]
+        nxt = x.copy()
+        nxt[..., V_Y], nxt[..., YAW] = new_vy, new_yaw
+        _, _, ay1 = forces(nxt, u, k)
+        phi, phi_d = x[..., PHI], x[..., PHI_D]
+        b = k.m * k.h * (ay0 + ay1) / i_x * (h / 2)  # forcing of phi_dot, averaged
+        r1 = phi + h / 2 * phi_d
+        r2 = phi_d + h / 2 * (a21 * phi + a22 * phi_d) + b
+        nxt[..., PHI] = (m22 * r1 - m12 * r2) / det
+        nxt[..., PHI_D] = (m11 * r2 - m21 * r1) / det
+        x = nxt
+    return x
+
+
+def hx(x, u, k: Known):
+    """Measurements: yaw-rate gyro, roll-rate gyro, lateral accelerometer (eq 7)."""
+    _, _, a_y = forces(x, u, k)
+    return np.stack([x[..., YAW], x[..., PHI_D], a_y], axis=-1)
+
+
+def _dforces(x, u, k: Known):
+    """Gradients of (Y_f, F_yr) with respect to the state (single state only)."""
+    d, v_x = u[U_DELTA], max(u[U_VX], V_MIN)
+    v_y, yaw, c_a = x[V_Y], x[YAW], max(x[C_A], PARAM_FLOOR[0])
+    alpha_f = d - (v_y + k.l_f * yaw) / v_x
+    alpha_r = -(v_y - k.l_r * yaw) / v_x
+    f_xf, v_w, f_zf = _front_fx(v_y, yaw, u, k)
+    sd, cd = np.sin(d), np.cos(d)
+    # d F_xf / d v_w through s_f = omega r / v_w - 1 (zero where v_w is clamped)
+    dfx_dvw = -k.C_K * f_zf * u[U_WF] * k.r / v_w**2 if v_w > V_MIN else 0.0
+    dyf = np.zeros(7)
+    dyf[V_Y] = dfx_dvw * sd * sd + c_a * (-1.0 / v_x) * cd
+    dyf[YAW] = dfx_dvw * k.l_f * sd * sd + c_a * (-k.l_f / v_x) * cd
+    dyf[C_A] = alpha_f * cd if x[C_A] > PARAM_FLOOR[0] else 0.0
+    dfr = np.zeros(7)
+    dfr[V_Y] = -c_a / v_x
+    dfr[YAW] = c_a * k.l_r / v_x
+    dfr[C_A] = alpha_r if x[C_A] > PARAM_FLOOR[0] else 0.0
+    return dyf, dfr
+
+
+def jac_f(x, u, k: Known):
+    """A = d deriv / d x, analytic (the paper's eqs (25)-(27) have typos; NOTES 7)."""
+    x = np.asarray(x, dtype=float)
+    v_x = max(u[U_VX], V_MIN)
+    dyf, dfr = _dforces(x, u, k)
+    day = (dyf + dfr) / k.m
+    f = deriv(x, u, k)
+    i_z, i_x = max(x[I_Z], PARAM_FLOOR[1]), max(x[I_X], PARAM_FLOOR[2])
+    A = np.zeros((7, 7))
+    A[V_Y] = day
+    A[V_Y, YAW] -= v_x
+    A[YAW] = (k.l_f * dyf - k.l_r * dfr) / i_z
+    if x[I_Z] > PARAM_FLOOR[1]:
+        A[YAW, I_Z] = -f[YAW] / i_z
+    A[PHI, PHI_D] = 1.0
+    A[PHI_D] = k.m * k.h * day / i_x
+    A[PHI_D, PHI] += (k.m * k.g * k.h - k.k_phi) / i_x
+    A[PHI_D, PHI_D] += -k.c_phi / i_x
+    if x[I_X] > PARAM_FLOOR[2]:
+        A[PHI_D, I_X] = -f[PHI_D] / i_x
+    return A
+
+
+def jac_h(x, u, k: Known):
+    """H = d hx / d x, analytic."""
+    dyf, dfr = _dforces(np.asarray(x, dtype=float), u, k)
+    H = np.zeros((3, 7))
+    H[Z_YAW, YAW] = 1.0
+    H[Z_ROLL, PHI_D] = 1.0
+    H[Z_AY] = (dyf + dfr) / k.m
+    return H

@@ -1,0 +1,335 @@
+"""Learners: one per stage and filter kind, with openpilot's interface.
+
+``handle(t, sample)`` feeds one aligned sample (only inside the stage's
+window), ``snapshot()`` publishes value, std, validity and status per
+parameter, ``reset()`` returns to the priors.  A non-finite state or a failed
+Cholesky resets the stage to its last good estimate and says so; it never
+raises.
+
+Convergence and identifiability are judged on the filter's own uncertainty,
+never on a truth value:
+
+- ``converged``: std below the parameter's ``converged_std``;
+- ``not_identifiable``: after ``min_samples`` in windows the data has not even
+  halved the prior std (NOTES 12), so the number is the prior's, not the data's;
+- ``uncertain``: in between.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import channels as ch
+from ..errors import FilterError
+from . import lateral, longitudinal
+from .filters import EKF, UKF
+from .params import BY_NAME, STAGE1, STAGE2
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Noise:
+    """Measurement noise (1-sigma, SI) assumed by the filters."""
+
+    wheel_speed: float = 0.03  # rad/s, per wheel
+    accel: float = 0.05  # m/s^2
+    gyro: float = math.radians(0.1)  # rad/s
+    speed: float = 0.05  # m/s, GNSS
+    # model error added on top, as a fraction of the sensor noise
+    inflate: float = 1.5
+
+
+@dataclass(frozen=True)
+class LearnerConfig:
+    noise: Noise = field(default_factory=Noise)
+    max_gap: float = 0.05  # s; a longer step restarts the dynamic states
+    min_samples: int = 500  # samples in windows before identifiability is judged
+    save_every: int = 50  # keep a "last good" copy this often
+    # random walk of the parameters, std per sqrt(s), as a fraction of the prior std
+    param_walk: float = 1e-4
+
+
+@dataclass
+class Estimate:
+    name: str
+    value: float | None
+    std: float | None
+    unit: str
+    valid: bool
+    stage: int
+    samples: int
+    status: str  # not_run | uncertain | converged | not_identifiable | invalid
+
+    def as_dict(self) -> dict:
+        return {"value": self.value, "std": self.std, "unit": self.unit, "valid": self.valid,
+                "stage": self.stage, "samples": self.samples, "status": self.status}
+
+
+def _finite(v) -> float | None:
+    return float(v) if v is not None and math.isfinite(v) else None
+
+
+class StageLearner:
+    """Common machinery: filter life cycle, last-good copies, snapshot."""
+
+    stage = 0
+    names: tuple[str, ...] = ()
+    model = None
+
+    def __init__(self, kind: str, vehicle, priors, cfg: LearnerConfig | None = None):
+        self.kind = kind
+        self.vehicle = vehicle
+        self.priors = priors
+        self.cfg = cfg or LearnerConfig()
+        self.resets = 0
+        self.last_error: str | None = None
+        self.reset()
+
+    # -- interface -----------------------------------------------------
+    def reset(self) -> None:
+        p = self.model.PARAM_SLICE
+        n = len(self.model.STATE_NAMES)
+        self.theta = np.array([self.priors[k].value for k in self.names])
+        self.theta_P = np.diag([self.priors[k].std ** 2 for k in self.names])
+        self.prior_std = np.array([self.priors[k].std for k in self.names])
+        self.filter = None
+        self.samples = 0
+        self.t_last: float | None = None
+        self._good = (self.theta.copy(), self.theta_P.copy())
+        self._n, self._p = n, p
+
+    def handle(self, t: float, s) -> None:
+        try:
+            self._step(t, s)
+        except FilterError as exc:
+            self._recover(str(exc))
+
+    def end_window(self) -> None:
+        """Close the window: keep the parameters, drop the dynamic states."""
+        if self.filter is not None:
+            self._keep_params()
+        self.filter = None
+        self.t_last = None
+
+    def snapshot(self) -> dict[str, Estimate]:
+        if self.filter is not None:
+            x, P = self.filter.x, self.filter.P
+            theta, cov = x[self._p], P[self._p, self._p]
+        else:
+            theta, cov = self.theta, self.theta_P
+        out = {}
+        for i, name in enumerate(self.names):
+            spec = BY_NAME[name]
+            value = float(theta[i])
+            std = math.sqrt(cov[i, i]) if cov[i, i] > 0 else math.nan
+            if self.samples == 0:
+                status = "not_run"
+            elif not (math.isfinite(value) and math.isfinite(std)) or not (spec.lo <= value <= spec.hi):
+                status = "invalid"
+            elif std <= spec.converged_std:
+                status = "converged"
+            elif self.samples >= self.cfg.min_samples and std > 0.5 * self.prior_std[i]:
+                status = "not_identifiable"
+            else:
+                status = "uncertain"
+            out[name] = Estimate(name, _finite(value), _finite(std), spec.unit, status == "converged",
+                                 self.stage, self.samples, status)
+        return out
+
+    def converged(self) -> bool:
+        return all(e.valid for e in self.snapshot().values())
+
+    # -- machinery -----------------------------------------------------
+    def _keep_params(self) -> None:
+        x, P = self.filter.x, self.filter.P
+        self.theta = x[self._p].copy()
+        self.theta_P = P[self._p, self._p].copy()
+
+    def _recover(self, why: str) -> None:
+        self.resets += 1
+        self.last_error = why
+        log.warning("stage %d %s diverged (%s); reset to the last good estimate", self.stage, self.kind, why)
+        self.theta, self.theta_P = self._good[0].copy(), self._good[1].copy()
+        self.filter = None
+        self.t_last = None
+
+    def _save_good(self) -> None:
+        x, P = self.filter.x, self.filter.P
+        theta, cov = x[self._p], P[self._p, self._p]
+        in_range = all(BY_NAME[n].lo <= v <= BY_NAME[n].hi for n, v in zip(self.names, theta))
+        if in_range and np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov) > 0):
+            self._good = (theta.copy(), cov.copy())
+
+    def _q_rate(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def _new_filter(self, x0, P0, R):
+        m = self.model
+        Q = self._q_rate()
+        fx = self._fx
+        hx = self._hx
+        if self.kind == "ukf":
+            return UKF(x0, P0, Q, R, m.SCALE, fx, hx)
+        return EKF(x0, P0, Q, R, m.SCALE, fx, hx, self._jac_f, self._jac_h)
+
+    def _param_q(self) -> np.ndarray:
+        return (self.cfg.param_walk * self.prior_std) ** 2
+
+
+class Stage1(StageLearner):
+    """Longitudinal stage: l_f, h, C_K with v_x as a state (core.longitudinal)."""
+
+    stage = 1
+    names = STAGE1
+    model = longitudinal
+
+    def reset(self) -> None:
+        v = self.vehicle
+        self.known = longitudinal.Known(m=v.mass, L=v.wheelbase, r=v.wheel_radius, J=v.wheel_inertia, g=v.g)
+        super().reset()
+
+    def _fx(self, x, dt, u):
+        return longitudinal.fx(x, dt, u, self.known)
+
+    def _hx(self, x, u):
+        return longitudinal.hx(x, u, self.known)
+
+    def _jac_f(self, x, u):
+        return np.zeros((4, 4))  # continuous A: v_x_dot = a_x does not depend on x
+
+    def _jac_h(self, x, u):
+        return longitudinal.jac_h(x, u, self.known)
+
+    def _q_rate(self):
+        n = self.cfg.noise
+        return np.diag(np.concatenate([[(2.0 * n.accel) ** 2 * 0.01], self._param_q()]))
+
+    def _R(self):
+        n = self.cfg.noise
+        w = (n.wheel_speed * n.inflate) ** 2 / 2.0  # mean of the two wheels of an axle
+        return np.diag([w, w, (n.speed * n.inflate) ** 2])
+
+    @staticmethod
+    def inputs(s):
+        y = s.values
+        u = np.array([y[ch.T_F], y[ch.T_R], y[ch.AX]])
+        z = np.array([0.5 * (y[ch.WS_FL] + y[ch.WS_FR]), 0.5 * (y[ch.WS_RL] + y[ch.WS_RR]), y[ch.SPEED]])
+        # GNSS speed is for its own time: carry it to the tick with a_x
+        z[2] = z[2] + y[ch.AX] * s.age[ch.SPEED] if math.isfinite(s.age[ch.SPEED]) else math.nan
+        mask = np.isfinite(z)
+        mask[2] &= bool(s.fresh[ch.SPEED])
+        return u, z, mask
+
+    def _step(self, t, s):
+        u, z, mask = self.inputs(s)
+        if not np.all(np.isfinite(u)):
+            self.end_window()
+            return
+        dt = None if self.t_last is None else t - self.t_last
+        if self.filter is None or s.gap or dt is None or dt <= 0 or dt > self.cfg.max_gap:
+            if self.filter is not None:
+                self._keep_params()
+            v0 = z[2] if mask[2] else z[1] * self.known.r if mask[1] else math.nan
+            if not math.isfinite(v0):
+                return
+            x0 = np.concatenate([[v0], self.theta])
+            P0 = np.zeros((4, 4))
+            P0[0, 0] = 0.2 ** 2
+            P0[1:, 1:] = self.theta_P
+            self.filter = self._new_filter(x0, P0, self._R())
+            self.t_last = t
+            return
+        self.filter.predict(dt, u)
+        self.filter.update(z, mask, u)
+        self.t_last = t
+        self.samples += 1
+        if self.samples % self.cfg.save_every == 0:
+            self._save_good()
+
+
+class Stage2(StageLearner):
+    """Single track with roll: C_alpha, I_z, I_x with v_y, yaw rate, phi, phi_dot as states."""
+
+    stage = 2
+    names = STAGE2
+    model = lateral
+
+    def reset(self) -> None:
+        self.known = None
+        super().reset()
+
+    def set_stage1(self, l_f: float, h: float, c_k: float) -> None:
+        v = self.vehicle
+        self.known = lateral.Known(m=v.mass, L=v.wheelbase, r=v.wheel_radius, k_phi=v.roll_stiffness,
+                                   c_phi=v.roll_damping, l_f=l_f, h=h, C_K=c_k, g=v.g)
+
+    def _fx(self, x, dt, u):
+        return lateral.fx(x, dt, u, self.known)
+
+    def _hx(self, x, u):
+        return lateral.hx(x, u, self.known)
+
+    def _jac_f(self, x, u):
+        return lateral.jac_f(x, u, self.known)
+
+    def _jac_h(self, x, u):
+        return lateral.jac_h(x, u, self.known)
+
+    def _q_rate(self):
+        n = self.cfg.noise
+        # dynamic states: model error (yaw/lateral) and a_y noise driving v_y
+        dyn = [(0.05) ** 2, (0.02) ** 2, (1e-4) ** 2, (0.005) ** 2]
+        return np.diag(np.concatenate([dyn, self._param_q()]))
+
+    def _R(self):
+        n = self.cfg.noise
+        g, a = (n.gyro * n.inflate) ** 2, (n.accel * n.inflate) ** 2
+        return np.diag([g, g, a])
+
+    def inputs(self, s):
+        y = s.values
+        v_x = y[ch.SPEED]
+        # the rear wheels give a smoother v_x than GNSS: omega r / (1 + s_r), eqs (13)-(14)
+        w_r = 0.5 * (y[ch.WS_RL] + y[ch.WS_RR])
+        k = self.known
+        if math.isfinite(w_r) and math.isfinite(y[ch.T_R]) and math.isfinite(y[ch.AX]):
+            f_zr = k.m * k.g * k.l_f / k.L + k.m * y[ch.AX] * k.h / k.L
+            s_r = (y[ch.T_R] / k.r) / (k.C_K * max(f_zr, 0.05 * k.m * k.g))
+            v_x = w_r * k.r / (1.0 + s_r)
+        w_f = 0.5 * (y[ch.WS_FL] + y[ch.WS_FR])
+        u = np.array([y[ch.DELTA], v_x, w_f, y[ch.AX]])
+        z = np.array([y[ch.YAW], y[ch.ROLL], y[ch.AY]])
+        return u, z, np.isfinite(z)
+
+    def _step(self, t, s):
+        if self.known is None:
+            return
+        u, z, mask = self.inputs(s)
+        if not np.all(np.isfinite(u)):
+            self.end_window()
+            return
+        dt = None if self.t_last is None else t - self.t_last
+        if self.filter is None or s.gap or dt is None or dt <= 0 or dt > self.cfg.max_gap:
+            if self.filter is not None:
+                self._keep_params()
+            yaw = z[0] if mask[0] else 0.0
+            roll_rate = z[1] if mask[1] else 0.0
+            # v_y from steady-state kinematics is unknown: start at 0 with a wide std
+            x0 = np.concatenate([[0.0, yaw, 0.0, roll_rate], self.theta])
+            P0 = np.zeros((7, 7))
+            P0[:4, :4] = np.diag([0.5 ** 2, 0.02 ** 2, 0.01 ** 2, 0.02 ** 2])
+            P0[4:, 4:] = self.theta_P
+            self.filter = self._new_filter(x0, P0, self._R())
+            self.t_last = t
+            return
+        self.filter.predict(dt, u)
+        self.filter.update(z, mask, u)
+        self.t_last = t
+        self.samples += 1
+        if self.samples % self.cfg.save_every == 0:
+            self._save_good()
