@@ -39,6 +39,10 @@ class Sample:
     fresh: np.ndarray
     age: np.ndarray
     gap: bool = False  # the first tick after a gap or a clock jump
+    # filled in by the estimator's speed filter (GNSS + IMU)
+    v_x: float = math.nan
+    v_std: float = math.nan
+    ax_bias: float = 0.0
 
 
 class Aligner:

@@ -12,8 +12,12 @@ import logging
 from collections import deque
 from dataclasses import dataclass, field
 
+import math
+
+from .. import channels as ch
 from .learner import LearnerConfig, Stage1, Stage2
 from .params import NAMES
+from .speed import SpeedConfig, SpeedFilter
 from .supervisor import GateConfig, Supervisor
 
 log = logging.getLogger(__name__)
@@ -23,6 +27,7 @@ log = logging.getLogger(__name__)
 class EstimatorConfig:
     learner: LearnerConfig = field(default_factory=LearnerConfig)
     gate: GateConfig = field(default_factory=GateConfig)
+    speed: SpeedConfig = field(default_factory=SpeedConfig)
     baseline: bool = True  # run the EKF baseline beside the UKF
     trace_every: float = 0.1  # s between trace points (for plots and history)
     trace_len: int | None = None  # None keeps all (replay); live service bounds it
@@ -36,7 +41,8 @@ class TwoStageEstimator:
         kinds = ("ukf", "ekf") if self.cfg.baseline else ("ukf",)
         self.s1 = {k: Stage1(k, vehicle, priors, self.cfg.learner) for k in kinds}
         self.s2 = {k: Stage2(k, vehicle, priors, self.cfg.learner) for k in kinds}
-        self.supervisor = Supervisor(self.cfg.gate)
+        self.supervisor = Supervisor(self.cfg.gate, wheel_radius=vehicle.wheel_radius)
+        self.speed = SpeedFilter(self.cfg.speed)
         self.trace: deque = deque(maxlen=self.cfg.trace_len)
         self._next_trace = None
         self.handover_t: float | None = None
@@ -45,6 +51,7 @@ class TwoStageEstimator:
     # -- learner interface ---------------------------------------------
     def handle(self, t: float, s) -> None:
         self.t = t
+        self._speed(t, s)
         done = self.handover_t is not None
         stage = self.supervisor.update(t, s, done)
         for kind in self.s1:
@@ -66,6 +73,19 @@ class TwoStageEstimator:
         if self._next_trace is None or t >= self._next_trace:
             self._next_trace = t + self.cfg.trace_every
             self.trace.append(self._trace_row(t, stage))
+
+    def _speed(self, t: float, s) -> None:
+        """Run the GNSS + IMU speed filter and attach v_x, its std and the a_x bias to the sample."""
+        y = s.values
+        ax = y[ch.AX]
+        gnss = None
+        if s.fresh[ch.SPEED] and math.isfinite(y[ch.SPEED]):
+            # the GNSS speed belongs to its own time: carry it to the tick with a_x
+            gnss = y[ch.SPEED] + (ax * s.age[ch.SPEED] if math.isfinite(ax) else 0.0)
+        if s.gap:
+            self.speed.reset()
+        self.speed.step(t, ax, gnss)
+        s.v_x, s.v_std, s.ax_bias = self.speed.v, self.speed.std, self.speed.bias
 
     def reset(self, stage: int | None = None) -> None:
         """Clear one stage (1 or 2) or both (None)."""

@@ -120,12 +120,13 @@ class UKF(JointFilter):
             raise FilterError(f"ukf predict: {exc}") from None
         self._check()
 
-    def update(self, z, mask, u) -> None:
+    def update(self, z, mask, u, R=None) -> None:
         mask = np.asarray(mask, dtype=bool)
         if not mask.any():
             return
+        R = self.R if R is None else R
         try:
-            self._f.update_masked(np.asarray(z)[mask], self.R[np.ix_(mask, mask)], mask, u=u)
+            self._f.update_masked(np.asarray(z)[mask], R[np.ix_(mask, mask)], mask, u=u)
         except (LinAlgError, ValueError, FloatingPointError) as exc:
             raise FilterError(f"ukf update: {exc}") from None
         self._check()
@@ -172,10 +173,11 @@ class EKF(JointFilter):
             raise FilterError(f"ekf predict: {exc}") from None
         self._check()
 
-    def update(self, z, mask, u) -> None:
+    def update(self, z, mask, u, R=None) -> None:
         mask = np.asarray(mask, dtype=bool)
         if not mask.any():
             return
+        R = self.R if R is None else R
 
         def H(xs):
             return (self._jac_h(xs * self.scale, u) * self.scale[None, :])[mask]
@@ -184,7 +186,7 @@ class EKF(JointFilter):
             return self._hx_s(xs, u)[mask]
 
         try:
-            self._f.update(np.asarray(z)[mask], H, h, R=self.R[np.ix_(mask, mask)])
+            self._f.update(np.asarray(z)[mask], H, h, R=R[np.ix_(mask, mask)])
         except (LinAlgError, ValueError, FloatingPointError) as exc:
             raise FilterError(f"ekf update: {exc}") from None
         self._check()

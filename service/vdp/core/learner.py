@@ -52,6 +52,9 @@ class LearnerConfig:
     save_every: int = 50  # keep a "last good" copy this often
     # random walk of the parameters, std per sqrt(s), as a fraction of the prior std
     param_walk: float = 1e-4
+    # the speed error is correlated over many samples; inflate its std for the filter
+    speed_corr: float = 20.0
+    block: int = 5  # stage 1 averages this many samples per filter step
 
 
 @dataclass
@@ -182,7 +185,7 @@ class StageLearner:
 
 
 class Stage1(StageLearner):
-    """Longitudinal stage: l_f, h, C_K with v_x as a state (core.longitudinal)."""
+    """Longitudinal stage: l_f, h, C_K, a parameter-only filter (Table 4, core.longitudinal)."""
 
     stage = 1
     names = STAGE1
@@ -192,6 +195,8 @@ class Stage1(StageLearner):
         v = self.vehicle
         self.known = longitudinal.Known(m=v.mass, L=v.wheelbase, r=v.wheel_radius, J=v.wheel_inertia, g=v.g)
         super().reset()
+        self._acc: list = []
+        self.filter = self._new_filter(self.theta, self.theta_P, self._R0())
 
     def _fx(self, x, dt, u):
         return longitudinal.fx(x, dt, u, self.known)
@@ -200,55 +205,60 @@ class Stage1(StageLearner):
         return longitudinal.hx(x, u, self.known)
 
     def _jac_f(self, x, u):
-        return np.zeros((4, 4))  # continuous A: v_x_dot = a_x does not depend on x
+        return np.zeros((3, 3))  # parameters: a random walk
 
     def _jac_h(self, x, u):
         return longitudinal.jac_h(x, u, self.known)
 
     def _q_rate(self):
-        n = self.cfg.noise
-        return np.diag(np.concatenate([[(2.0 * n.accel) ** 2 * 0.01], self._param_q()]))
+        return np.diag(self._param_q())
 
-    def _R(self):
+    def _R0(self):
         n = self.cfg.noise
-        w = (n.wheel_speed * n.inflate) ** 2 / 2.0  # mean of the two wheels of an axle
-        return np.diag([w, w, (n.speed * n.inflate) ** 2])
+        return np.eye(2) * (n.wheel_speed * n.inflate) ** 2 / 2.0  # mean of the two wheels of an axle
+
+    def _R(self, u):
+        """Wheel noise plus the speed's error, common to both axles (rank-one term)."""
+        c = longitudinal.speed_sensitivity(self.filter.x, u, self.known)
+        n = self.cfg.block
+        # averaging n samples shrinks the wheel noise, not the slowly varying speed error
+        corr = self.cfg.speed_corr / math.sqrt(n)
+        return self._R0() / n + np.outer(c, c) * (u[longitudinal.U_VX_STD] * corr) ** 2
 
     @staticmethod
     def inputs(s):
         y = s.values
-        u = np.array([y[ch.T_F], y[ch.T_R], y[ch.AX]])
-        z = np.array([0.5 * (y[ch.WS_FL] + y[ch.WS_FR]), 0.5 * (y[ch.WS_RL] + y[ch.WS_RR]), y[ch.SPEED]])
-        # GNSS speed is for its own time: carry it to the tick with a_x
-        z[2] = z[2] + y[ch.AX] * s.age[ch.SPEED] if math.isfinite(s.age[ch.SPEED]) else math.nan
-        mask = np.isfinite(z)
-        mask[2] &= bool(s.fresh[ch.SPEED])
-        return u, z, mask
+        u = np.array([y[ch.T_F], y[ch.T_R], y[ch.AX] - s.ax_bias, s.v_x, s.v_std])
+        z = np.array([0.5 * (y[ch.WS_FL] + y[ch.WS_FR]), 0.5 * (y[ch.WS_RL] + y[ch.WS_RR])])
+        return u, z, np.isfinite(z)
+
+    def end_window(self) -> None:
+        self.t_last = None  # parameter-only: nothing dynamic to drop
+        self._acc = []
 
     def _step(self, t, s):
         u, z, mask = self.inputs(s)
-        if not np.all(np.isfinite(u)):
-            self.end_window()
+        if not (np.all(np.isfinite(u)) and mask.all()):
             return
-        dt = None if self.t_last is None else t - self.t_last
-        if self.filter is None or s.gap or dt is None or dt <= 0 or dt > self.cfg.max_gap:
-            if self.filter is not None:
-                self._keep_params()
-            v0 = z[2] if mask[2] else z[1] * self.known.r if mask[1] else math.nan
-            if not math.isfinite(v0):
-                return
-            x0 = np.concatenate([[v0], self.theta])
-            P0 = np.zeros((4, 4))
-            P0[0, 0] = 0.2 ** 2
-            P0[1:, 1:] = self.theta_P
-            self.filter = self._new_filter(x0, P0, self._R())
-            self.t_last = t
-            return
-        self.filter.predict(dt, u)
-        self.filter.update(z, mask, u)
+        if self.t_last is not None and t - self.t_last > self.cfg.max_gap:
+            self._acc = []
         self.t_last = t
         self.samples += 1
-        if self.samples % self.cfg.save_every == 0:
+        # Block averages of inputs and measurements: the torque noise is input
+        # noise, and averaging it before the filter keeps its errors-in-variables
+        # bias on C_K small (the relation is close to linear over 50 ms).
+        self._acc.append((u, z))
+        if len(self._acc) < self.cfg.block:
+            return
+        u = np.mean([a[0] for a in self._acc], axis=0)
+        z = np.mean([a[1] for a in self._acc], axis=0)
+        dt = 0.01 * len(self._acc)
+        self._acc = []
+        if self.filter is None:
+            self.filter = self._new_filter(self.theta, self.theta_P, self._R0())
+        self.filter.predict(dt, u)
+        self.filter.update(z, mask, u, R=self._R(u))
+        if self.samples % self.cfg.save_every < self.cfg.block:
             self._save_good()
 
 

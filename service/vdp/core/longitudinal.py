@@ -1,11 +1,9 @@
-"""Stage 1: the longitudinal model, eqs (1)-(3), (13), (14), as a joint state-parameter model.
+"""Stage 1: the longitudinal model, eqs (1)-(3), (13), (14), for a parameter-only filter.
 
-Filter state (SI units)::
-
-    x = [v_x, l_f, h, C_K]
-
-Inputs ``u`` (one row per step, columns below) and measurements
-``z = [omega_f, omega_r, v_gnss]`` (axle wheel speeds in rad/s, GNSS speed).
+Filter state: the parameters ``x = [l_f, h, C_K]`` (a random walk, Table 4).
+Inputs ``u = [T_f, T_r, a_x, v_x]``: axle torques, IMU a_x, and v_x from the
+speed filter (:mod:`vdp.core.speed`, GNSS + IMU).  Measurements
+``z = [omega_f, omega_r]``: the axle wheel speeds [rad/s].
 
 The wheel spin dynamics (eq 2) are stiff: tau = J v / (r^2 C_K F_z) is about
 1 ms at 10 m/s, far below the 10 ms logging period (NOTES item 10).  Instead of
@@ -13,11 +11,13 @@ propagating omega with forward Euler, the wheel speed is an algebraic output:
 the quasi-static torque balance of eq (2) gives the tyre force
 ``F_x = (T - J*omega_dot)/r`` with ``omega_dot ~= a_x / r``, eq (14) gives the slip
 ``s = F_x / (C_K F_z)``, and eq (13) inverted gives ``omega = v_x (1 + s) / r``.
-Only v_x is propagated, by the measured a_x (eq 1 with the IMU's a_x).
 
-This departs from the paper's parameter-only filter (Table 4, eq 15), which
-predicts measured states from measured states and so differentiates noisy wheel
-speeds; keeping v_x as a state lets GNSS and the wheels average each other.
+v_x is deliberately *not* estimated from the wheel speeds here: a speed that
+has seen the wheels carries their torque-noise-driven innovations back into
+the slip and biases C_K upward (errors in variables).  GNSS + IMU give a v_x
+whose error is independent of the torques; its std enters R as a noise common
+to both axles, so C_K (common mode) is trusted less than l_f and h (the
+front/rear difference).
 
 All functions broadcast over leading axes, so a whole set of sigma points is
 evaluated in one call.
@@ -30,20 +30,20 @@ from dataclasses import dataclass
 import numpy as np
 
 # state indices
-V_X, L_F, H, C_K = range(4)
-STATE_NAMES = ("v_x", "l_f", "h", "C_K")
-STATE_UNITS = ("m/s", "m", "m", "1")
-PARAM_SLICE = slice(1, 4)
+L_F, H, C_K = range(3)
+STATE_NAMES = ("l_f", "h", "C_K")
+STATE_UNITS = ("m", "m", "1")
+PARAM_SLICE = slice(0, 3)
 # typical magnitudes: the filter works in x / SCALE for a well-conditioned covariance
-SCALE = np.array([10.0, 1.0, 1.0, 10.0])
+SCALE = np.array([1.0, 1.0, 10.0])
 
 # input columns
-U_TF, U_TR, U_AX = range(3)
-N_U = 3
+U_TF, U_TR, U_AX, U_VX, U_VX_STD = range(5)
+N_U = 5
 
 # measurement rows
-Z_WF, Z_WR, Z_V = range(3)
-N_Z = 3
+Z_WF, Z_WR = range(2)
+N_Z = 2
 
 MIN_LOAD_FRACTION = 0.05  # clamp F_z so a wild sigma point cannot divide by ~0
 
@@ -85,28 +85,27 @@ def slips(x, u, k: Known):
 
 
 def fx(x, dt, u, k: Known):
-    """Transition: v_x integrates a_x (eq 1); parameters are a random walk (Table 4)."""
-    out = np.array(x, dtype=float, copy=True)
-    out[..., V_X] = x[..., V_X] + dt * u[..., U_AX]
-    return out
+    """Transition: the parameters are a random walk (Table 4); the noise is in Q."""
+    return np.array(x, dtype=float, copy=True)
 
 
 def hx(x, u, k: Known):
-    """Measurement: eq (13) inverted for both axles, and the GNSS speed."""
+    """Measurement: eq (13) inverted for both axles."""
     s_f, s_r = slips(x, u, k)
-    v = x[..., V_X]
-    return np.stack([v * (1.0 + s_f) / k.r, v * (1.0 + s_r) / k.r, v], axis=-1)
+    v = u[..., U_VX]
+    return np.stack([v * (1.0 + s_f) / k.r, v * (1.0 + s_r) / k.r], axis=-1)
 
 
-def jac_f(x, dt, u, k: Known):
-    """d fx / d x: v_x does not depend on the state, so it is the identity."""
-    return np.eye(4)
+def speed_sensitivity(x, u, k: Known) -> np.ndarray:
+    """d omega / d v_x for both axles: how an error of v_x moves both measurements."""
+    s_f, s_r = slips(x, u, k)
+    return np.array([(1.0 + s_f) / k.r, (1.0 + s_r) / k.r])
 
 
 def jac_h(x, u, k: Known):
     """d hx / d x, analytic (replaces the paper's eqs (20)-(21), which have typos; NOTES 7)."""
-    v, l_f, h, c_k = x[V_X], x[L_F], x[H], x[C_K]
-    a_x = u[U_AX]
+    l_f, h, c_k = x[L_F], x[H], x[C_K]
+    a_x, v = u[U_AX], u[U_VX]
     f_zf, f_zr = axle_loads(l_f, h, a_x, k)
     s_f, s_r = slips(x, u, k)
     mg_l = k.m * k.g / k.L
@@ -114,16 +113,12 @@ def jac_h(x, u, k: Known):
     free_f = f_zf > MIN_LOAD_FRACTION * k.m * k.g
     free_r = f_zr > MIN_LOAD_FRACTION * k.m * k.g
     # d s / d F_z = -s / F_z ; d s / d C_K = -s / C_K
-    dsf_dfz, dsr_dfz = -s_f / f_zf, -s_r / f_zr
     dfzf = np.array([-mg_l, -ma_l]) * free_f  # d F_zf / d (l_f, h)
     dfzr = np.array([mg_l, ma_l]) * free_r
     g = v / k.r
-    out = np.zeros((3, 4))
-    out[Z_WF, V_X] = (1.0 + s_f) / k.r
-    out[Z_WF, L_F:C_K] = g * dsf_dfz * dfzf
+    out = np.zeros((2, 3))
+    out[Z_WF, L_F:C_K] = g * (-s_f / f_zf) * dfzf
     out[Z_WF, C_K] = -g * s_f / c_k
-    out[Z_WR, V_X] = (1.0 + s_r) / k.r
-    out[Z_WR, L_F:C_K] = g * dsr_dfz * dfzr
+    out[Z_WR, L_F:C_K] = g * (-s_r / f_zr) * dfzr
     out[Z_WR, C_K] = -g * s_r / c_k
-    out[Z_V, V_X] = 1.0
     return out

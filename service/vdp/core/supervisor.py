@@ -62,6 +62,7 @@ class Supervisor:
     cfg: GateConfig = field(default_factory=GateConfig)
     stage1_needs: tuple[int, ...] = tuple(ch.INDEX[n] for n in ch.STAGE1_NEEDS)
     stage2_needs: tuple[int, ...] = tuple(ch.INDEX[n] for n in ch.STAGE2_NEEDS)
+    wheel_radius: float = 0.3
 
     def __post_init__(self):
         self.reset()
@@ -94,9 +95,9 @@ class Supervisor:
             self._d_sq += k * (d * d - self._d_sq)
             self._yaw_sq += k * (yaw * yaw - self._yaw_sq)
         c = self.cfg
-        speed = y[ch.SPEED]
+        speed = s.v_x if math.isfinite(s.v_x) else y[ch.SPEED]
         if not math.isfinite(speed):
-            speed = 0.5 * (y[ch.WS_RL] + y[ch.WS_RR]) * 0.3 if math.isfinite(y[ch.WS_RL]) else math.nan
+            speed = 0.5 * (y[ch.WS_RL] + y[ch.WS_RR]) * self.wheel_radius
 
         r1 = self._why1(y, speed, c)
         r2 = self._why2(y, speed, c, stage1_done)
