@@ -101,3 +101,14 @@ def test_stage1_slip_sign_follows_torque():
     assert w[0] > 20 / 0.3 and w[1] > 20 / 0.3  # driving: wheels faster than the car
     w = longitudinal.hx(x, np.array([-800.0, -500.0, -1.0, 20.0, 0.01]), K1)
     assert w[0] < 20 / 0.3 and w[1] < 20 / 0.3
+
+
+def test_ekf_transition_matches_matrix_exponential():
+    from scipy.linalg import expm
+
+    from vdp.core.filters import transition
+
+    x = np.array([0.1, 0.3, 0.002, 0.01, 6.69e4, 2000.0, 4175.0])
+    u = np.array([0.05, 10.0, 10.0 / 0.3, 0.0])
+    A = lateral.jac_f(x, u, K2)
+    np.testing.assert_allclose(transition(A, 0.01), expm(A * 0.01), rtol=1e-3, atol=1e-6)

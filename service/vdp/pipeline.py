@@ -42,9 +42,12 @@ class Pipeline:
     def _stale_after(self) -> np.ndarray:
         out = np.full(channels.N, 0.1)
         for name, cm in self.profile.channels.items():
-            period = self.decoder.period(cm.message)
-            if period:
-                out[channels.INDEX[name]] = max(STALE_PERIODS * period, 0.05)
+            try:
+                cycle_ms = self.decoder.db.get_message_by_name(cm.message).cycle_time
+            except KeyError:
+                cycle_ms = None
+            if cycle_ms:
+                out[channels.INDEX[name]] = max(STALE_PERIODS * cycle_ms / 1000.0, 0.05)
         return out
 
     def capabilities(self) -> dict[str, str | None]:

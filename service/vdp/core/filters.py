@@ -17,7 +17,7 @@ from typing import Callable
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
 from filterpy.kalman import unscented_transform
-from scipy.linalg import LinAlgError, expm
+from scipy.linalg import LinAlgError
 
 from ..errors import FilterError
 
@@ -137,6 +137,19 @@ class UKF(JointFilter):
             raise FilterError(f"ukf covariance not positive definite: {exc}") from None
 
 
+def transition(A: np.ndarray, dt: float) -> np.ndarray:
+    """exp(A dt) by eight third-order Taylor steps (see EKF)."""
+    n = len(A)
+    if not np.any(A):
+        return np.eye(n)
+    Ah = A * (dt / 8.0)
+    Ah2 = Ah @ Ah
+    M = np.eye(n) + Ah + Ah2 / 2.0 + (Ah2 @ Ah) / 6.0
+    for _ in range(3):
+        M = M @ M
+    return M
+
+
 class _ModelEKF(ExtendedKalmanFilter):
     """filterpy's EKF with a nonlinear state prediction (predict_x is its hook)."""
 
@@ -147,7 +160,12 @@ class _ModelEKF(ExtendedKalmanFilter):
 
 
 class EKF(JointFilter):
-    """EKF baseline (Table 5): analytic Jacobians, F = expm(A dt) of the linearisation."""
+    """EKF baseline (Table 5): analytic Jacobians; F = exp(A dt) of the linearisation.
+
+    exp(A dt) is taken as a third-order Taylor step of h = dt / 8, raised to the
+    8th power by squaring: the fastest mode (roll, ~70 1/s) has |lambda h| < 0.1
+    there, and scipy's expm is ~50x slower on these badly scaled matrices.
+    """
 
     kind = "ekf"
 
@@ -165,7 +183,7 @@ class EKF(JointFilter):
         # scaled coordinates: A_s = S^-1 A S
         A_s = A * self.scale[None, :] / self.scale[:, None]
         try:
-            f.F = expm(A_s * dt) if np.any(A_s) else np.eye(len(x))
+            f.F = transition(A_s, dt)
             f.Q = self.Q_rate * dt
             f.fx_step = lambda xs, uu: self._fx_s(xs, dt, uu)
             f.predict(u=u)

@@ -70,38 +70,48 @@ class Known:
         return self.L - self.l_f
 
 
-def _front_fx(v_y, yaw, u, k: Known):
-    """NOTES 8: F_xf = C_K F_zf s_f with the wheel-frame speed of the front axle."""
-    d, v_x = u[..., U_DELTA], np.maximum(u[..., U_VX], V_MIN)
+def _inputs(u, k: Known):
+    """Per-step constants from the inputs (they do not depend on the state)."""
+    d = u[..., U_DELTA]
+    v_x = np.maximum(u[..., U_VX], V_MIN)
     f_zf = k.m * k.g * k.l_r / k.L - k.m * u[..., U_AX] * k.h / k.L  # eq (3a)
-    v_w = np.maximum(v_x * np.cos(d) + (v_y + k.l_f * yaw) * np.sin(d), V_MIN)
-    s_f = u[..., U_WF] * k.r / v_w - 1.0  # eq (13)
-    return k.C_K * f_zf * s_f, v_w, f_zf
+    # NOTES 8: C_sigma = C_K F_zf; the slip uses the front wheel-frame speed (eq 13)
+    return d, v_x, np.sin(d), np.cos(d), k.C_K * f_zf, u[..., U_WF] * k.r
+
+
+def _rates(v_y, yaw, c_a, i_z, pre, k: Known):
+    """(v_y_dot, yaw_acc, a_y, Y_f, F_yr) for given lateral states; eqs (5), (7), (10)-(12)."""
+    d, v_x, sd, cd, ck_fz, w_r = pre
+    p = v_y + k.l_f * yaw
+    v_w = np.maximum(v_x * cd + p * sd, V_MIN)
+    f_xf = ck_fz * (w_r / v_w - 1.0)
+    f_yf = c_a * (d - p / v_x)  # eq (12a), corrected
+    f_yr = c_a * (k.l_r * yaw - v_y) / v_x  # eq (12b), corrected
+    y_f = f_xf * sd + f_yf * cd
+    a_y = (y_f + f_yr) / k.m  # eq (7)
+    return a_y - v_x * yaw, (k.l_f * y_f - k.l_r * f_yr) / i_z, a_y, y_f, f_yr  # eqs (5), (8), (10)
+
+
+def _params(x):
+    return (np.maximum(x[..., C_A], PARAM_FLOOR[0]), np.maximum(x[..., I_Z], PARAM_FLOOR[1]),
+            np.maximum(x[..., I_X], PARAM_FLOOR[2]))
 
 
 def forces(x, u, k: Known):
     """Lateral force terms: (front body-y force Y_f, rear F_yr, a_y)."""
-    d, v_x = u[..., U_DELTA], np.maximum(u[..., U_VX], V_MIN)
-    v_y, yaw = x[..., V_Y], x[..., YAW]
-    c_a = np.maximum(x[..., C_A], PARAM_FLOOR[0])
-    alpha_f = d - (v_y + k.l_f * yaw) / v_x  # eq (12a), corrected
-    alpha_r = -(v_y - k.l_r * yaw) / v_x  # eq (12b), corrected
-    f_xf, _, _ = _front_fx(v_y, yaw, u, k)
-    y_f = f_xf * np.sin(d) + c_a * alpha_f * np.cos(d)
-    f_yr = c_a * alpha_r
-    return y_f, f_yr, (y_f + f_yr) / k.m  # eq (7)
+    c_a, i_z, _ = _params(x)
+    _, _, a_y, y_f, f_yr = _rates(x[..., V_Y], x[..., YAW], c_a, i_z, _inputs(u, k), k)
+    return y_f, f_yr, a_y
 
 
 def deriv(x, u, k: Known):
     """Continuous-time dynamics x_dot = f(x, u), eqs (5), (8)-(10) corrected."""
-    v_x = np.maximum(u[..., U_VX], V_MIN)
-    y_f, f_yr, a_y = forces(x, u, k)
-    i_z = np.maximum(x[..., I_Z], PARAM_FLOOR[1])
-    i_x = np.maximum(x[..., I_X], PARAM_FLOOR[2])
+    c_a, i_z, i_x = _params(x)
+    vy_d, yaw_d, a_y, _, _ = _rates(x[..., V_Y], x[..., YAW], c_a, i_z, _inputs(u, k), k)
     phi, phi_d = x[..., PHI], x[..., PHI_D]
     out = np.zeros(np.shape(x))
-    out[..., V_Y] = a_y - v_x * x[..., YAW]  # eq (5) corrected
-    out[..., YAW] = (k.l_f * y_f - k.l_r * f_yr) / i_z  # eqs (8), (10) corrected
+    out[..., V_Y] = vy_d
+    out[..., YAW] = yaw_d
     out[..., PHI] = phi_d
     out[..., PHI_D] = (k.m * k.h * (a_y + k.g * phi) - k.k_phi * phi - k.c_phi * phi_d) / i_x  # eq (9)
     return out
@@ -111,31 +121,28 @@ def fx(x, dt, u, k: Known, substeps: int = SUBSTEPS):
     """Discrete transition: midpoint sub-steps for (v_y, yaw), trapezoidal for roll."""
     x = np.array(x, dtype=float, copy=True)
     h = dt / substeps
-    i_x = np.maximum(x[..., I_X], PARAM_FLOOR[2])
+    pre = _inputs(u, k)
+    c_a, i_z, i_x = _params(x)
     stiff = k.k_phi - k.m * k.g * k.h
-    # trapezoidal step matrix for [phi, phi_dot]: (I - h/2 A) x' = (I + h/2 A) x + h/2 (b + b')
+    # trapezoidal step for [phi, phi_dot]: (I - h/2 A) x' = (I + h/2 A) x + h/2 (b + b')
     a21, a22 = -stiff / i_x, -k.c_phi / i_x
-    m11, m12, m21, m22 = 1.0, -h / 2, -h / 2 * a21, 1.0 - h / 2 * a22
-    det = m11 * m22 - m12 * m21
+    m12, m21, m22 = -h / 2, -h / 2 * a21, 1.0 - h / 2 * a22
+    det = m22 - m12 * m21
+    fb = k.m * k.h / i_x * (h / 2)
+    v_y, yaw, phi, phi_d = x[..., V_Y], x[..., YAW], x[..., PHI], x[..., PHI_D]
+    ay0 = None
     for _ in range(substeps):
-        _, _, ay0 = forces(x, u, k)
-        d0 = deriv(x, u, k)
-        mid = x.copy()
-        mid[..., V_Y] += h / 2 * d0[..., V_Y]
-        mid[..., YAW] += h / 2 * d0[..., YAW]
-        d1 = deriv(mid, u, k)
-        new_vy = x[..., V_Y] + h * d1[..., V_Y]
-        new_yaw = x[..., YAW] + h * d1[..., YAW]
-        nxt = x.copy()
-        nxt[..., V_Y], nxt[..., YAW] = new_vy, new_yaw
-        _, _, ay1 = forces(nxt, u, k)
-        phi, phi_d = x[..., PHI], x[..., PHI_D]
-        b = k.m * k.h * (ay0 + ay1) / i_x * (h / 2)  # forcing of phi_dot, averaged
+        vy_d, yaw_d, a0, _, _ = _rates(v_y, yaw, c_a, i_z, pre, k) if ay0 is None else first
+        vy_d1, yaw_d1, _, _, _ = _rates(v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_a, i_z, pre, k)
+        v_y = v_y + h * vy_d1
+        yaw = yaw + h * yaw_d1
+        first = _rates(v_y, yaw, c_a, i_z, pre, k)
+        a1 = first[2]
+        ay0 = a1
         r1 = phi + h / 2 * phi_d
-        r2 = phi_d + h / 2 * (a21 * phi + a22 * phi_d) + b
-        nxt[..., PHI] = (m22 * r1 - m12 * r2) / det
-        nxt[..., PHI_D] = (m11 * r2 - m21 * r1) / det
-        x = nxt
+        r2 = phi_d + h / 2 * (a21 * phi + a22 * phi_d) + fb * (a0 + a1)
+        phi, phi_d = (m22 * r1 - m12 * r2) / det, (r2 - m21 * r1) / det
+    x[..., V_Y], x[..., YAW], x[..., PHI], x[..., PHI_D] = v_y, yaw, phi, phi_d
     return x
 
 
@@ -151,10 +158,10 @@ def _dforces(x, u, k: Known):
     v_y, yaw, c_a = x[V_Y], x[YAW], max(x[C_A], PARAM_FLOOR[0])
     alpha_f = d - (v_y + k.l_f * yaw) / v_x
     alpha_r = -(v_y - k.l_r * yaw) / v_x
-    f_xf, v_w, f_zf = _front_fx(v_y, yaw, u, k)
-    sd, cd = np.sin(d), np.cos(d)
+    _, _, sd, cd, ck_fz, w_r = _inputs(u, k)
+    v_w = v_x * cd + (v_y + k.l_f * yaw) * sd
     # d F_xf / d v_w through s_f = omega r / v_w - 1 (zero where v_w is clamped)
-    dfx_dvw = -k.C_K * f_zf * u[U_WF] * k.r / v_w**2 if v_w > V_MIN else 0.0
+    dfx_dvw = -ck_fz * w_r / v_w**2 if v_w > V_MIN else 0.0
     dyf = np.zeros(7)
     dyf[V_Y] = dfx_dvw * sd * sd + c_a * (-1.0 / v_x) * cd
     dyf[YAW] = dfx_dvw * k.l_f * sd * sd + c_a * (-k.l_f / v_x) * cd

@@ -335,10 +335,14 @@ class Stage2(StageLearner):
             P0[:4, :4] = np.diag([0.5 ** 2, 0.02 ** 2, 0.01 ** 2, 0.02 ** 2])
             P0[4:, 4:] = self.theta_P
             self.filter = self._new_filter(x0, P0, self._R())
+            self._u_prev = u
             self.t_last = t
             return
-        self.filter.predict(dt, u)
+        # the inputs over the step are the mean of its ends: holding either end
+        # shifts the steering by half a step, which a yaw inertia would absorb
+        self.filter.predict(dt, 0.5 * (self._u_prev + u))
         self.filter.update(z, mask, u)
+        self._u_prev = u
         self.t_last = t
         self.samples += 1
         if self.samples % self.cfg.save_every == 0:
