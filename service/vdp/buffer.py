@@ -43,6 +43,9 @@ class Sample:
     v_x: float = math.nan
     v_std: float = math.nan
     ax_bias: float = 0.0
+    # gyro biases learnt while driving straight (see TwoStageEstimator)
+    yaw_bias: float = 0.0
+    roll_bias: float = 0.0
 
 
 class Aligner:

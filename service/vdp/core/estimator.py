@@ -33,6 +33,32 @@ class EstimatorConfig:
     trace_len: int | None = None  # None keeps all (replay); live service bounds it
 
 
+class GyroBias:
+    """Yaw- and roll-rate gyro offsets, averaged while the car drives straight.
+
+    On a straight, level road both true rates are ~0, so their mean is the
+    offset; an unmodelled offset would otherwise be read as roll or yaw
+    dynamics and bias I_x and C_alpha.
+    """
+
+    def __init__(self, tau: float = 30.0, dt: float = 0.01):
+        self.k = dt / tau
+        self.yaw = self.roll = 0.0
+        self.n = 0
+
+    def update(self, s, gate: GateConfig) -> None:
+        y = s.values
+        d, yaw, roll = y[ch.DELTA], y[ch.YAW], y[ch.ROLL]
+        if (math.isfinite(d) and math.isfinite(yaw) and math.isfinite(roll)
+                and abs(d) < gate.delta_max_1 and abs(yaw) < gate.yaw_max_1):
+            # plain mean for the first samples, then an exponential one
+            k = max(self.k, 1.0 / (self.n + 1))
+            self.yaw += k * (yaw - self.yaw)
+            self.roll += k * (roll - self.roll)
+            self.n += 1
+        s.yaw_bias, s.roll_bias = self.yaw, self.roll
+
+
 class TwoStageEstimator:
     def __init__(self, vehicle, priors, cfg: EstimatorConfig | None = None):
         self.vehicle = vehicle
@@ -43,6 +69,7 @@ class TwoStageEstimator:
         self.s2 = {k: Stage2(k, vehicle, priors, self.cfg.learner) for k in kinds}
         self.supervisor = Supervisor(self.cfg.gate, wheel_radius=vehicle.wheel_radius)
         self.speed = SpeedFilter(self.cfg.speed)
+        self.gyro_bias = GyroBias()
         self.trace: deque = deque(maxlen=self.cfg.trace_len)
         self._next_trace = None
         self.handover_t: float | None = None
@@ -52,6 +79,7 @@ class TwoStageEstimator:
     def handle(self, t: float, s) -> None:
         self.t = t
         self._speed(t, s)
+        self.gyro_bias.update(s, self.cfg.gate)
         done = self.handover_t is not None
         stage = self.supervisor.update(t, s, done)
         for kind in self.s1:

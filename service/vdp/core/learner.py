@@ -313,7 +313,7 @@ class Stage2(StageLearner):
             v_x = w_r * k.r / (1.0 + s_r)
         w_f = 0.5 * (y[ch.WS_FL] + y[ch.WS_FR])
         u = np.array([y[ch.DELTA], v_x, w_f, y[ch.AX]])
-        z = np.array([y[ch.YAW], y[ch.ROLL], y[ch.AY]])
+        z = np.array([y[ch.YAW] - s.yaw_bias, y[ch.ROLL] - s.roll_bias, y[ch.AY]])
         return u, z, np.isfinite(z)
 
     def _step(self, t, s):
