@@ -56,17 +56,24 @@ class Aligner:
         self.max_gap = max_gap
         self.stale_after = (np.full(channels.N, 0.1) if stale_after is None
                             else np.asarray(stale_after, dtype=float))
+        self._stale = [float(x) for x in self.stale_after]
         self.reset()
 
     def reset(self) -> None:
-        self._t = np.full((channels.N, _DEPTH), -math.inf)  # newest last
-        self._v = np.full((channels.N, _DEPTH), math.nan)
-        self._emitted = np.full(channels.N, -math.inf)  # time of the newest value already reported fresh
+        # per channel: the last _DEPTH (time, value) pairs, oldest first (plain
+        # lists: this runs for every decoded frame, where numpy's overhead dominates)
+        self._t = [[-math.inf] * _DEPTH for _ in range(channels.N)]
+        self._v = [[math.nan] * _DEPTH for _ in range(channels.N)]
+        self._emitted = [-math.inf] * channels.N  # newest time already reported fresh
         self.next_tick: float | None = None
         self.last_time = -math.inf
         self.gap = True
         self.clock_backwards = 0
         self.clock_jumps = 0
+
+    def newest(self, ch: int) -> float:
+        """Bus time of the newest value of channel ``ch`` (-inf if none)."""
+        return self._t[ch][-1]
 
     def push(self, t: float, pairs) -> list[Sample]:
         """Add one frame's (channel, value) pairs at bus time ``t``; return due ticks."""
@@ -81,53 +88,58 @@ class Aligner:
             if self.next_tick is not None:
                 self.clock_jumps += 1
                 log.info("bus time jumped %.3f s forward; restarting the sample grid", t - self.last_time)
-            self._t[:] = -math.inf
-            self._v[:] = math.nan
+            keep_emitted = self._emitted
+            self.reset_history()
+            self._emitted = keep_emitted
             self.next_tick = math.ceil(t / self.tick) * self.tick
             self.gap = True
         else:
             while self.next_tick + self.delay <= t:
                 out.append(self._sample(self.next_tick))
                 self.next_tick += self.tick
-        self.last_time = max(self.last_time, t)
+        if t > self.last_time:
+            self.last_time = t
         for ch, value in pairs:
-            self._t[ch, :-1] = self._t[ch, 1:]
-            self._v[ch, :-1] = self._v[ch, 1:]
-            self._t[ch, -1] = t
-            self._v[ch, -1] = value
+            th, vh = self._t[ch], self._v[ch]
+            del th[0], vh[0]
+            th.append(t)
+            vh.append(value)
         return out
 
+    def reset_history(self) -> None:
+        self._t = [[-math.inf] * _DEPTH for _ in range(channels.N)]
+        self._v = [[math.nan] * _DEPTH for _ in range(channels.N)]
+
     def _sample(self, T: float) -> Sample:
-        ts, vs = self._t, self._v
-        newest = ts[:, -1]
-        values = np.full(channels.N, math.nan)
-        age = T - newest
-        for ch in range(channels.N):
-            row = ts[ch]
-            # index of the first value after T
-            k = int(np.searchsorted(row, T, side="right"))
-            if k == 0:
-                if row[0] == -math.inf:
-                    continue
-                values[ch] = vs[ch, 0]  # only later values are known: use the earliest
-                age[ch] = 0.0
-            elif k == _DEPTH:
-                values[ch] = vs[ch, -1]  # hold
+        n = channels.N
+        values = [math.nan] * n
+        ages = [math.inf] * n
+        fresh = [False] * n
+        emitted = self._emitted
+        for ch in range(n):
+            th = self._t[ch]
+            if th[-1] == -math.inf:
+                continue
+            vh = self._v[ch]
+            k = 0  # index of the first value after T
+            while k < _DEPTH and th[k] <= T:
+                k += 1
+            if k == _DEPTH:
+                v, age, before = vh[-1], T - th[-1], th[-1]  # hold
+            elif k == 0 or th[k - 1] == -math.inf:
+                v, age, before = vh[k], 0.0, -math.inf  # only later values: use the earliest
             else:
-                t0, t1 = row[k - 1], row[k]
-                if t0 == -math.inf:
-                    values[ch] = vs[ch, k]
-                else:
-                    w = (T - t0) / (t1 - t0) if t1 > t0 else 1.0
-                    values[ch] = vs[ch, k - 1] + w * (vs[ch, k] - vs[ch, k - 1])
-                age[ch] = max(T - t0, 0.0) if t0 != -math.inf else 0.0
-        stale = age > self.stale_after
-        values[stale] = math.nan
-        # fresh: a value at or before T that has not been reported yet
-        before = np.where(ts <= T, ts, -math.inf).max(axis=1)
-        fresh = (before > self._emitted) & np.isfinite(before)
-        self._emitted = np.where(fresh, before, self._emitted)
-        s = Sample(T, values, fresh, age, self.gap)
+                t0, t1 = th[k - 1], th[k]
+                v = vh[k - 1] + (T - t0) / (t1 - t0) * (vh[k] - vh[k - 1]) if t1 > t0 else vh[k]
+                age, before = T - t0, t0
+            if age > self._stale[ch]:
+                v = math.nan
+            values[ch], ages[ch] = v, age
+            # fresh: a value at or before T that has not been reported yet
+            if before > emitted[ch]:
+                fresh[ch] = True
+                emitted[ch] = before
+        s = Sample(T, np.array(values), np.array(fresh), np.array(ages), self.gap)
         self.gap = False
         return s
 

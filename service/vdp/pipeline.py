@@ -85,7 +85,7 @@ class Pipeline:
         t = self.last_bus_time
         for name in self.profile.channels:
             i = channels.INDEX[name]
-            newest = self.aligner._t[i, -1]
+            newest = self.aligner.newest(i)
             age = (t - newest) if (t is not None and math.isfinite(newest)) else None
             out[name] = {"age": age, "stale": age is None or age > self.aligner.stale_after[i]}
         return out
