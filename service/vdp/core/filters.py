@@ -113,6 +113,7 @@ class UKF(JointFilter):
         self._f.hx = self._hx_s
 
     def predict(self, dt: float, u) -> None:
+        self._check()
         self._f.Q = self.Q_rate * dt
         try:
             self._f.predict(dt=dt, u=u)
@@ -177,6 +178,7 @@ class EKF(JointFilter):
         self._dt = 0.01
 
     def predict(self, dt: float, u) -> None:
+        self._check()
         f = self._f
         x = self.x
         A = self._jac_f(x, u)

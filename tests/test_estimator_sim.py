@@ -1,0 +1,93 @@
+"""Seeded simulations: the two-stage estimator converges to the simulator's truth.
+
+Tolerances are the estimator issue's realistic-noise targets; the tighter
+noise-free and Monte Carlo figures live in benchmarks/ and BENCHMARKS.md.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from vdp.core.params import NAMES
+from vdp.pipeline import Pipeline
+from vdp.profile import load_profile
+from vdp.sim.run import simulate
+
+TOL = {"l_f": 0.01, "h": 0.03, "C_K": 0.02, "C_alpha": 0.03, "I_z": 0.05}
+
+
+@pytest.fixture(scope="module")
+def profile(repo_root):
+    return load_profile(repo_root / "profiles" / "paper.toml")
+
+
+def run(profile, scenario, seed, noise, **kw):
+    frames, truth = simulate(profile, scenario, seed=seed, noise=noise, **kw)
+    pipe = Pipeline(profile)
+    for msg in frames:
+        pipe.feed(msg)
+    return pipe, pipe.snapshot(), truth["parameters"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("noise,seed", [("none", 1), ("realistic", 7)])
+def test_paper_drive_converges_to_truth(profile, noise, seed):
+    pipe, snap, truth = run(profile, "paper", seed, noise)
+    p = snap["parameters"]
+    for name, tol in TOL.items():
+        err = (p[name]["value"] - truth[name]) / truth[name]
+        assert abs(err) <= tol, f"{name}: {100 * err:+.2f} % (tolerance {100 * tol} %)"
+        assert p[name]["valid"] and p[name]["status"] == "converged", name
+    # I_x barely moves any signal in this manoeuvre (NOTES 5): it must be flagged, not shown as confident
+    ix = p["I_x"]
+    assert ix["status"] == "not_identifiable" and not ix["valid"]
+    assert abs(ix["value"] - truth["I_x"]) <= 2 * ix["std"]
+    # the EKF baseline runs beside it on the same windows
+    assert all(snap["baseline_ekf"][n]["samples"] > 0 for n in NAMES)
+    stages = {w["stage"] for w in snap["windows"]}
+    assert stages == {1, 2}
+
+
+@pytest.mark.slow
+def test_stage1_alone_leaves_stage2_not_run(profile):
+    _, snap, truth = run(profile, "stage1", 3, "realistic")
+    p = snap["parameters"]
+    for name in ("l_f", "h", "C_K"):
+        assert abs(p[name]["value"] - truth[name]) <= TOL[name] * truth[name], name
+    for name in ("C_alpha", "I_z", "I_x"):
+        assert p[name]["status"] == "not_run" and not p[name]["valid"]
+
+
+def test_a_diverging_filter_resets_to_its_last_good_estimate(profile):
+    pipe, snap, _ = run(profile, "stage1", 2, "none", duration=25.0)
+    learner = pipe.estimator.s1["ukf"]
+    good = learner._good[0].copy()
+    assert learner.samples > 0
+    # poison the filter: a NaN in its state must not escape, and the stage resets
+    learner.filter._f.x[0] = math.nan
+    for _ in range(learner.cfg.block):  # one filter step needs a full block of samples
+        learner.handle(100.0, _sample_like(pipe))
+    assert learner.resets == 1 and "non-finite" in learner.last_error
+    snap = pipe.snapshot()
+    assert all(v is not None and math.isfinite(v) for v in
+               (snap["parameters"][n]["value"] for n in ("l_f", "h", "C_K")))
+    np.testing.assert_allclose(learner.theta, good)
+
+
+def _sample_like(pipe):
+    """A plausible straight-driving sample built from the newest ring row."""
+    from vdp.buffer import Sample
+    from vdp import channels as ch
+
+    t, v = pipe.ring.latest(1)
+    s = Sample(float(t[0]), v[0].copy(), np.ones(ch.N, bool), np.zeros(ch.N))
+    s.v_x, s.v_std = 20.0, 0.02
+    return s
+
+
+def test_no_confident_estimate_from_a_drive_without_excitation(profile):
+    # the first seconds of the stage-2 scenario: constant speed, straight, no steering yet
+    _, snap, _ = run(profile, "stage2", 4, "realistic", duration=2.0)
+    for name in NAMES:
+        assert not snap["parameters"][name]["valid"], name
