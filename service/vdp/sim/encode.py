@@ -1,0 +1,201 @@
+"""CAN encoding through the profile's channel mapping, inverted, and the profile's DBC.
+
+The profile decodes ``si = factor * (v * scale + offset)`` (``factor`` includes the
+unit, the sign, the wheel radius for linear wheel speeds and the steering ratio for
+a steering-wheel signal; a ``sign_signal`` flips the sign when non-zero).  Here the
+inverse: ``v = (si / factor - offset) / scale``, clipped into the signal's DBC range,
+so the same simulator can feed any car's DBC.  Unmapped signals of a sent message get
+a constant; rolling counters and checksums follow the profile's ``[checks]``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cantools
+
+from ..errors import ProfileError
+from ..io.checks import COUNTER_MODULO, vdp_checksum
+from ..profile import ChannelMap, Profile
+
+log = logging.getLogger(__name__)
+
+# Unmapped signals that a receiver may validate: a good 3D GNSS fix.
+CONSTANTS = {"FIX_TYPE": 3, "NUM_SATS": 12}
+DEFAULT_CYCLE_MS = 10
+
+
+def signal_range(sig) -> tuple[float, float]:
+    """Physical range a signal can carry: its DBC [min|max] within what its bits can hold."""
+    lo, hi = float("-inf"), float("inf")
+    if not sig.is_float:
+        n = sig.length
+        rmin, rmax = (-(1 << (n - 1)), (1 << (n - 1)) - 1) if sig.is_signed else (0, (1 << n) - 1)
+        a, b = rmin * sig.scale + sig.offset, rmax * sig.scale + sig.offset
+        lo, hi = min(a, b), max(a, b)
+    mn, mx = sig.minimum, sig.maximum
+    if not (mn == 0 and mx == 0):  # [0|0] in a DBC means "no range given"
+        if mn is not None:
+            lo = max(lo, float(mn))
+        if mx is not None:
+            hi = min(hi, float(mx))
+    return lo, hi
+
+
+def clip(v: float, lo: float, hi: float) -> float:
+    return lo if v < lo else (hi if v > hi else v)
+
+
+@dataclass
+class SignalPlan:
+    signal: str
+    channel: str
+    inv_factor: float  # 1 / ChannelMap.factor
+    scale: float
+    offset: float
+    lo: float
+    hi: float
+    sign_signal: str | None = None
+
+    def raw(self, si: float, out: dict) -> None:
+        """Put the DBC physical value of canonical ``si`` into ``out`` (and the sign flag)."""
+        q = si * self.inv_factor
+        if self.sign_signal is not None:
+            flip = q < 0.0
+            out[self.sign_signal] = 1 if flip else 0
+            if flip:
+                q = -q
+        v = (q - self.offset) / self.scale
+        out[self.signal] = self.lo if v < self.lo else (self.hi if v > self.hi else v)
+
+
+@dataclass
+class MessagePlan:
+    name: str
+    frame_id: int
+    is_extended: bool
+    is_fd: bool
+    period_ms: int
+    message: object  # cantools Message
+    base: dict  # constant values of unmapped signals
+    signals: list[SignalPlan] = field(default_factory=list)
+    counter: str | None = None
+    counter_modulo: int = COUNTER_MODULO
+    checksum: bool = False  # vdp checksum in byte 7
+    phase_ms: int = 0
+    count: int = 0  # frames encoded so far (drives the counter)
+
+    @property
+    def channels(self) -> list[str]:
+        return [s.channel for s in self.signals]
+
+
+def load_dbc(path: Path):
+    try:
+        return cantools.database.load_file(str(path), strict=False)
+    except FileNotFoundError:
+        raise ProfileError(f"{path}: DBC file does not exist") from None
+    except Exception as exc:  # cantools raises several parser error types
+        raise ProfileError(f"{path}: cannot load DBC: {exc}") from None
+
+
+class Encoder:
+    """Turns canonical channel values into frames of the profile's DBC."""
+
+    def __init__(self, profile: Profile, db=None):
+        self.profile = profile
+        self.db = db if db is not None else load_dbc(profile.dbc)
+        self.plans: list[MessagePlan] = []
+        by_name: dict[str, MessagePlan] = {}
+        for cm in profile.channels.values():
+            for m in (cm, cm.alt):
+                if m is not None:
+                    self._add(m, by_name)
+        self._checks(by_name)
+        self.plans = sorted(by_name.values(), key=lambda p: p.frame_id)
+        # Fixed phases inside each period so the messages interleave like on a real bus.
+        for j, p in enumerate(self.plans):
+            p.phase_ms = (1 + 3 * j) % p.period_ms
+        log.debug("encoder: %d messages: %s", len(self.plans),
+                  ", ".join(f"{p.name}@{p.period_ms}ms+{p.phase_ms}" for p in self.plans))
+
+    @property
+    def frame_ids(self) -> set[int]:
+        return {m.frame_id for m in self.db.messages}
+
+    def _message(self, cm: ChannelMap):
+        try:
+            return self.db.get_message_by_name(cm.message)
+        except KeyError:
+            raise ProfileError(f"{cm.where}: message '{cm.message}' is not in {self.profile.dbc}") from None
+
+    def _add(self, cm: ChannelMap, by_name: dict[str, MessagePlan]) -> None:
+        msg = self._message(cm)
+        if msg.is_multiplexed():
+            raise ProfileError(f"{cm.where}: message '{cm.message}' is multiplexed; "
+                               f"the simulator cannot encode multiplexed messages")
+        plan = by_name.get(msg.name)
+        if plan is None:
+            base = {}
+            for sig in msg.signals:
+                lo, hi = signal_range(sig)
+                base[sig.name] = clip(float(CONSTANTS.get(sig.name, 0)), lo, hi)
+            period = msg.cycle_time or DEFAULT_CYCLE_MS
+            if not msg.cycle_time:
+                log.info("%s: message %s has no cycle time; sending it every %d ms",
+                            self.profile.dbc, msg.name, DEFAULT_CYCLE_MS)
+            plan = MessagePlan(msg.name, msg.frame_id, msg.is_extended_frame, bool(msg.is_fd),
+                               int(period), msg, base)
+            by_name[msg.name] = plan
+        try:
+            sig = msg.get_signal_by_name(cm.signal)
+        except KeyError:
+            raise ProfileError(f"{cm.where}: signal '{cm.signal}' is not in message '{msg.name}'") from None
+        if cm.sign_signal is not None and cm.sign_signal not in {s.name for s in msg.signals}:
+            raise ProfileError(f"{cm.where}: sign_signal '{cm.sign_signal}' is not in message '{msg.name}'")
+        if any(s.signal == cm.signal for s in plan.signals):
+            return  # one signal feeding two channels (e.g. a shared wheel speed): encode once
+        lo, hi = signal_range(sig)
+        plan.signals.append(SignalPlan(cm.signal, cm.channel, 1.0 / cm.factor(self.profile.vehicle),
+                                       cm.scale, cm.offset, lo, hi, cm.sign_signal))
+
+    def _checks(self, by_name: dict[str, MessagePlan]) -> None:
+        for name, chk in self.profile.checks.items():
+            plan = by_name.get(name)
+            if plan is None:
+                log.debug("checks: message %s is not sent by the simulator", name)
+                continue
+            sigs = {s.name: s for s in plan.message.signals}
+            where = f"{self.profile.path} [checks.{name}]"
+            if chk.counter is not None:
+                if chk.counter not in sigs:
+                    raise ProfileError(f"{where}: counter '{chk.counter}' is not in message '{name}'")
+                plan.counter = chk.counter
+                plan.counter_modulo = min(COUNTER_MODULO, 1 << sigs[chk.counter].length)
+            if chk.checksum is not None and chk.checksum_kind == "vdp":
+                s = sigs.get(chk.checksum)
+                if s is None:
+                    raise ProfileError(f"{where}: checksum '{chk.checksum}' is not in message '{name}'")
+                in_byte7 = s.length == 8 and ((s.byte_order == "little_endian" and s.start == 56)
+                                              or (s.byte_order == "big_endian" and s.start == 63))
+                if not in_byte7 or plan.message.length < 8:
+                    raise ProfileError(f"{where}: the vdp checksum must be an 8-bit signal in byte 7")
+                plan.checksum = True
+
+    def encode(self, plan: MessagePlan, values: dict[str, float]) -> bytes:
+        """Payload of the next frame of ``plan``; advances its rolling counter."""
+        data = dict(plan.base)
+        for sp in plan.signals:
+            sp.raw(values[sp.channel], data)
+        if plan.counter is not None:
+            data[plan.counter] = plan.count % plan.counter_modulo
+        plan.count += 1
+        payload = plan.message.encode(data, scaling=True, padding=False, strict=False)
+        if plan.checksum:
+            payload = bytearray(payload)
+            payload[7] = 0
+            payload[7] = vdp_checksum(plan.frame_id, payload)
+            payload = bytes(payload)
+        return payload
