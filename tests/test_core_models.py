@@ -30,7 +30,7 @@ def numjac(f, x, eps):
        tf=st.floats(-2000, 2000), tr=st.floats(-2000, 2000), ax=st.floats(-6, 6))
 def test_stage1_measurement_jacobian(v, l_f, h, c_k, tf, tr, ax):
     x = np.array([l_f, h, c_k])
-    u = np.array([tf, tr, ax, v, 0.01])
+    u = np.array([tf, tr, ax, v, 0.01, ax / 0.3, ax / 0.31])
     H = longitudinal.jac_h(x, u, K1)
     N = numjac(lambda xx: longitudinal.hx(xx, u, K1), x, eps=1e-6 * np.maximum(np.abs(x), 1))
     np.testing.assert_allclose(H, N, rtol=1e-5, atol=1e-7)
@@ -54,7 +54,7 @@ def test_stage2_jacobians(vy, yaw, phi, phid, ca, iz, ix, d, vx, wf_slip, ax):
 
 def test_models_broadcast_over_sigma_points():
     x1 = np.array([1.4, 0.6, 10.0])
-    u1 = np.array([500.0, 300.0, 1.0, 20.0, 0.01])
+    u1 = np.array([500.0, 300.0, 1.0, 20.0, 0.01, 3.3, 3.3])
     X = np.tile(x1, (7, 1))
     X[:, 0] += np.linspace(-0.1, 0.1, 7)
     batch = longitudinal.hx(X, u1, K1)
@@ -97,9 +97,9 @@ def test_roll_step_stays_stable_for_small_inertia():
 
 def test_stage1_slip_sign_follows_torque():
     x = np.array([1.4, 0.637, 10.0])
-    w = longitudinal.hx(x, np.array([800.0, 800.0, 1.0, 20.0, 0.01]), K1)
+    w = longitudinal.hx(x, np.array([800.0, 800.0, 1.0, 20.0, 0.01, 3.3, 3.3]), K1)
     assert w[0] > 20 / 0.3 and w[1] > 20 / 0.3  # driving: wheels faster than the car
-    w = longitudinal.hx(x, np.array([-800.0, -500.0, -1.0, 20.0, 0.01]), K1)
+    w = longitudinal.hx(x, np.array([-800.0, -500.0, -1.0, 20.0, 0.01, -3.3, -3.3]), K1)
     assert w[0] < 20 / 0.3 and w[1] < 20 / 0.3
 
 

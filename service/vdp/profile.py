@@ -11,12 +11,24 @@ Conversion of a decoded DBC signal value ``v`` to the canonical SI value::
 
 ``sign`` may instead come from another signal of the same message
 (``sign_signal``): a non-zero value there flips the sign.
+
+``[can] dbc`` is a path relative to the profile, or ``opendbc:NAME`` for a DBC of
+the installed opendbc package (the ``opendbc`` extra): a file it ships, or one its
+generator builds (``NAME`` ends in ``_generated``, e.g. Toyota's).  Generated DBCs,
+and shipped ones that cantools cannot parse as they are, are written to vdp's cache
+directory (see :func:`cache_dir`) and the profile points there.  docs/PROFILES.md
+describes every key.
 """
 
 from __future__ import annotations
 
+import difflib
+import functools
 import math
+import os
+import re
 import sys
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -50,6 +62,18 @@ UNIT_FACTORS: dict[str, tuple[float, str]] = {
     "m/s2": (1.0, "accel"),
     "g": (9.80665, "accel"),
 }
+# VW's DBCs (opendbc vw_*.dbc) spell units like this; same meaning as above.
+UNIT_ALIASES: dict[str, str] = {
+    "Unit_DegreOfArcPerSecon": "deg/s",
+    "Unit_MinutInver": "rpm",
+    "Unit_KiloMeterPerHour": "km/h",
+    "Unit_NewtoMeter": "Nm",
+    "Unit_DegreOfArc": "deg",
+    "Unit_MeterPerSeconSquar": "m/s^2",
+    "Unit_ForceOfGravi": "g",
+}
+UNIT_FACTORS.update({alias: UNIT_FACTORS[unit] for alias, unit in UNIT_ALIASES.items()})
+_UNIT_LIST = ", ".join(u for u in UNIT_FACTORS if u not in UNIT_ALIASES)
 
 # What kind of unit each canonical channel accepts.
 CHANNEL_KINDS: dict[str, tuple[str, ...]] = {
@@ -158,7 +182,8 @@ def _num(where: str, key: str, value: Any) -> float:
 
 def _vehicle(where: str, raw: dict[str, Any]) -> Vehicle:
     if not isinstance(raw, dict):
-        raise ProfileError(f"{where} [vehicle]: missing table; add a [vehicle] section with m, L, r, J ...")
+        raise ProfileError(f"{where} [vehicle]: missing table; add a [vehicle] section with "
+                           f"{', '.join(k for k in _VEHICLE_KEYS if k != 'g')}")
     unknown = set(raw) - set(_VEHICLE_KEYS) - {"roll_stiffness_per_deg", "roll_damping_per_deg"}
     if unknown:
         raise ProfileError(f"{where} [vehicle]: unknown key(s) {sorted(unknown)}; allowed: {sorted(_VEHICLE_KEYS)}")
@@ -197,6 +222,9 @@ def _priors(where: str, raw: Any) -> dict[str, Prior]:
         w = f"{where} [priors.{name}]"
         if not isinstance(entry, dict) or "value" not in entry or "std" not in entry:
             raise ProfileError(f"{w}: missing; write {name} = {{ value = ..., std = ... }}")
+        extra_keys = set(entry) - {"value", "std"}
+        if extra_keys:
+            raise ProfileError(f"{w}: unknown key(s) {sorted(extra_keys)}; allowed: std, value")
         value, std = _num(w, "value", entry["value"]), _num(w, "std", entry["std"])
         if value <= 0 or std <= 0:
             raise ProfileError(f"{w}: value and std must be positive, got value={value}, std={std}")
@@ -222,7 +250,7 @@ def _channel(where: str, name: str, raw: Any, nested: bool = False) -> ChannelMa
             raise ProfileError(f"{w}: missing '{key}' (a string)")
     unit = raw["unit"]
     if unit not in UNIT_FACTORS:
-        raise ProfileError(f"{w}: unit '{unit}' is not known; use one of {', '.join(UNIT_FACTORS)}")
+        raise ProfileError(f"{w}: unit '{unit}' is not known; use one of {_UNIT_LIST}")
     kind = UNIT_FACTORS[unit][1]
     if kind not in CHANNEL_KINDS[name]:
         raise ProfileError(f"{w}: unit '{unit}' ({kind}) cannot be converted to {name}'s "
@@ -270,6 +298,9 @@ def _checks(where: str, raw: Any) -> dict[str, MessageCheck]:
         check = entry.get("check", True)
         if not isinstance(check, bool):
             raise ProfileError(f"{w}: 'check' must be true or false")
+        for key in ("counter", "checksum"):
+            if key in entry and (not isinstance(entry[key], str) or not entry[key]):
+                raise ProfileError(f"{w}: '{key}' must be a signal name, got {entry[key]!r}")
         out[msg] = MessageCheck(message=msg, counter=entry.get("counter"), checksum=entry.get("checksum"),
                                 checksum_kind=kind, check=check)
     return out
@@ -287,12 +318,16 @@ def load_profile(path: str | Path) -> Profile:
         raise ProfileError(f"{where}: not valid TOML: {exc}") from None
     unknown = set(raw) - {"vehicle", "priors", "can", "channels", "checks"}
     if unknown:
-        raise ProfileError(f"{where}: unknown section(s) {sorted(unknown)}")
+        raise ProfileError(f"{where}: unknown section(s) {sorted(unknown)}; "
+                           f"known: vehicle, priors, can, channels, checks")
     vehicle = _vehicle(where, raw.get("vehicle"))
     priors = _priors(where, raw.get("priors"))
     can = raw.get("can")
-    if not isinstance(can, dict) or not isinstance(can.get("dbc"), str):
+    if not isinstance(can, dict) or not isinstance(can.get("dbc"), str) or not can["dbc"]:
         raise ProfileError(f"{where} [can]: missing 'dbc' (a path relative to the profile, or opendbc:NAME)")
+    unknown = set(can) - {"dbc", "channel"}
+    if unknown:
+        raise ProfileError(f"{where} [can]: unknown key(s) {sorted(unknown)}; allowed: channel, dbc")
     dbc_s = can["dbc"]
     if dbc_s.startswith("opendbc:"):
         dbc = _opendbc_path(where, dbc_s[len("opendbc:"):])
@@ -314,14 +349,84 @@ def load_profile(path: str | Path) -> Profile:
                    channels=maps, checks=_checks(where, raw.get("checks")))
 
 
+def cache_dir() -> Path:
+    """Where vdp writes DBCs it derives from opendbc: ``$VDP_CACHE_DIR``, else
+    ``$XDG_CACHE_HOME/vdp``, else ``~/.cache/vdp``."""
+    env = os.environ.get("VDP_CACHE_DIR")
+    if env:
+        return Path(env)
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    return (Path(xdg) if xdg else Path.home() / ".cache") / "vdp"
+
+
+# opendbc DBCs that cantools rejects as shipped: a message comment without its BO_
+# keyword ('CM_ 145 "...";' in hyundai_kia_generic.dbc).  Repaired in a cached copy.
+_BARE_MESSAGE_COMMENT = re.compile(r'^CM_ (\d+) "', re.MULTILINE)
+
+
 def _opendbc_path(where: str, name: str) -> Path:
     try:
         import opendbc  # optional extra: pip install vdp[opendbc]
     except ImportError:
         raise ProfileError(f"{where} [can]: dbc 'opendbc:{name}' needs the opendbc package; "
                            f"install it with: pip install 'vdp[opendbc]'") from None
+    stem = name[:-4] if name.endswith(".dbc") else name
     base = Path(opendbc.__file__).parent / "dbc"
-    p = base / (name if name.endswith(".dbc") else name + ".dbc")
-    if not p.is_file():
-        raise ProfileError(f"{where} [can]: opendbc has no DBC named '{name}' in {base}")
-    return p
+    shipped = base / (stem + ".dbc")
+    if shipped.is_file():
+        text = shipped.read_text(encoding="utf-8", errors="replace")
+        repaired = _BARE_MESSAGE_COMMENT.sub(r'CM_ BO_ \1 "', text)
+        return shipped if repaired == text else _cached(where, stem, repaired)
+    try:
+        generated = _opendbc_generated()
+    except Exception as exc:  # opendbc's own scripts; whatever they raise, say where it came from
+        raise ProfileError(f"{where} [can]: opendbc's DBC generator failed: {type(exc).__name__}: {exc}") from None
+    if stem in generated:
+        return _cached(where, stem, generated[stem])
+    names = sorted({p.stem for p in base.glob("*.dbc")} | set(generated))
+    close = difflib.get_close_matches(stem, names, n=5, cutoff=0.5)
+    hint = f"similar: {', '.join(close)}" if close else f"it has {len(names)}, e.g. {', '.join(names[:8])}"
+    raise ProfileError(f"{where} [can]: opendbc has no DBC named '{stem}' (neither in {base} nor "
+                       f"generated by its generator); {hint}")
+
+
+@functools.lru_cache(maxsize=1)
+def _opendbc_generated() -> dict[str, str]:
+    """{name: DBC text} of every DBC opendbc's generator builds (about 50 ms, once per process)."""
+    try:
+        from opendbc.dbc.generator.generator import generate_all
+    except ImportError:  # an opendbc without the in-memory generator: only shipped files
+        return {}
+    return generate_all()
+
+
+def _cached(where: str, stem: str, text: str) -> Path:
+    """``text`` as ``<cache>/opendbc-<version>/<stem>.dbc``, rewritten only when it differs."""
+    try:
+        from importlib.metadata import version
+        ver = version("opendbc")
+    except Exception:  # metadata missing in odd installs; the content check below still holds
+        ver = "unknown"
+    data = text.encode("utf-8")
+    user = os.getuid() if hasattr(os, "getuid") else "user"
+    dirs = [cache_dir() / f"opendbc-{ver}", Path(tempfile.gettempdir()) / f"vdp-{user}" / f"opendbc-{ver}"]
+    errors = []
+    for d in dirs:
+        path = d / f"{stem}.dbc"
+        try:
+            if path.is_file() and path.read_bytes() == data:
+                return path
+            d.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(dir=d, prefix=f".{stem}.", suffix=".tmp")
+            try:
+                with os.fdopen(fd, "wb") as f:
+                    f.write(data)
+                os.replace(tmp, path)  # atomic: a concurrent reader sees the old or the new file
+            except BaseException:
+                Path(tmp).unlink(missing_ok=True)
+                raise
+            return path
+        except OSError as exc:
+            errors.append(f"{d}: {exc.strerror or exc}")
+    raise ProfileError(f"{where} [can]: cannot write the opendbc DBC '{stem}' to a cache directory "
+                       f"({'; '.join(errors)}); set VDP_CACHE_DIR to a writable directory")

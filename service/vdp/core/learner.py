@@ -54,7 +54,7 @@ class LearnerConfig:
     param_walk: float = 1e-4
     # the speed error is correlated over many samples; inflate its std for the filter
     speed_corr: float = 20.0
-    block: int = 5  # stage 1 averages this many samples per filter step
+    block: int = 5  # stage 1 averages this many samples (at least 3) per filter step
 
 
 @dataclass
@@ -228,7 +228,7 @@ class Stage1(StageLearner):
     @staticmethod
     def inputs(s):
         y = s.values
-        u = np.array([y[ch.T_F], y[ch.T_R], y[ch.AX] - s.ax_bias, s.v_x, s.v_std])
+        u = np.array([y[ch.T_F], y[ch.T_R], y[ch.AX] - s.ax_bias, s.v_x, s.v_std, 0.0, 0.0])
         z = np.array([0.5 * (y[ch.WS_FL] + y[ch.WS_FR]), 0.5 * (y[ch.WS_RL] + y[ch.WS_RR])])
         return u, z, np.isfinite(z)
 
@@ -247,12 +247,17 @@ class Stage1(StageLearner):
         # Block averages of inputs and measurements: the torque noise is input
         # noise, and averaging it before the filter keeps its errors-in-variables
         # bias on C_K small (the relation is close to linear over 50 ms).
-        self._acc.append((u, z))
-        if len(self._acc) < self.cfg.block:
+        self._acc.append((t, u, z))
+        if len(self._acc) < max(self.cfg.block, 3):
             return
-        u = np.mean([a[0] for a in self._acc], axis=0)
-        z = np.mean([a[1] for a in self._acc], axis=0)
-        dt = 0.01 * len(self._acc)
+        ts = np.array([a[0] for a in self._acc])
+        us = np.array([a[1] for a in self._acc])
+        zs = np.array([a[2] for a in self._acc])
+        u, z = us.mean(axis=0), zs.mean(axis=0)
+        # wheel accelerations: least-squares slope over the block, centred like the means
+        k = ts - ts.mean()
+        u[longitudinal.U_WDF], u[longitudinal.U_WDR] = (k @ (zs - z)) / (k @ k)
+        dt = ts[-1] - ts[0] + (ts[-1] - ts[0]) / (len(ts) - 1)
         self._acc = []
         if self.filter is None:
             self.filter = self._new_filter(self.theta, self.theta_P, self._R0())

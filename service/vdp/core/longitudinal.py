@@ -38,8 +38,8 @@ PARAM_SLICE = slice(0, 3)
 SCALE = np.array([1.0, 1.0, 10.0])
 
 # input columns
-U_TF, U_TR, U_AX, U_VX, U_VX_STD = range(5)
-N_U = 5
+U_TF, U_TR, U_AX, U_VX, U_VX_STD, U_WDF, U_WDR = range(7)
+N_U = 7
 
 # measurement rows
 Z_WF, Z_WR = range(2)
@@ -70,10 +70,14 @@ def axle_loads(l_f, h, a_x, k: Known):
 
 
 def tyre_forces(u, k: Known):
-    """Quasi-static eq (2): F_x = (T - J a_x / r) / r per axle [N]."""
-    a_x = u[..., U_AX]
-    spin = k.J * a_x / k.r
-    return (u[..., U_TF] - spin) / k.r, (u[..., U_TR] - spin) / k.r
+    """Eq (2) solved for the tyre force: F_x = (T - J omega_dot) / r per axle [N].
+
+    omega_dot is the measured wheel acceleration (a slope over a block of
+    samples); front and rear differ while their slips change, and stage 1 reads
+    l_f and h from that front/rear difference, so a_x / r is not close enough.
+    """
+    return ((u[..., U_TF] - k.J * u[..., U_WDF]) / k.r,
+            (u[..., U_TR] - k.J * u[..., U_WDR]) / k.r)
 
 
 def slips(x, u, k: Known):

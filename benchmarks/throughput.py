@@ -1,0 +1,99 @@
+"""Replay throughput against bare python-can log iteration, on one long log.
+
+    python benchmarks/throughput.py --minutes 60 [--log /tmp/vdp-1h.log]
+
+Builds (once) a candump log of simulated `city` drives back to back with
+unrelated filler IDs mixed in, about 2000 frames/s as on a real bus, then in
+one run measures:
+
+- bare ``can.LogReader`` iteration over the file (frames/s);
+- ``vdp replay``'s pipeline over the same file: our reader, decoder, aligner,
+  supervisor, UKF and EKF (frames/s, and how many times faster than real time);
+- the ratio of the two (target: >= 0.5).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "service"))
+
+
+def build_log(path: Path, minutes: float, filler_ids: int, filler_rate: float) -> None:
+    from vdp.profile import load_profile
+    from vdp.sim.run import Simulation, START_TIME
+
+    profile = load_profile(ROOT / "profiles" / "paper.toml")
+    t_end = START_TIME + minutes * 60.0
+    offset = 0.0
+    seed = 1
+    with open(path, "w", encoding="ascii") as out:
+        while START_TIME + offset < t_end:
+            sim = Simulation(profile, "city", seed=seed, noise="realistic", extra_ids=filler_ids,
+                             extra_rate=filler_rate, start_time=START_TIME + offset)
+            last = None
+            for msg in sim.frames():
+                if msg.timestamp >= t_end:
+                    break
+                out.write(f"({msg.timestamp:.6f}) can0 {msg.arbitration_id:03X}#{msg.data.hex().upper()}\n")
+                last = msg.timestamp
+            offset = (last or START_TIME + offset) - START_TIME + 0.01
+            seed += 1
+
+
+def bare(path: Path) -> tuple[int, float]:
+    import can
+
+    t0 = time.perf_counter()
+    n = 0
+    for _ in can.LogReader(str(path)):
+        n += 1
+    return n, time.perf_counter() - t0
+
+
+def ours(path: Path) -> tuple[int, float, float, dict]:
+    from vdp.io.logs import open_log
+    from vdp.pipeline import Pipeline
+    from vdp.profile import load_profile
+    from vdp.replay import replay
+
+    profile = load_profile(ROOT / "profiles" / "paper.toml")
+    pipe = Pipeline(profile)
+    t0 = time.perf_counter()
+    result = replay(open_log(path), pipe)
+    wall = time.perf_counter() - t0
+    return result["log"]["frames"], wall, result["log"]["duration_s"], result
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--minutes", type=float, default=60.0)
+    ap.add_argument("--log", type=Path, default=None, help="where to build/keep the log (default /tmp)")
+    ap.add_argument("--filler-ids", type=int, default=14, help="unrelated IDs, each at --filler-rate Hz")
+    ap.add_argument("--filler-rate", type=float, default=100.0)
+    a = ap.parse_args()
+    path = a.log or Path(f"/tmp/vdp-throughput-{a.minutes:g}min.log")
+    if not path.exists():
+        t0 = time.perf_counter()
+        build_log(path, a.minutes, a.filler_ids, a.filler_rate)
+        print(f"built {path} ({path.stat().st_size / 1e6:.0f} MB) in {time.perf_counter() - t0:.0f} s")
+    n_bare, t_bare = bare(path)
+    n_ours, t_ours, duration, result = ours(path)
+    print(f"log: {path}, {n_bare:,} frames, {duration / 60:.1f} min of bus time, "
+          f"{n_bare / duration:,.0f} frames/s on the bus")
+    print(f"bare can.LogReader: {n_bare / t_bare:,.0f} frames/s ({t_bare:.1f} s)")
+    print(f"vdp replay pipeline: {n_ours / t_ours:,.0f} frames/s ({t_ours:.1f} s), "
+          f"{duration / t_ours:.0f}x real time")
+    print(f"ratio (replay / bare reader): {(n_ours / t_ours) / (n_bare / t_bare):.2f}")
+    windows = result["windows"]
+    busy = sum((w["end"] or duration) - w["start"] for w in windows)
+    print(f"windows: {len(windows)}, filters ran on {100 * busy / duration:.0f} % of the drive")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
