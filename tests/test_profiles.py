@@ -39,9 +39,6 @@ UNMAPPED = {"wheel_torque_front", "wheel_torque_rear", "roll_rate", "speed"}
 # sim/encode.py clips a value into the DBC's [min|max] even when that range is one the
 # signal's bits cannot carry; opendbc gives Toyota's KINEMATICS signals [0|65535], so every
 # negative yaw rate and acceleration is sent as 0 (the decoder ignores such ranges).
-TOYOTA_CLIPPED = pytest.mark.xfail(
-    strict=True, reason="sim/encode.py signal_range clips KINEMATICS to opendbc's unreachable "
-                        "[0|65535] range (negative yaw rate and accelerations become 0)")
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -171,7 +168,7 @@ def si_step(prof: Profile, db, cm: ChannelMap) -> float:
     return abs(sig.scale * cm.scale * cm.factor(prof.vehicle))
 
 
-@pytest.mark.parametrize("name", [pytest.param("toyota_rav4", marks=TOYOTA_CLIPPED), "vw_golf_mk7",
+@pytest.mark.parametrize("name", ["toyota_rav4", "vw_golf_mk7",
                                   "hyundai_elantra_2017"])
 def test_round_trip_has_the_cars_quantisation_and_signs(name):
     """Every decoded value lies within half of the car's own DBC step of what was sent."""
@@ -318,7 +315,7 @@ def paper_run(name: str, tmp_path_factory) -> tuple[dict, dict]:
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name,stage", [
-    pytest.param("toyota_rav4", 1, marks=TOYOTA_CLIPPED),
+    ("toyota_rav4", 1),
     pytest.param("toyota_rav4", 2, marks=pytest.mark.xfail(
         strict=True, reason="besides the clipping: C_alpha and I_z come out about 7 % low on the RAV4 "
                             "(3 % without noise, 5 % with vdp's finer sensors: the estimator's bias "

@@ -130,9 +130,6 @@ def test_drive_has_no_steering_excitation(drive):
     assert d_std.max() < 0.2 * cfg.delta_std_min_2 and yaw_rms.max() < 0.5 * cfg.yaw_rms_min_2
 
 
-@pytest.mark.xfail(strict=True, reason="vdp replay does not yet say that a drive lacks steering excitation "
-                                       "when stage 2 cannot run anyway (supervisor excitation summary, "
-                                       "see the issue-5 report)")
 def test_replay_says_there_is_no_steering_excitation(tmp_path, capsys):
     text, _ = replay_cli(TRIMMED, tmp_path, capsys)
     assert any(line.startswith("stage 2") and "steering" in line and "excitation" in line

@@ -37,7 +37,7 @@ class Pipeline:
         cap = self.capabilities()
         for stage, why in cap.items():
             if why:
-                log.warning("stage %s cannot run: %s", stage, why)
+                log.info("stage %s cannot run: %s", stage, why)
 
     def _stale_after(self) -> np.ndarray:
         out = np.full(channels.N, 0.1)
@@ -55,10 +55,14 @@ class Pipeline:
         out: dict[str, str | None] = {}
         for stage, needs in (("1", channels.STAGE1_NEEDS), ("2", channels.STAGE2_NEEDS)):
             missing = self.profile.missing(needs)
-            out[stage] = (f"the profile maps no {', '.join(missing)} channel"
-                          f"{'s' if len(missing) > 1 else ''}" if missing else None)
-        if out["1"] and not out["2"]:
-            out["2"] = "stage 2 needs stage 1's l_f, h and C_K, and stage 1 cannot run"
+            if missing:
+                what = list(dict.fromkeys(channels.DESCRIPTIONS[m] for m in missing))
+                out[stage] = f"no {', no '.join(what)} (the profile maps no {', '.join(missing)})"
+            else:
+                out[stage] = None
+        if out["1"]:
+            tail = "it needs stage 1's l_f, h and C_K, and stage 1 cannot run"
+            out["2"] = f"{out['2']}; and {tail}" if out["2"] else tail
         return out
 
     def feed(self, msg) -> None:

@@ -162,6 +162,11 @@ class Profile:
     bus_channel: str | None  # only frames from this log/bus channel are used (None = all)
     channels: dict[str, ChannelMap]
     checks: dict[str, MessageCheck] = field(default_factory=dict)
+    extra_dbcs: tuple[Path, ...] = ()  # further DBCs of the same bus (dbc = [first, ...])
+
+    @property
+    def dbcs(self) -> tuple[Path, ...]:
+        return (self.dbc,) + self.extra_dbcs
 
     def missing(self, needs: tuple[str, ...]) -> list[str]:
         return [c for c in needs if c not in self.channels]
@@ -323,18 +328,25 @@ def load_profile(path: str | Path) -> Profile:
     vehicle = _vehicle(where, raw.get("vehicle"))
     priors = _priors(where, raw.get("priors"))
     can = raw.get("can")
-    if not isinstance(can, dict) or not isinstance(can.get("dbc"), str) or not can["dbc"]:
-        raise ProfileError(f"{where} [can]: missing 'dbc' (a path relative to the profile, or opendbc:NAME)")
+    dbc_raw = can.get("dbc") if isinstance(can, dict) else None
+    names = [dbc_raw] if isinstance(dbc_raw, str) else dbc_raw
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) and n for n in names):
+        raise ProfileError(f"{where} [can]: missing 'dbc' (a path relative to the profile, or opendbc:NAME, "
+                           f"or a list of them)")
     unknown = set(can) - {"dbc", "channel"}
     if unknown:
         raise ProfileError(f"{where} [can]: unknown key(s) {sorted(unknown)}; allowed: channel, dbc")
-    dbc_s = can["dbc"]
-    if dbc_s.startswith("opendbc:"):
-        dbc = _opendbc_path(where, dbc_s[len("opendbc:"):])
-    else:
-        dbc = (path.parent / dbc_s).resolve()
-    if not dbc.is_file():
-        raise ProfileError(f"{where} [can]: dbc file '{dbc}' does not exist")
+    dbcs = []
+    for dbc_s in names:
+        if dbc_s.startswith("opendbc:"):
+            dbc = _opendbc_path(where, dbc_s[len("opendbc:"):])
+        else:
+            dbc = (path.parent / dbc_s).resolve()
+        if not dbc.is_file():
+            raise ProfileError(f"{where} [can]: dbc file '{dbc}' does not exist")
+        if dbc in dbcs:
+            raise ProfileError(f"{where} [can]: dbc '{dbc_s}' is listed twice")
+        dbcs.append(dbc)
     bus_channel = can.get("channel")
     if bus_channel is not None and not isinstance(bus_channel, str):
         raise ProfileError(f"{where} [can]: 'channel' must be a string such as 'can0'")
@@ -345,8 +357,8 @@ def load_profile(path: str | Path) -> Profile:
     if bad:
         raise ProfileError(f"{where} [channels]: unknown channel(s) {sorted(bad)}; known: {', '.join(channels.NAMES)}")
     maps = {name: _channel(where, name, entry) for name, entry in chans_raw.items()}
-    return Profile(path=path, vehicle=vehicle, priors=priors, dbc=dbc, bus_channel=bus_channel,
-                   channels=maps, checks=_checks(where, raw.get("checks")))
+    return Profile(path=path, vehicle=vehicle, priors=priors, dbc=dbcs[0], bus_channel=bus_channel,
+                   channels=maps, checks=_checks(where, raw.get("checks")), extra_dbcs=tuple(dbcs[1:]))
 
 
 def cache_dir() -> Path:

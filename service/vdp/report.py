@@ -39,6 +39,30 @@ def compare(params: dict, truth: dict) -> dict:
     return out
 
 
+_DRIVE_WORDS = {1: "straight-line acceleration and braking", 2: "steady speed with continuous steering"}
+
+
+def stage_lines(result: dict) -> list[str]:
+    """One line per stage that produced nothing: why it could not run, and what the drive offered."""
+    lines = []
+    exc = result.get("supervisor", {}).get("excitation", {})
+    for stage in ("1", "2"):
+        ran = any(str(w["stage"]) == stage for w in result.get("windows", []))
+        if ran:
+            continue
+        why = result.get("capabilities", {}).get(stage)
+        if why:
+            lines.append(f"stage {stage} cannot run: {why}")
+        e = exc.get(stage) or {}
+        if e.get("of"):
+            blocker = e.get("main_blocker")
+            if e["seconds"] > 0 and not why:
+                blocker = result["supervisor"]["reasons"].get(stage, blocker)
+            lines.append(f"stage {stage}: the drive had {e['seconds']:.1f} of {e['of']:.1f} s of "
+                         f"{_DRIVE_WORDS[int(stage)]}" + (f"; mostly: {blocker}" if blocker else ""))
+    return lines
+
+
 def _fmt(v, digits=4):
     if v is None:
         return "-"

@@ -84,12 +84,8 @@ def run(args) -> int:
 
     print(f"{args.log}: {result['log']['frames']} frames, {result['log'].get('duration_s', 0):.1f} s of bus time, "
           f"replayed in {result['log']['wall_s']:.1f} s ({result['log']['realtime_factor']:.0f}x real time)")
-    for stage, why in result["capabilities"].items():
-        if why:
-            print(f"stage {stage} cannot run: {why}")
-    for stage in ("1", "2"):
-        if not result["capabilities"][stage] and not any(str(w["stage"]) == stage for w in result["windows"]):
-            print(f"stage {stage} found no window: {result['supervisor']['reasons'].get(stage, '')}")
+    for line in report.stage_lines(result):
+        print(line)
     print(report.table(result))
     bad = result["log"].get("bad_lines", 0)
     if bad:

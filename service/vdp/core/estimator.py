@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import math
 
+import numpy as np
+
 from .. import channels as ch
 from .learner import LearnerConfig, Stage1, Stage2
 from .params import NAMES
@@ -151,23 +153,21 @@ class TwoStageEstimator:
         return "done" if self.s2["ukf"].converged() else "stage2"
 
     def restore(self, params: dict) -> None:
-        """Start from stored estimates (value, std) instead of the priors."""
-        import numpy as np
-
+        """Start from stored estimates (value, std, samples) instead of the priors."""
         for kind in self.s1:
             for learner in (self.s1[kind], self.s2[kind]):
-                vals, stds = [], []
-                for i, n in enumerate(learner.names):
-                    p = params.get(n) or {}
+                snap = learner.snapshot()
+                vals, stds, n = [], [], 0
+                for name in learner.names:
+                    p = params.get(name) or {}
                     v, sd = p.get("value"), p.get("std")
-                    ok = v is not None and sd is not None and sd > 0
-                    vals.append(v if ok else learner.theta[i])
-                    stds.append(sd if ok else np.sqrt(learner.theta_P[i, i]))
+                    ok = v is not None and sd is not None and math.isfinite(v) and math.isfinite(sd) and sd > 0
+                    vals.append(v if ok else snap[name].value)
+                    stds.append(sd if ok else snap[name].std)
                     if ok:
-                        learner.samples = max(learner.samples, int(p.get("samples") or 1))
-                learner.theta = np.array(vals, dtype=float)
-                learner.theta_P = np.diag(np.square(stds))
-                learner._good = (learner.theta.copy(), learner.theta_P.copy())
+                        n = max(n, int(p.get("samples") or 1))
+                if n:
+                    learner.set_params(vals, np.diag(np.square(stds)), n)
         if self.s1["ukf"].converged():
             self.handover_t = self.t if self.t is not None else 0.0
 

@@ -9,7 +9,7 @@ raises.
 Convergence and identifiability are judged on the filter's own uncertainty,
 never on a truth value:
 
-- ``converged``: std below the parameter's ``converged_std``;
+- ``converged``: std below the parameter's ``converged_rel`` share of its value;
 - ``not_identifiable``: after ``min_samples`` in windows the data has not even
   halved the prior std (NOTES 12), so the number is the prior's, not the data's;
 - ``uncertain``: in between.
@@ -112,6 +112,15 @@ class StageLearner:
         except FilterError as exc:
             self._recover(str(exc))
 
+    def set_params(self, theta, cov, samples: int) -> None:
+        """Start from given estimates (a restart restoring stored values)."""
+        self.theta = np.asarray(theta, dtype=float).copy()
+        self.theta_P = np.asarray(cov, dtype=float).copy()
+        self._good = (self.theta.copy(), self.theta_P.copy())
+        self.samples = max(self.samples, int(samples))
+        self.filter = None
+        self.t_last = None
+
     def end_window(self) -> None:
         """Close the window: keep the parameters, drop the dynamic states."""
         if self.filter is not None:
@@ -134,7 +143,7 @@ class StageLearner:
                 status = "not_run"
             elif not (math.isfinite(value) and math.isfinite(std)) or not (spec.lo <= value <= spec.hi):
                 status = "invalid"
-            elif std <= spec.converged_std:
+            elif std <= spec.converged_rel * abs(value):
                 status = "converged"
             elif self.samples >= self.cfg.min_samples and std > 0.5 * self.prior_std[i]:
                 status = "not_identifiable"
@@ -231,6 +240,11 @@ class Stage1(StageLearner):
         u = np.array([y[ch.T_F], y[ch.T_R], y[ch.AX] - s.ax_bias, s.v_x, s.v_std, 0.0, 0.0])
         z = np.array([0.5 * (y[ch.WS_FL] + y[ch.WS_FR]), 0.5 * (y[ch.WS_RL] + y[ch.WS_RR])])
         return u, z, np.isfinite(z)
+
+    def set_params(self, theta, cov, samples: int) -> None:
+        super().set_params(theta, cov, samples)
+        self._acc = []
+        self.filter = self._new_filter(self.theta, self.theta_P, self._R0())
 
     def end_window(self) -> None:
         self.t_last = None  # parameter-only: nothing dynamic to drop

@@ -4,7 +4,7 @@ Table 2 of the paper, plus what a real drive needs:
 
 - stage 1 (straight-line acceleration/braking): |delta| < 0.62 deg, |yaw rate| < 1 deg/s,
   speed above ``v_min`` (slip is singular near standstill, NOTES 11), and enough
-  a_x excitation (RMS over a few seconds);
+  a_x excitation (its spread over a few seconds);
 - stage 2 (steady speed, continuous steering): stage 1 converged (the hand-over),
   speed above ``v_min``, nearly constant speed (small mean a_x), and enough
   steering or yaw excitation;
@@ -18,6 +18,7 @@ Excitation is tracked with exponential moving statistics, which cost O(1).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,12 +26,15 @@ import numpy as np
 from .. import channels as ch
 
 
+MAX_WINDOWS = 500  # windows kept for reports and the API
+
+
 @dataclass(frozen=True)
 class GateConfig:
     v_min: float = 5.0  # m/s
     delta_max_1: float = math.radians(0.62)  # Table 2
     yaw_max_1: float = math.radians(1.0)  # Table 2
-    ax_rms_min: float = 0.4  # m/s^2 over tau_ax
+    ax_std_min: float = 0.4  # m/s^2, spread of a_x over tau_ax
     ax_mean_max_2: float = 0.6  # m/s^2: "speed remains constant"
     delta_std_min_2: float = math.radians(0.8)
     yaw_rms_min_2: float = math.radians(3.0)
@@ -69,10 +73,16 @@ class Supervisor:
 
     def reset(self) -> None:
         self._t: float | None = None
+        # how long the driving itself (channels and hand-over aside) met each stage's
+        # conditions, and what most often stopped it: "no steering excitation" and the like
+        self.observed = 0.0
+        self.excited = {1: 0.0, 2: 0.0}
+        self.blockers: dict[int, dict[str, float]] = {1: {}, 2: {}}
         self._ax_m = self._ax_sq = 0.0
         self._d_m = self._d_sq = self._yaw_sq = 0.0
         self._gates = {1: _Gate(), 2: _Gate()}
-        self.windows: list[Window] = []
+        self.windows: deque[Window] = deque(maxlen=MAX_WINDOWS)  # the newest; memory stays flat
+        self.window_count = 0
         self.active: int | None = None
         self.reason: dict[int, str] = {1: "no data yet", 2: "no data yet"}
 
@@ -99,8 +109,17 @@ class Supervisor:
         if not math.isfinite(speed):
             speed = 0.5 * (y[ch.WS_RL] + y[ch.WS_RR]) * self.wheel_radius
 
-        r1 = self._why1(y, speed, c)
-        r2 = self._why2(y, speed, c, stage1_done)
+        d1, d2 = self._drive1(y, speed, c), self._drive2(y, speed, c)
+        self.observed += dt
+        for stage, d in ((1, d1), (2, d2)):
+            if d is None:
+                self.excited[stage] += dt
+            else:
+                b = self.blockers[stage]
+                b[d] = b.get(d, 0.0) + dt
+        r1 = self._missing(y, self.stage1_needs) or d1
+        r2 = ("waiting for stage 1 to converge" if not stage1_done
+              else self._missing(y, self.stage2_needs) or d2)
         self.reason = {1: r1 or "open", 2: r2 or "open"}
         hard1 = r1 is not None and not r1.startswith("little")
         hard2 = r2 is not None and not r2.startswith("little")
@@ -112,6 +131,7 @@ class Supervisor:
                 self.windows[-1].end = t
             if stage is not None:
                 self.windows.append(Window(stage, t))
+                self.window_count += 1
             self.active = stage
         if stage is not None:
             self.windows[-1].samples += 1
@@ -121,34 +141,39 @@ class Supervisor:
         bad = [ch.NAMES[i] for i in needs if not math.isfinite(y[i])]
         return f"channels missing or stale: {', '.join(bad)}" if bad else None
 
-    def _why1(self, y, speed, c) -> str | None:
-        miss = self._missing(y, self.stage1_needs)
-        if miss:
-            return miss
+    def _drive1(self, y, speed, c) -> str | None:
+        """Why the driving does not suit stage 1 (None: it does); a missing channel is not judged."""
         if not speed > c.v_min:
             return f"speed below {c.v_min} m/s"
         if abs(y[ch.DELTA]) >= c.delta_max_1:
             return "steering (|delta| >= 0.62 deg)"
         if abs(y[ch.YAW]) >= c.yaw_max_1:
             return "yawing (|yaw rate| >= 1 deg/s)"
-        if math.sqrt(max(self._ax_sq, 0.0)) < c.ax_rms_min:
-            return "little longitudinal excitation (a_x RMS too small)"
+        # the spread of a_x, not its RMS: a constant offset (grade, bias) excites nothing
+        if math.sqrt(max(self._ax_sq - self._ax_m ** 2, 0.0)) < c.ax_std_min:
+            return "little longitudinal excitation (a_x varies too little)"
         return None
 
-    def _why2(self, y, speed, c, stage1_done) -> str | None:
-        if not stage1_done:
-            return "waiting for stage 1 to converge"
-        miss = self._missing(y, self.stage2_needs)
-        if miss:
-            return miss
+    def _drive2(self, y, speed, c) -> str | None:
+        """Why the driving does not suit stage 2 (None: it does)."""
+        # steering first: it is what defines this stage, so it is the blocker worth naming
+        d_std = math.sqrt(max(self._d_sq - self._d_m ** 2, 0.0))
+        if d_std < c.delta_std_min_2 and math.sqrt(max(self._yaw_sq, 0.0)) < c.yaw_rms_min_2:
+            return "little steering excitation"
         if not speed > c.v_min:
             return f"speed below {c.v_min} m/s"
         if abs(self._ax_m) > c.ax_mean_max_2:
             return "speed not constant (|mean a_x| too large)"
-        d_std = math.sqrt(max(self._d_sq - self._d_m ** 2, 0.0))
-        if d_std < c.delta_std_min_2 and math.sqrt(max(self._yaw_sq, 0.0)) < c.yaw_rms_min_2:
-            return "little steering excitation"
         return None
+
+    def excitation(self) -> dict:
+        """Per stage: seconds the driving met its conditions, of how many, and the main blocker."""
+        out = {}
+        for stage in (1, 2):
+            b = self.blockers[stage]
+            out[str(stage)] = {"seconds": round(self.excited[stage], 2), "of": round(self.observed, 2),
+                               "main_blocker": max(b, key=b.get) if b else None}
+        return out
 
     def _hyst(self, stage: int, t: float, ok: bool, hard: bool) -> bool:
         g = self._gates[stage]
@@ -166,4 +191,4 @@ class Supervisor:
 
     def state(self) -> dict:
         return {"active_stage": self.active, "reasons": {str(k): v for k, v in self.reason.items()},
-                "windows": len(self.windows)}
+                "windows": self.window_count, "excitation": self.excitation()}

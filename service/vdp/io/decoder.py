@@ -145,7 +145,7 @@ class FrameDecoder:
         if db is None:
             db = load_dbc(profile)
         self.db = db
-        self._dbc_name = Path(profile.dbc).name
+        self._dbc_name = " + ".join(Path(d).name for d in getattr(profile, "dbcs", (profile.dbc,)))
         self._want = channel_keys(profile.bus_channel) if profile.bus_channel else None
         self._validate()
         self._plans: dict[int, _Plan] = {}
@@ -387,13 +387,38 @@ def _need(need: list[tuple[str, bool, bool]], name: str, raw: bool, check: bool)
 
 
 def load_dbc(profile: Profile) -> cantools.database.Database:
+    """The profile's DBC, plus the messages it uses from any further DBCs (``dbc = [car, extra]``).
+
+    A further DBC describes devices added to the car's bus, so only the messages the
+    profile maps or checks come from it, and their ids must be free in the DBCs before it.
+    """
+    db = _load_one(profile, profile.dbc)
+    used = {m.message for cm in profile.channels.values() for m in (cm, cm.alt) if m is not None}
+    used |= set(profile.checks)
+    for extra in getattr(profile, "extra_dbcs", ()):
+        more = _load_one(profile, extra)
+        have = {m.name for m in db.messages}
+        ids = {(m.frame_id, m.is_extended_frame): m.name for m in db.messages}
+        for m in more.messages:
+            if m.name not in used or m.name in have:
+                continue  # an earlier DBC's message of the same name wins
+            clash = ids.get((m.frame_id, m.is_extended_frame))
+            if clash is not None:
+                raise ProfileError(f"{profile.path} [can]: message {m.name} of {extra.name} has id "
+                                   f"0x{m.frame_id:X}, which {clash} of an earlier DBC already uses")
+            db.messages.append(m)
+        db.refresh()
+    return db
+
+
+def _load_one(profile: Profile, path: Path) -> cantools.database.Database:
     try:
-        db = cantools.database.load_file(str(profile.dbc), strict=False)
+        db = cantools.database.load_file(str(path), strict=False)
     except Exception as exc:  # cantools raises parser-specific errors of many types
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ProfileError(f"{profile.path} [can]: cannot load DBC {profile.dbc}: {first}") from None
+        raise ProfileError(f"{profile.path} [can]: cannot load DBC {path}: {first}") from None
     if not isinstance(db, cantools.database.can.Database):
-        raise ProfileError(f"{profile.path} [can]: {profile.dbc} is not a CAN database")
+        raise ProfileError(f"{profile.path} [can]: {path} is not a CAN database")
     return db
 
 

@@ -36,6 +36,9 @@ def signal_range(sig) -> tuple[float, float]:
         a, b = rmin * sig.scale + sig.offset, rmax * sig.scale + sig.offset
         lo, hi = min(a, b), max(a, b)
     mn, mx = sig.minimum, sig.maximum
+    tol = abs(sig.scale) * 1e-3
+    if not sig.is_float and ((mn is not None and mn < lo - tol) or (mx is not None and mx > hi + tol)):
+        return lo, hi  # a DBC range the bits cannot reach is not a physical range (as the decoder's limits())
     if not (mn == 0 and mx == 0):  # [0|0] in a DBC means "no range given"
         if mn is not None:
             lo = max(lo, float(mn))
@@ -106,7 +109,10 @@ class Encoder:
 
     def __init__(self, profile: Profile, db=None):
         self.profile = profile
-        self.db = db if db is not None else load_dbc(profile.dbc)
+        if db is None:
+            from ..io.decoder import load_dbc as load_profile_dbc
+            db = load_profile_dbc(profile)  # the profile's DBC(s), merged as the decoder sees them
+        self.db = db
         self.plans: list[MessagePlan] = []
         by_name: dict[str, MessagePlan] = {}
         for cm in profile.channels.values():

@@ -1,0 +1,5 @@
+"""The live service behind ``vdp serve``: bus, raw log, estimation worker, store."""
+
+from .service import Published, Service, Unavailable
+
+__all__ = ["Service", "Published", "Unavailable"]

@@ -1,0 +1,241 @@
+"""The bus side: open any python-can bus silent where possible, keep it open.
+
+python-can's :class:`can.Notifier` runs one receive thread per bus.  Two ways it
+goes wrong on a car:
+
+- a listener raises: without an ``on_error`` handler the thread ends, silently;
+- ``bus.recv`` raises (interface down, adapter unplugged): with a handler that
+  says "handled", the thread calls ``recv`` again at once, a busy spin.
+
+So every vdp listener catches its own errors, and :class:`BusLink` owns the
+Notifier: its ``on_error`` records the error and wakes a keeper thread, which
+stops the Notifier, shuts the bus, and opens it again with exponential backoff
+(bounded, never a spin).  The keeper also checks the receive thread is alive
+(heartbeat), so a thread that died any other way is noticed too.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable, Iterable
+
+import can
+
+from ..errors import BusError
+from ..settings import BusSettings
+
+log = logging.getLogger(__name__)
+
+# How to ask each python-can interface for listen-only (silent) mode.  Interfaces
+# not listed have none in python-can: socketcan's is a property of the netdev
+# (`ip link set can0 type can listen-only on`), virtual and udp_multicast have
+# no controller.  vdp never calls send() on any bus either way.
+LISTEN_ONLY: dict[str, dict] = {
+    "slcan": {"listen_only": True},
+    "vector": {"listen_only": True},
+    "nixnet": {"listen_only": True},
+    "cantact": {"monitor": True},
+    "kvaser": {"driver_mode": False},  # canlib's DRIVER_MODE_SILENT
+    "pcan": {"state": can.BusState.PASSIVE},
+    "systec": {"state": can.BusState.PASSIVE},
+    "seeedstudio": {"operation_mode": "silent"},
+}
+
+POLL = 0.5  # s: Notifier recv timeout and keeper heartbeat
+STABLE = 60.0  # s up before a failure starts the backoff over at reconnect_min
+
+
+def bus_kwargs(cfg: BusSettings) -> dict:
+    kw: dict = {"interface": cfg.interface, "channel": cfg.channel, "receive_own_messages": False}
+    if cfg.bitrate is not None and cfg.interface not in ("virtual", "udp_multicast"):
+        kw["bitrate"] = cfg.bitrate
+    if cfg.listen_only and cfg.interface in LISTEN_ONLY:
+        kw.update(LISTEN_ONLY[cfg.interface])
+    kw.update(cfg.kwargs)
+    if cfg.interface == "udp_multicast":
+        kw.pop("receive_own_messages")  # python-can refuses the key for this interface
+    return kw
+
+
+def open_bus(cfg: BusSettings) -> can.BusABC:
+    kw = bus_kwargs(cfg)
+    try:
+        return can.Bus(**kw)
+    except Exception as exc:  # python-can raises many types (CanError, OSError, ImportError, ValueError)
+        raise BusError(f"cannot open {cfg.interface} bus '{cfg.channel}': {type(exc).__name__}: {exc}") from exc
+
+
+@dataclass
+class LinkState:
+    state: str = "connecting"  # connecting | up | down | stopped
+    since: float = 0.0  # time.time() of the last change
+    reconnects: int = 0
+    errors: int = 0
+    last_error: str | None = None
+    retry_in: float | None = None
+    listen_only: bool | None = None  # None: the interface has no such mode
+
+
+class BusLink:
+    """Keeps one bus open and its Notifier feeding ``listeners``.  Thread-safe to query."""
+
+    def __init__(self, cfg: BusSettings, listeners: Iterable[can.Listener],
+                 reconnect_min: float = 0.5, reconnect_max: float = 30.0,
+                 opener: Callable[[BusSettings], can.BusABC] = open_bus):
+        self.cfg = cfg
+        self.listeners = list(listeners) + [_ErrorHook(self)]
+        self.reconnect_min = reconnect_min
+        self.reconnect_max = reconnect_max
+        self.opener = opener
+        self.bus: can.BusABC | None = None
+        self.notifier: can.Notifier | None = None
+        self.info = LinkState(since=time.time())
+        self.info.listen_only = True if cfg.interface in LISTEN_ONLY and cfg.listen_only else (
+            False if cfg.interface in LISTEN_ONLY else None)
+        self._failed = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+        if cfg.listen_only and cfg.interface not in LISTEN_ONLY and cfg.interface not in ("virtual",
+                                                                                              "udp_multicast"):
+            log.info("python-can's %s interface has no listen-only mode; vdp never transmits, and for "
+                     "socketcan the netdev can be made silent: ip link set %s type can listen-only on",
+                     cfg.interface, cfg.channel)
+
+    # -- control ------------------------------------------------------------------------------
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._keep, name="vdp-bus", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._failed.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10.0)
+        self._close()
+        self._set("stopped")
+
+    @property
+    def up(self) -> bool:
+        return self.info.state == "up"
+
+    def status(self) -> dict:
+        i = self.info
+        return {"interface": self.cfg.interface, "channel": self.cfg.channel, "state": i.state,
+                "since": i.since, "reconnects": i.reconnects, "errors": i.errors, "last_error": i.last_error,
+                "retry_in": i.retry_in, "listen_only": i.listen_only}
+
+    # -- called from the receive thread -----------------------------------------------------------
+    def failed(self, exc: BaseException) -> None:
+        self.info.errors += 1
+        self.info.last_error = f"{type(exc).__name__}: {exc}"
+        self._failed.set()
+        # The Notifier calls recv() again right after this returns; wait a moment so a
+        # dead interface is not polled in a tight loop before the keeper stops it.
+        self._stop.wait(0.2)
+
+    # -- keeper thread ------------------------------------------------------------------------------
+    def _set(self, state: str) -> None:
+        if state != self.info.state:
+            self.info.state = state
+            self.info.since = time.time()
+
+    def _keep(self) -> None:
+        delay = self.reconnect_min
+        first = True
+        while not self._stop.is_set():
+            self.info.retry_in = None
+            if not first:
+                self.info.reconnects += 1
+            first = False
+            try:
+                self._open()
+            except BusError as exc:
+                self.info.errors += 1
+                self.info.last_error = str(exc)
+                self._set("down")
+                log.error("%s; retrying in %.1f s", exc, delay)
+            else:
+                opened = time.monotonic()
+                self._set("up")
+                log.info("receiving from %s bus '%s'", self.cfg.interface, self.cfg.channel)
+                self._watch()
+                if self._stop.is_set():
+                    break
+                self._set("down")
+                log.error("bus %s '%s' failed (%s); reconnecting in %.1f s", self.cfg.interface,
+                          self.cfg.channel, self.info.last_error, delay)
+                self._close()
+                if time.monotonic() - opened > STABLE:
+                    delay = self.reconnect_min  # it ran well for a while: start the backoff over
+            self.info.retry_in = delay
+            if self._stop.wait(delay):
+                break
+            delay = min(delay * 2.0, self.reconnect_max)
+
+    def _open(self) -> None:
+        self._failed.clear()
+        bus = self.opener(self.cfg)
+        try:
+            notifier = can.Notifier(bus, self.listeners, timeout=POLL)
+        except Exception as exc:
+            bus.shutdown()
+            raise BusError(f"cannot start receiving from {self.cfg.interface} '{self.cfg.channel}': {exc}") from exc
+        with self._lock:
+            self.bus, self.notifier = bus, notifier
+
+    def _watch(self) -> None:
+        """Return when the bus failed or we are stopping; check the receive thread every POLL."""
+        while not self._stop.is_set():
+            if self._failed.wait(POLL):
+                return
+            n = self.notifier
+            readers = getattr(n, "_readers", [])
+            alive = any(getattr(r, "is_alive", lambda: True)() for r in readers) if readers else True
+            if not alive or (n is not None and n.exception is not None and not self._failed.is_set()):
+                exc = n.exception if n is not None and n.exception is not None else RuntimeError(
+                    "receive thread ended")
+                self.info.errors += 1
+                self.info.last_error = f"receive thread died: {type(exc).__name__}: {exc}"
+                return
+            try:
+                state = self.bus.state if self.bus is not None else can.BusState.ACTIVE
+            except Exception:  # not every interface can tell
+                state = can.BusState.ACTIVE
+            if state == can.BusState.ERROR:
+                self.info.last_error = "controller in error state (bus-off)"
+                return
+
+    def _close(self) -> None:
+        with self._lock:
+            notifier, bus = self.notifier, self.bus
+            self.notifier = self.bus = None
+        if notifier is not None:
+            try:
+                notifier.stop(timeout=2 * POLL + 1.0)
+            except Exception as exc:
+                log.debug("stopping the notifier: %s", exc)
+        if bus is not None:
+            try:
+                bus.shutdown()
+            except Exception as exc:
+                log.debug("shutting the bus: %s", exc)
+
+
+class _ErrorHook(can.Listener):
+    """Last listener: tells the link when the Notifier reports an error."""
+
+    def __init__(self, link: BusLink):
+        self.link = link
+
+    def on_message_received(self, msg: can.Message) -> None:
+        pass
+
+    def on_error(self, exc: Exception) -> None:
+        self.link.failed(exc)
+
+    def stop(self) -> None:
+        pass

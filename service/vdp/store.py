@@ -1,0 +1,257 @@
+"""The estimate store: stdlib SQLite in WAL mode, one transaction per update batch.
+
+Tables:
+
+- ``meta``: schema version, the profile's fingerprint and name, creation time;
+- ``estimates``: the current value, std, validity, stage, status and sample count
+  of each parameter (one row each, replaced per batch);
+- ``history``: a row per parameter whenever its estimate changed, for
+  ``GET /estimates/history``; bounded by pruning the oldest rows.
+
+A store belongs to one vehicle profile (its fingerprint) and one schema
+version.  Opening it with another raises :class:`StoreError` and leaves the
+file alone: mixing another car's estimates in would be wrong, and deleting
+the user's data silently would be worse.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import sqlite3
+import threading
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from .errors import StoreError
+
+log = logging.getLogger(__name__)
+
+SCHEMA_VERSION = 1
+_APP_ID = 0x56445031  # "VDP1" in PRAGMA application_id: tells a vdp store from any other SQLite file
+
+_SCHEMA = """
+CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE estimates (
+    name TEXT PRIMARY KEY, value REAL, std REAL, unit TEXT NOT NULL, valid INTEGER NOT NULL,
+    stage INTEGER NOT NULL, status TEXT NOT NULL, samples INTEGER NOT NULL,
+    t REAL NOT NULL, bus_t REAL);
+CREATE TABLE history (
+    id INTEGER PRIMARY KEY, t REAL NOT NULL, bus_t REAL, name TEXT NOT NULL, value REAL, std REAL,
+    valid INTEGER NOT NULL, stage INTEGER NOT NULL, status TEXT NOT NULL, samples INTEGER NOT NULL);
+CREATE INDEX history_name_t ON history (name, t);
+CREATE INDEX history_t ON history (t);
+"""
+
+_FIELDS = ("value", "std", "unit", "valid", "stage", "status", "samples")
+
+
+def profile_fingerprint(profile) -> str:
+    """SHA-256 over what makes estimates comparable: the vehicle, the priors, the channel map.
+
+    Taken from the parsed profile, so comments and key order in the file don't matter.
+    """
+    def chan(cm) -> dict:
+        d = asdict(cm)
+        d.pop("where", None)
+        if d.get("alt"):
+            d["alt"].pop("where", None)
+        return d
+
+    doc = {
+        "vehicle": asdict(profile.vehicle),
+        "priors": {k: asdict(v) for k, v in sorted(profile.priors.items())},
+        "channels": {k: chan(v) for k, v in sorted(profile.channels.items())},
+    }
+    text = json.dumps(doc, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _num(v: Any) -> float | None:
+    """Finite float or None: the store never holds NaN."""
+    if v is None:
+        return None
+    f = float(v)
+    return f if math.isfinite(f) else None
+
+
+class Store:
+    """One SQLite file.  ``save`` from one writer thread; ``history``/``load`` from any thread."""
+
+    def __init__(self, path: str | Path, fingerprint: str, profile_name: str = "",
+                 synchronous: str = "full", history_max_rows: int = 2_000_000):
+        self.path = Path(path)
+        self.fingerprint = fingerprint
+        self.profile_name = profile_name
+        self.history_max_rows = history_max_rows
+        self._last: dict[str, tuple] = {}  # what the last committed batch held, per parameter
+        self._saves = 0
+        self.commits = 0
+        self._wlock = threading.Lock()
+        self._rlock = threading.Lock()
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise StoreError(f"{self.path}: cannot create its directory: {exc.strerror or exc}") from None
+        self._w = self._connect()
+        try:
+            self._w.execute(f"PRAGMA synchronous={synchronous.upper()}")
+            self._check_or_create()
+        except BaseException:
+            self._w.close()
+            raise
+        self._r = self._connect()
+        for row in self._w.execute("SELECT name, value, std, valid, status FROM estimates"):
+            self._last[row[0]] = tuple(row[1:])
+
+    # -- opening ------------------------------------------------------------------------
+    def _connect(self) -> sqlite3.Connection:
+        try:
+            con = sqlite3.connect(self.path, timeout=10.0, isolation_level=None, check_same_thread=False)
+        except sqlite3.Error as exc:
+            raise StoreError(f"{self.path}: cannot open: {exc}") from None
+        try:
+            con.execute("PRAGMA busy_timeout=10000")
+            mode = con.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+        except sqlite3.DatabaseError as exc:
+            con.close()
+            raise StoreError(f"{self.path}: not a vdp store ({exc}); move it away or set [store] path "
+                             "to a new file") from None
+        if str(mode).lower() != "wal":
+            con.close()
+            raise StoreError(f"{self.path}: cannot use WAL mode (got {mode}); is it on a network file system?")
+        return con
+
+    def _check_or_create(self) -> None:
+        con = self._w
+        tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        app_id = con.execute("PRAGMA application_id").fetchone()[0]
+        if not tables and app_id == 0:
+            con.execute("BEGIN IMMEDIATE")  # statements one by one: executescript() would COMMIT
+            try:
+                for stmt in filter(None, (s.strip() for s in _SCHEMA.split(";"))):
+                    con.execute(stmt)
+                meta = {"schema_version": str(SCHEMA_VERSION), "profile_fingerprint": self.fingerprint,
+                        "profile_name": self.profile_name, "created": f"{time.time():.3f}"}
+                con.executemany("INSERT INTO meta VALUES (?, ?)", meta.items())
+                con.execute(f"PRAGMA application_id={_APP_ID}")
+                con.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
+                con.execute("COMMIT")
+            except BaseException:
+                con.execute("ROLLBACK")
+                raise
+            log.info("created estimate store %s for profile %s", self.path, self.profile_name or "?")
+            return
+        if app_id != _APP_ID or "meta" not in tables:
+            raise StoreError(f"{self.path}: is an SQLite file but not a vdp estimate store; "
+                             "move it away or set [store] path to a new file")
+        meta = dict(con.execute("SELECT key, value FROM meta").fetchall())
+        version = meta.get("schema_version")
+        if version != str(SCHEMA_VERSION):
+            raise StoreError(f"{self.path}: written with store schema {version}, this vdp uses "
+                             f"{SCHEMA_VERSION}; the stored estimates are not loaded. Move the file away "
+                             "(keep it if you want its history) or set [store] path to a new file")
+        fp = meta.get("profile_fingerprint")
+        if fp != self.fingerprint:
+            raise StoreError(f"{self.path}: holds estimates of another vehicle profile "
+                             f"('{meta.get('profile_name', '?')}', fingerprint {str(fp)[:12]}; this profile "
+                             f"'{self.profile_name}' is {self.fingerprint[:12]}); they are not loaded. Move "
+                             "the file away or set [store] path to a new file for this profile")
+
+    # -- use ------------------------------------------------------------------------------
+    def load(self) -> dict[str, dict]:
+        """The last committed estimates: name -> {value, std, unit, valid, stage, status, samples, t}."""
+        with self._rlock:
+            rows = self._r.execute("SELECT name, value, std, unit, valid, stage, status, samples, t, bus_t "
+                                   "FROM estimates").fetchall()
+        return {r[0]: {"value": r[1], "std": r[2], "unit": r[3], "valid": bool(r[4]), "stage": r[5],
+                       "status": r[6], "samples": r[7], "t": r[8], "bus_t": r[9]} for r in rows}
+
+    def save(self, parameters: dict[str, dict], t: float | None = None, bus_t: float | None = None) -> int:
+        """Commit one batch: the current rows, and history rows for what changed.  Returns those."""
+        t = time.time() if t is None else t
+        cur, hist, seen = [], [], {}
+        for name, p in parameters.items():
+            value, std = _num(p.get("value")), _num(p.get("std"))
+            valid = 1 if p.get("valid") and value is not None else 0
+            status = str(p.get("status", ""))
+            row = (name, value, std, str(p.get("unit", "")), valid, int(p.get("stage") or 0), status,
+                   int(p.get("samples") or 0), t, _num(bus_t))
+            cur.append(row)
+            key = (value, std, valid, status)
+            seen[name] = key
+            if self._last.get(name) != key:
+                hist.append((t, _num(bus_t), name, value, std, valid, row[5], status, row[7]))
+        with self._wlock:
+            con = self._w
+            try:
+                con.execute("BEGIN IMMEDIATE")
+                con.executemany("INSERT OR REPLACE INTO estimates VALUES (?,?,?,?,?,?,?,?,?,?)", cur)
+                if hist:
+                    con.executemany("INSERT INTO history (t, bus_t, name, value, std, valid, stage, status, "
+                                    "samples) VALUES (?,?,?,?,?,?,?,?,?)", hist)
+                self._saves += 1
+                if self._saves % 600 == 0:
+                    self._prune()
+                con.execute("COMMIT")
+            except sqlite3.Error as exc:
+                try:
+                    con.execute("ROLLBACK")
+                except sqlite3.Error:
+                    pass
+                raise StoreError(f"{self.path}: could not commit estimates: {exc}") from None
+        self._last.update(seen)
+        self.commits += 1
+        return len(hist)
+
+    def _prune(self) -> None:
+        # ids grow monotonically, so the newest history_max_rows rows are those above a cut-off id
+        top = self._w.execute("SELECT max(id) FROM history").fetchone()[0]
+        if top is not None and top > self.history_max_rows:
+            n = self._w.execute("DELETE FROM history WHERE id <= ?", (top - self.history_max_rows,)).rowcount
+            if n:
+                log.info("pruned %d old history rows from %s", n, self.path)
+
+    def history(self, parameter: str | None = None, since: float | None = None, until: float | None = None,
+                limit: int = 100, offset: int = 0) -> tuple[list[dict], int]:
+        """Rows oldest first, and how many match in all (for paging)."""
+        where, args = [], []
+        if parameter is not None:
+            where.append("name = ?")
+            args.append(parameter)
+        if since is not None:
+            where.append("t >= ?")
+            args.append(since)
+        if until is not None:
+            where.append("t < ?")
+            args.append(until)
+        cond = (" WHERE " + " AND ".join(where)) if where else ""
+        with self._rlock:
+            total = self._r.execute(f"SELECT count(*) FROM history{cond}", args).fetchone()[0]
+            rows = self._r.execute(f"SELECT id, t, bus_t, name, value, std, valid, stage, status, samples "
+                                   f"FROM history{cond} ORDER BY id LIMIT ? OFFSET ?",
+                                   [*args, limit, offset]).fetchall()
+        items = [{"id": r[0], "t": r[1], "bus_t": r[2], "parameter": r[3], "value": r[4], "std": r[5],
+                  "valid": bool(r[6]), "stage": r[7], "status": r[8], "samples": r[9]} for r in rows]
+        return items, total
+
+    def integrity(self) -> str:
+        with self._rlock:
+            return str(self._r.execute("PRAGMA integrity_check").fetchone()[0])
+
+    def size(self) -> int:
+        return sum(p.stat().st_size for p in (self.path, Path(f"{self.path}-wal")) if p.exists())
+
+    def close(self) -> None:
+        with self._wlock:
+            try:
+                self._w.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+            except sqlite3.Error:
+                pass
+            self._w.close()
+        with self._rlock:
+            self._r.close()

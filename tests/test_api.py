@@ -1,0 +1,305 @@
+"""The REST API over a real Service (virtual bus, store, raw log) with a small fake pipeline."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import logging
+import math
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import can
+import pytest
+from fastapi.testclient import TestClient
+
+from vdp.api import check_host, create_app
+from vdp.live import Service
+from vdp.settings import ApiSettings, BusSettings, RawLogSettings, ServiceSettings, Settings, StoreSettings
+
+ROOT = Path(__file__).resolve().parents[1]
+NAMES = ("l_f", "h", "C_K", "C_alpha", "I_z", "I_x")
+TOKEN = "s3cret-token-for-tests-0123456789"
+_chan = itertools.count()
+
+
+class FakePipeline:
+    """What the service needs of vdp.pipeline.Pipeline; l_f follows the first data byte of each frame."""
+
+    def __init__(self):
+        self.frames = 0
+        self.samples = 0
+        self.last_bus_time = None
+        self.resets: list = []
+        self.restored = None
+        self.lf = 1.25
+        self.decoder = SimpleNamespace(stats=SimpleNamespace(as_dict=lambda: {
+            "frames": self.frames, "errors": {"0x123": {"dlc": 2}}, "errors_by_kind": {"dlc": 2},
+            "unknown_ids": [{"id": "0x7FF", "count": 1}], "invalid_channels": []}))
+        self.aligner = SimpleNamespace(clock_backwards=0, clock_jumps=0)
+        self.estimator = SimpleNamespace(restore=self._restore)
+
+    def _restore(self, params):
+        self.restored = params
+        self.lf = params["l_f"]["value"]
+
+    def feed(self, msg):
+        self.frames += 1
+        self.samples += 1
+        self.last_bus_time = msg.timestamp
+        if msg.data:
+            self.lf = 1.0 + msg.data[0] / 100.0
+
+    def snapshot(self):
+        p = {n: {"value": 1.0 + i, "std": 0.1, "unit": "m", "valid": True, "stage": 1 if i < 3 else 2,
+                 "samples": self.samples, "status": "converged"} for i, n in enumerate(NAMES)}
+        p["l_f"]["value"] = self.lf
+        p["I_x"].update(value=math.nan, std=math.inf, status="not_identifiable")  # must come out null
+        return {"parameters": p, "baseline_ekf": {k: dict(v) for k, v in p.items()}, "stage": "stage2",
+                "supervisor": {"active_stage": 2, "reasons": {"1": "steering", "2": "open"}, "windows": 2},
+                "windows": [{"stage": 1, "start": 0.0, "end": 1.0, "samples": 5},
+                            {"stage": 2, "start": 2.0, "end": None, "samples": 7}],
+                "resets": {"ukf": 0, "ekf": 0}, "capabilities": {"1": None, "2": None}}
+
+    def freshness(self):
+        return {"yaw_rate": {"age": 0.01, "stale": False}, "speed": {"age": math.nan, "stale": False}}
+
+    def reset(self, stage=None):
+        self.resets.append(stage)
+        self.lf = 1.25
+
+
+def make_settings(tmp_path: Path, token: str | None = None, **service) -> Settings:
+    return Settings(
+        profile=ROOT / "profiles" / "paper.toml",
+        bus=BusSettings(interface="virtual", channel=f"test-api-{next(_chan)}", bitrate=None, listen_only=False),
+        raw_log=RawLogSettings(dir=tmp_path / "raw", max_bytes=1 << 20, max_files=4),
+        store=StoreSettings(path=tmp_path / "state.sqlite", commit_interval=0.05, synchronous="normal"),
+        api=ApiSettings(reset_token=token),
+        service=ServiceSettings(publish_interval=0.05, **service),
+        source="test",
+    )
+
+
+@pytest.fixture
+def running(tmp_path):
+    """(service, client, sender bus) factory; everything stopped at the end."""
+    made = []
+
+    def make(token=None, **service):
+        pipe = FakePipeline()
+        svc = Service(make_settings(tmp_path, token, **service), pipeline=pipe)
+        svc.start()
+        wait_up(svc)
+        client = TestClient(create_app(svc.settings, svc))
+        tx = can.Bus(interface="virtual", channel=svc.bus_cfg.channel, preserve_timestamps=True)
+        made.append((svc, tx))
+        return svc, client, tx, pipe
+
+    yield make
+    for svc, tx in made:
+        tx.shutdown()
+        svc.stop()
+
+
+def send(tx, n: int, t0: float = 1000.0, first: int = 40):
+    for k in range(n):
+        tx.send(can.Message(timestamp=t0 + 0.01 * k, arbitration_id=0x123, data=bytes([first + k % 10] * 8),
+                            is_extended_id=False))
+
+
+def wait_for(cond, what: str, limit: float = 60.0):
+    """Poll a condition; the limit only guards against a hang, it is not what is tested."""
+    end = time.monotonic() + limit
+    while not cond():
+        if time.monotonic() > end:
+            pytest.fail(f"gave up waiting for: {what}")
+        time.sleep(0.01)
+
+
+def wait_up(svc):
+    # a virtual bus delivers only to buses that exist: send nothing before the service's is open
+    wait_for(lambda: svc.link.up, "the service's bus to open")
+
+
+def wait_frames(svc, n: int):
+    wait_for(lambda: svc.intake.received >= n, f"{n} frames to arrive")
+    svc.sync()
+
+
+def no_nan(text: str) -> None:
+    assert "NaN" not in text and "Infinity" not in text
+
+
+def test_health_and_estimates(running):
+    svc, client, tx, pipe = running()
+    r = client.get("/health")
+    assert r.status_code == 200
+    assert r.json()["status"] == "degraded" and "no frames received yet" in r.json()["reasons"]
+    send(tx, 20)
+    wait_frames(svc, 20)
+    h = client.get("/health").json()
+    assert "no frames received yet" not in h["reasons"]
+
+    r = client.get("/estimates")
+    assert r.status_code == 200
+    no_nan(r.text)
+    body = r.json()
+    assert set(body["parameters"]) == set(NAMES)
+    for p in body["parameters"].values():
+        assert {"value", "std", "unit", "valid", "stage", "samples", "status"} <= set(p)
+    assert body["parameters"]["l_f"]["value"] == pytest.approx(1.0 + 49 / 100)  # the last frame's byte
+    ix = body["parameters"]["I_x"]
+    assert ix["value"] is None and ix["std"] is None and ix["valid"] is False  # NaN -> null, not valid
+    assert body["baseline_ekf"]["I_x"]["value"] is None
+    assert body["stage"] == "stage2" and body["supervisor"]["active_stage"] == 2
+    assert pipe.frames == 20
+
+
+def test_status_reports_bus_decoding_channels_gating_and_logs(running):
+    svc, client, tx, pipe = running()
+    send(tx, 30)
+    wait_frames(svc, 30)
+    r = client.get("/status")
+    assert r.status_code == 200
+    no_nan(r.text)
+    s = r.json()
+    assert s["bus"]["state"] == "up" and s["bus"]["frames"] == 30 and s["queue"]["dropped"] == 0
+    assert s["decode"]["errors"] == {"0x123": {"dlc": 2}} and s["decode"]["unknown_ids"][0]["id"] == "0x7FF"
+    assert s["channels"]["speed"]["age"] is None and s["channels"]["yaw_rate"]["stale"] is False
+    assert s["gating"]["window"] == {"stage": 2, "start": 2.0, "end": None, "samples": 7}
+    assert s["raw_log"]["enabled"] is True and s["raw_log"]["frames"] == 30
+    assert s["uptime_s"] >= 0 and s["store"]["state"] == "ok"
+
+
+def test_history_is_paged(running):
+    svc, client, tx, pipe = running()
+    svc.commit()  # the start-up snapshot (the priors)
+    for k in range(5):
+        send(tx, 1, t0=1000.0 + k, first=10 * k)
+        wait_frames(svc, k + 1)
+        svc.commit()
+    r = client.get("/estimates/history", params={"parameter": "l_f", "limit": 2})
+    assert r.status_code == 200
+    page = r.json()
+    # one row from the start-up snapshot (l_f = prior) and one per changed value
+    assert page["total"] == 6 and len(page["items"]) == 2 and page["next_offset"] == 2
+    values = []
+    offset = 0
+    while offset is not None:
+        page = client.get("/estimates/history", params={"parameter": "l_f", "limit": 2, "offset": offset}).json()
+        values += [i["value"] for i in page["items"]]
+        offset = page["next_offset"]
+    assert values == pytest.approx([1.25, 1.0, 1.1, 1.2, 1.3, 1.4])
+    everything = client.get("/estimates/history", params={"limit": 1000}).json()
+    no_nan(json.dumps(everything))
+    assert {i["parameter"] for i in everything["items"]} == set(NAMES)
+    later = client.get("/estimates/history", params={"since": everything["items"][-1]["t"]}).json()
+    assert 0 < later["total"] < everything["total"]
+    assert client.get("/estimates/history", params={"parameter": "mass"}).status_code == 422
+    assert client.get("/estimates/history", params={"limit": 0}).status_code == 422
+    assert client.get("/estimates/history", params={"since": "nan"}).status_code == 422
+
+
+def test_reset_disabled_without_a_token(running):
+    svc, client, tx, pipe = running(token=None)
+    send(tx, 5)
+    wait_frames(svc, 5)
+    before = client.get("/estimates").json()["parameters"]
+    for headers in ({}, {"Authorization": f"Bearer {TOKEN}"}):
+        r = client.post("/reset", params={"stage": "all"}, headers=headers)
+        assert r.status_code == 403 and "disabled" in r.json()["detail"]
+    assert pipe.resets == []
+    assert client.get("/estimates").json()["parameters"] == before
+
+
+def test_reset_needs_the_right_token(running):
+    svc, client, tx, pipe = running(token=TOKEN)
+    send(tx, 5)
+    wait_frames(svc, 5)
+    before = client.get("/estimates").json()["parameters"]
+    assert before["l_f"]["value"] != 1.25
+    r = client.post("/reset", json={"stage": "1"})
+    assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer"
+    assert client.post("/reset", headers={"Authorization": "Basic abc"}).status_code == 401
+    for wrong in ("nope", TOKEN[:-1], TOKEN + "x", "ü" * 40):
+        header = f"Bearer {wrong}".encode("utf-8")  # non-ASCII bytes must not break compare_digest
+        r = client.post("/reset", json={"stage": "1"}, headers={"Authorization": header})
+        assert r.status_code == 403, wrong
+    svc.sync()
+    assert pipe.resets == []
+    assert client.get("/estimates").json()["parameters"] == before
+
+    auth = {"Authorization": f"Bearer {TOKEN}"}
+    for bad in ("3", 3, True, 1.5, None, "all "):
+        assert client.post("/reset", json={"stage": bad}, headers=auth).status_code == 422, bad
+    assert client.post("/reset", params={"stage": "3"}, headers=auth).status_code == 422
+    assert pipe.resets == []
+    r = client.post("/reset", json={"stage": 1}, headers=auth)
+    assert r.status_code == 200 and r.json()["reset"] == "1"
+    r = client.post("/reset", params={"stage": "2"}, headers=auth)
+    assert r.status_code == 200 and r.json()["reset"] == "2"
+    r = client.post("/reset", headers=auth)
+    assert r.status_code == 200 and r.json()["reset"] == "all"
+    assert pipe.resets == [1, 2, None]
+    assert client.get("/estimates").json()["parameters"]["l_f"]["value"] == 1.25
+
+
+def test_metrics_text_and_per_app_registry(running):
+    svc, client, tx, pipe = running()
+    send(tx, 12)
+    wait_frames(svc, 12)
+    r = client.get("/metrics")
+    assert r.status_code == 200 and r.headers["content-type"].startswith("text/plain")
+    text = r.text
+    no_nan(text)
+    assert "vdp_frames_received_total 12.0" in text
+    assert 'vdp_estimate{parameter="l_f"}' in text
+    assert 'vdp_estimate{parameter="I_x"}' not in text  # unknown: left out, not NaN
+    assert 'vdp_estimate_valid{parameter="I_x"} 0.0' in text
+    assert 'vdp_decode_errors_total{kind="dlc"} 2.0' in text
+    assert "vdp_bus_up 1.0" in text
+    # a second app in the same process has its own registry (no duplicate-metric error)
+    svc2, client2, _, _ = running()
+    assert "vdp_frames_received_total 0.0" in client2.get("/metrics").text
+
+
+def test_openapi_says_value_and_std_are_nullable(running):
+    svc, client, tx, pipe = running()
+    schema = client.get("/openapi.json").json()
+    est = schema["components"]["schemas"]["Estimate"]["properties"]
+    for key in ("value", "std"):
+        assert {"type": "null"} in est[key]["anyOf"], est[key]
+        assert "valid is false" in est[key]["description"]
+    assert "bearer" in json.dumps(schema["components"]["securitySchemes"]).lower()
+
+
+def test_binding_elsewhere_than_loopback_warns(caplog):
+    with caplog.at_level(logging.WARNING, logger="vdp.api.app"):
+        check_host("127.0.0.1")
+        assert not caplog.records
+        check_host("0.0.0.0")
+    assert "not only on this machine" in caplog.text
+    assert ApiSettings().host == "127.0.0.1"
+
+
+def test_app_factory_builds_its_service_in_the_lifespan(tmp_path, monkeypatch):
+    import vdp.live.service as live
+
+    made = []
+    real = live.Service
+
+    class Recording(real):
+        def __init__(self, settings, **kw):
+            super().__init__(settings, pipeline=FakePipeline(), **kw)
+            made.append(self)
+
+    monkeypatch.setattr(live, "Service", Recording)
+    monkeypatch.setattr("vdp.live.Service", Recording)
+    app = create_app(make_settings(tmp_path))
+    assert not made  # nothing is built when the app is made
+    with TestClient(app) as client:
+        assert made and made[0].running
+        assert client.get("/health").status_code == 200
+    assert not made[0].running

@@ -1,0 +1,72 @@
+"""Typed service settings: the example config loads, every mistake names its key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from vdp.errors import ConfigError
+from vdp.live.bus import bus_kwargs
+from vdp.settings import BusSettings, load_settings, simulate_settings
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "vdp.toml"
+    p.write_text(text)
+    return p
+
+
+def test_the_example_config_loads():
+    s = load_settings(ROOT / "deploy" / "vdp.toml")
+    assert s.bus.interface == "socketcan" and s.bus.channel == "can0" and s.bus.receive_own_messages is False
+    assert s.api.host == "127.0.0.1" and s.api.port == 8000 and s.api.reset_token is None
+    assert s.raw_log.max_files >= 2 and s.store.path.is_absolute()
+
+
+def test_defaults_and_relative_paths(tmp_path):
+    s = load_settings(write(tmp_path, 'profile = "p.toml"\n[store]\npath = "db/x.sqlite"\n'))
+    assert s.profile == (tmp_path / "p.toml").resolve()
+    assert s.store.path == (tmp_path / "db" / "x.sqlite").resolve()
+    assert s.api.host == "127.0.0.1" and s.bus.listen_only is True
+
+
+@pytest.mark.parametrize("text, match", [
+    ('[bus]\ninterface = "socketcan"\n', "'profile' is missing"),
+    ('profile = "p.toml"\n[bus]\nbitrat = 5\n', r"\[bus\]: unknown key\(s\) \['bitrat'\]"),
+    ('profile = "p.toml"\n[bus]\nbitrate = "fast"\n', r"\[bus\] 'bitrate': must be an integer"),
+    ('profile = "p.toml"\n[bus]\nreceive_own_messages = true\n', "'receive_own_messages': must be false"),
+    ('profile = "p.toml"\n[api]\nport = 70000\n', r"\[api\] 'port': must be within"),
+    ('profile = "p.toml"\n[api]\nreset_token = "short"\n', "'reset_token': must be at least 16"),
+    ('profile = "p.toml"\n[raw_log]\nmax_files = 1\n', "'max_files': must be at least 2"),
+    ('profile = "p.toml"\n[store]\nsynchronous = "off"\n', "'synchronous'"),
+    ('profile = "p.toml"\n[service]\nreconnect_max = 0.1\n', "'reconnect_max'"),
+    ('profile = "p.toml"\n[bus.kwargs]\nchannel = "x"\n', r"\[bus.kwargs\]"),
+    ('profile = "p.toml"\n[mystery]\n', "unknown section"),
+    ('profile = "p.toml"\nbus = 3\n', r"\[bus\]: must be a table"),
+    ("profile = \n", "not valid TOML"),
+])
+def test_mistakes_name_the_key(tmp_path, text, match):
+    with pytest.raises(ConfigError, match=match):
+        load_settings(write(tmp_path, text))
+
+
+def test_missing_config_file(tmp_path):
+    with pytest.raises(ConfigError, match="no such config file"):
+        load_settings(tmp_path / "nope.toml")
+
+
+def test_listen_only_where_python_can_offers_it():
+    assert bus_kwargs(BusSettings(interface="slcan", channel="/dev/ttyACM0"))["listen_only"] is True
+    assert bus_kwargs(BusSettings(interface="kvaser", channel="0"))["driver_mode"] is False
+    kw = bus_kwargs(BusSettings(interface="socketcan", channel="can0"))
+    assert kw["receive_own_messages"] is False and "listen_only" not in kw  # no such flag: set on the netdev
+    assert "listen_only" not in bus_kwargs(BusSettings(interface="slcan", channel="x", listen_only=False))
+
+
+def test_simulate_settings_are_valid_and_local(tmp_path):
+    s = simulate_settings(ROOT / "profiles" / "paper.toml", tmp_path)
+    assert s.simulate.enabled and s.bus.interface == "virtual" and s.api.host == "127.0.0.1"
+    assert s.store.path.parent == tmp_path and s.raw_log.dir.parent == tmp_path
