@@ -22,12 +22,13 @@ from vdp.errors import ProfileError
 from vdp.io.checks import vdp_checksum
 from vdp.io.decoder import DecodeListener, FrameDecoder, compile_extractor
 from vdp.profile import MessageCheck, load_profile
+from conftest import REAL
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data"
 PAPER = load_profile(ROOT / "profiles" / "paper.toml")
 EXTRA = load_profile(DATA / "extra.toml")
-TOYOTA_DBC = Path("/work/shared/data/real/toyota_new_mc_pt_generated.dbc")
+TOYOTA_DBC = REAL / "toyota_new_mc_pt_generated.dbc"
 VDP_DB = cantools.database.load_file(str(PAPER.dbc), strict=True)
 EXTRA_DB = cantools.database.load_file(str(EXTRA.dbc), strict=True)
 DEG = math.pi / 180.0

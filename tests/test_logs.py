@@ -17,11 +17,12 @@ from vdp.errors import LogFormatError
 from vdp.io.decoder import FrameDecoder
 from vdp.io.logs import channel_keys, open_log
 from vdp.profile import load_profile
+from conftest import REAL
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data"
-RAV4_LOG = Path("/work/shared/data/real/rav4-2018-highway-60s.log.gz")
-RAV4_DBC = Path("/work/shared/data/real/toyota_new_mc_pt_generated.dbc")
+RAV4_LOG = REAL / "rav4-2018-highway-60s.log.gz"
+RAV4_DBC = REAL / "toyota_new_mc_pt_generated.dbc"
 DEG = math.pi / 180.0
 T0 = 1700000000.0
 

@@ -26,13 +26,14 @@ from vdp.pipeline import Pipeline
 from vdp.profile import ChannelMap, MessageCheck, Profile, load_profile
 from vdp.replay import replay
 from vdp.sim.run import Simulation
+from conftest import REAL
 
 pytest.importorskip("opendbc", reason="the car profiles read their DBCs from the opendbc extra")
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILES = ROOT / "profiles"
 CARS = ("toyota_rav4", "vw_golf_mk7", "hyundai_elantra_2017")
-SHARED_TOYOTA_DBC = Path("/work/shared/data/real/toyota_new_mc_pt_generated.dbc")
+SHARED_TOYOTA_DBC = REAL / "toyota_new_mc_pt_generated.dbc"
 VDP_DBC = ROOT / "dbc" / "vdp.dbc"
 UNMAPPED = {"wheel_torque_front", "wheel_torque_rear", "roll_rate", "speed"}
 

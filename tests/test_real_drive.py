@@ -20,13 +20,14 @@ from vdp.core.supervisor import GateConfig
 from vdp.io.decoder import FrameDecoder
 from vdp.io.logs import open_log
 from vdp.profile import load_profile
+from conftest import REAL
 
 pytest.importorskip("opendbc", reason="the Toyota profile generates its DBC with the opendbc extra")
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILE = ROOT / "profiles" / "toyota_rav4.toml"
 TRIMMED = ROOT / "tests" / "data" / "rav4-2018-highway-15s.log.gz"
-FULL = Path("/work/shared/data/real/rav4-2018-highway-60s.log.gz")
+FULL = REAL / "rav4-2018-highway-60s.log.gz"
 POWERTRAIN = {"wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr", "steering_angle",
               "yaw_rate", "accel_x", "accel_y"}
 
