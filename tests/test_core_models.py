@@ -70,20 +70,27 @@ def test_models_broadcast_over_sigma_points():
 
 
 def test_stage2_discrete_step_matches_fine_integration():
-    """The sub-stepped transition agrees with a fine RK4 reference of deriv()."""
+    """The sub-stepped transition agrees with a fine RK4 reference of deriv() over one filter step."""
     x = np.array([0.2, 0.3, 0.002, 0.01, 6.69e4, 2000.0, 4175.0])
     u = np.array([0.06, 10.0, 10.0 / 0.3, 0.0])
-    coarse = lateral.fx(x, 0.01, u, K2)
+    dt = 0.02  # stage 2 steps every second 10 ms sample
+    coarse = lateral.fx(x, dt, u, K2)
     ref = x.copy()
-    h = 0.01 / 200
-    for _ in range(200):
+    n = 400
+    h = dt / n
+    for _ in range(n):
         k1 = lateral.deriv(ref, u, K2)
         k2 = lateral.deriv(ref + h / 2 * k1, u, K2)
         k3 = lateral.deriv(ref + h / 2 * k2, u, K2)
         k4 = lateral.deriv(ref + h * k3, u, K2)
         ref = ref + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    # roll rate is off by ~2e-5 rad/s in this hard transient: 70x below the gyro noise
-    np.testing.assert_allclose(coarse[:4], ref[:4], rtol=2e-3, atol=5e-5)
+    # v_y and yaw rate to 0.2 %; the roll rate of this hard transient (roll far from its
+    # equilibrium) to 2e-4 rad/s, a tenth of the gyro noise
+    np.testing.assert_allclose(coarse[:2], ref[:2], rtol=2e-3)
+    np.testing.assert_allclose(coarse[2:4], ref[2:4], atol=2e-4)
+    # and halving the sub-step brings it closer (second order)
+    fine = lateral.fx(x, dt, u, K2, substeps=8)
+    assert abs(fine[3] - ref[3]) < 0.5 * abs(coarse[3] - ref[3])
 
 
 def test_roll_step_stays_stable_for_small_inertia():

@@ -39,6 +39,7 @@ class Sample:
     fresh: np.ndarray
     age: np.ndarray
     gap: bool = False  # the first tick after a gap or a clock jump
+    vals: list | None = None  # ``values`` as Python floats: cheaper to read one by one
     # filled in by the estimator's speed filter (GNSS + IMU)
     v_x: float = math.nan
     v_std: float = math.nan
@@ -139,7 +140,7 @@ class Aligner:
             if before > emitted[ch]:
                 fresh[ch] = True
                 emitted[ch] = before
-        s = Sample(T, np.array(values), np.array(fresh), np.array(ages), self.gap)
+        s = Sample(T, np.array(values), np.array(fresh), np.array(ages), self.gap, vals=values)
         self.gap = False
         return s
 

@@ -69,10 +69,12 @@ def _settings(args):
 def _bind(host: str, port: int) -> socket.socket:
     """Bind before starting anything, so a busy port is a one-line error, not a half-started service."""
     try:
-        family = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0][0]
+        family, kind, proto = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0][:3]
     except socket.gaierror as exc:
         raise ConfigError(f"cannot listen on {host}: {exc}") from None
-    sock = socket.socket(family, socket.SOCK_STREAM)
+    # proto must say TCP: asyncio sets TCP_NODELAY only on sockets whose proto is IPPROTO_TCP,
+    # and without it each answer (headers and body are two writes) waits ~40 ms for a delayed ACK.
+    sock = socket.socket(family, kind, proto)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
         sock.bind((host, port))

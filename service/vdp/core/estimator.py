@@ -49,7 +49,7 @@ class GyroBias:
         self.n = 0
 
     def update(self, s, gate: GateConfig) -> None:
-        y = s.values
+        y = s.vals if s.vals is not None else s.values.tolist()
         d, yaw, roll = y[ch.DELTA], y[ch.YAW], y[ch.ROLL]
         if (math.isfinite(d) and math.isfinite(yaw) and math.isfinite(roll)
                 and abs(d) < gate.delta_max_1 and abs(yaw) < gate.yaw_max_1):
@@ -106,7 +106,7 @@ class TwoStageEstimator:
 
     def _speed(self, t: float, s) -> None:
         """Run the GNSS + IMU speed filter and attach v_x, its std and the a_x bias to the sample."""
-        y = s.values
+        y = s.vals if s.vals is not None else s.values.tolist()
         ax = y[ch.AX]
         gnss = None
         if s.fresh[ch.SPEED] and math.isfinite(y[ch.SPEED]):
@@ -172,8 +172,8 @@ class TwoStageEstimator:
             self.handover_t = self.t if self.t is not None else 0.0
 
     def _trace_row(self, t: float, stage) -> tuple:
+        """(t, stage, per kind: ((value, std) per parameter)) straight from the filters."""
         row = [t, stage]
         for kind in self.s1:
-            p = self.parameters(kind)
-            row.append(tuple((p[n]["value"], p[n]["std"]) for n in NAMES))
+            row.append(self.s1[kind].values() + self.s2[kind].values())
         return tuple(row)

@@ -12,6 +12,7 @@ non-finite state raises :class:`FilterError`; the learner then resets.
 
 from __future__ import annotations
 
+import math
 from typing import Callable
 
 import numpy as np
@@ -22,9 +23,17 @@ from scipy.linalg import LinAlgError
 from ..errors import FilterError
 
 
+def _chol_upper(A: np.ndarray) -> np.ndarray:
+    """Upper Cholesky factor (filterpy takes the rows of U with U^T U = A); numpy's is faster than scipy's."""
+    try:
+        return np.linalg.cholesky(A).T
+    except np.linalg.LinAlgError as exc:
+        raise LinAlgError(str(exc)) from None
+
+
 def paper_points(n: int) -> MerweScaledSigmaPoints:
     """Sigma points of Table 3: alpha = 0.01, beta = 2, kappa = 3 - L."""
-    return MerweScaledSigmaPoints(n, alpha=0.01, beta=2.0, kappa=3.0 - n)
+    return MerweScaledSigmaPoints(n, alpha=0.01, beta=2.0, kappa=3.0 - n, sqrt_method=_chol_upper)
 
 
 class _VectorUKF(UnscentedKalmanFilter):
@@ -89,9 +98,10 @@ class JointFilter:
     def _check(self) -> None:
         f = self._f
         f.P = 0.5 * (f.P + f.P.T)
-        if not (np.all(np.isfinite(f.x)) and np.all(np.isfinite(f.P))):
+        # one reduction catches NaN and inf anywhere in x or P
+        if not math.isfinite(float(f.x.sum()) + float(f.P.sum())):
             raise FilterError(f"{self.kind}: non-finite state or covariance")
-        if np.any(np.diag(f.P) <= 0.0):
+        if np.diagonal(f.P).min() <= 0.0:
             raise FilterError(f"{self.kind}: covariance lost positive definiteness")
 
     # scaled wrappers of the model
@@ -113,7 +123,6 @@ class UKF(JointFilter):
         self._f.hx = self._hx_s
 
     def predict(self, dt: float, u) -> None:
-        self._check()
         self._f.Q = self.Q_rate * dt
         try:
             self._f.predict(dt=dt, u=u)
@@ -130,12 +139,7 @@ class UKF(JointFilter):
             self._f.update_masked(np.asarray(z)[mask], R[np.ix_(mask, mask)], mask, u=u)
         except (LinAlgError, ValueError, FloatingPointError) as exc:
             raise FilterError(f"ukf update: {exc}") from None
-        self._check()
-        # the next update without a predict needs sigma points of the posterior
-        try:
-            self._f.sigmas_f = self._f.points_fn.sigma_points(self._f.x, self._f.P)
-        except (LinAlgError, ValueError) as exc:
-            raise FilterError(f"ukf covariance not positive definite: {exc}") from None
+        self._check()  # (every update follows a predict, which draws fresh sigma points)
 
 
 def transition(A: np.ndarray, dt: float) -> np.ndarray:
@@ -178,7 +182,6 @@ class EKF(JointFilter):
         self._dt = 0.01
 
     def predict(self, dt: float, u) -> None:
-        self._check()
         f = self._f
         x = self.x
         A = self._jac_f(x, u)

@@ -28,6 +28,7 @@ midpoint (RK2) sub-steps.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,7 +48,7 @@ Z_YAW, Z_ROLL, Z_AY = range(3)
 N_Z = 3
 
 V_MIN = 1.0  # m/s, guards the slip-angle denominators
-SUBSTEPS = 4
+MAX_SUBSTEP = 0.005  # s: midpoint steps this short keep the yaw/lateral error well below the noise
 PARAM_FLOOR = np.array([1.0e3, 50.0, 50.0])  # keeps a wild sigma point physical
 
 
@@ -117,8 +118,10 @@ def deriv(x, u, k: Known):
     return out
 
 
-def fx(x, dt, u, k: Known, substeps: int = SUBSTEPS):
+def fx(x, dt, u, k: Known, substeps: int | None = None):
     """Discrete transition: midpoint sub-steps for (v_y, yaw), trapezoidal for roll."""
+    if substeps is None:
+        substeps = max(1, math.ceil(dt / MAX_SUBSTEP - 1e-9))
     x = np.array(x, dtype=float, copy=True)
     h = dt / substeps
     pre = _inputs(u, k)

@@ -54,7 +54,8 @@ class LearnerConfig:
     param_walk: float = 1e-4
     # the speed error is correlated over many samples; inflate its std for the filter
     speed_corr: float = 20.0
-    block: int = 5  # stage 1 averages this many samples (at least 3) per filter step
+    block: int = 10  # stage 1 averages this many samples (at least 3) per filter step
+    stage2_every: int = 2  # stage 2 steps its filter every this many samples
 
 
 @dataclass
@@ -153,6 +154,15 @@ class StageLearner:
                                  self.stage, self.samples, status)
         return out
 
+    def values(self) -> tuple:
+        """((value, std), ...) of the parameters: the trace's cheap view of snapshot()."""
+        if self.filter is not None:
+            x, P = self.filter.x, self.filter.P
+            theta, var = x[self._p], np.diagonal(P)[self._p]
+        else:
+            theta, var = self.theta, np.diagonal(self.theta_P)
+        return tuple((float(v), math.sqrt(c) if c > 0 else None) for v, c in zip(theta, var))
+
     def converged(self) -> bool:
         return all(e.valid for e in self.snapshot().values())
 
@@ -236,7 +246,7 @@ class Stage1(StageLearner):
 
     @staticmethod
     def inputs(s):
-        y = s.values
+        y = s.vals if s.vals is not None else s.values.tolist()
         u = np.array([y[ch.T_F], y[ch.T_R], y[ch.AX] - s.ax_bias, s.v_x, s.v_std, 0.0, 0.0])
         z = np.array([0.5 * (y[ch.WS_FL] + y[ch.WS_FR]), 0.5 * (y[ch.WS_RL] + y[ch.WS_RR])])
         return u, z, np.isfinite(z)
@@ -321,7 +331,7 @@ class Stage2(StageLearner):
         return np.diag([g, g, a])
 
     def inputs(self, s):
-        y = s.values
+        y = s.vals if s.vals is not None else s.values.tolist()
         v_x = y[ch.SPEED]
         # the rear wheels give a smoother v_x than GNSS: omega r / (1 + s_r), eqs (13)-(14)
         w_r = 0.5 * (y[ch.WS_RL] + y[ch.WS_RR])
@@ -354,15 +364,21 @@ class Stage2(StageLearner):
             P0[:4, :4] = np.diag([0.5 ** 2, 0.02 ** 2, 0.01 ** 2, 0.02 ** 2])
             P0[4:, 4:] = self.theta_P
             self.filter = self._new_filter(x0, P0, self._R())
-            self._u_prev = u
+            self._us = [u]
             self.t_last = t
             return
-        # the inputs over the step are the mean of its ends: holding either end
-        # shifts the steering by half a step, which a yaw inertia would absorb
-        self.filter.predict(dt, 0.5 * (self._u_prev + u))
-        self.filter.update(z, mask, u)
-        self._u_prev = u
-        self.t_last = t
+        self._us.append(u)
         self.samples += 1
-        if self.samples % self.cfg.save_every == 0:
+        if len(self._us) <= self.cfg.stage2_every:
+            return
+        # The input over the step is its trapezoidal mean: holding either end
+        # shifts the steering by half a sample, which a yaw inertia would absorb.
+        # The filter steps every stage2_every samples (CPU), with the newest measurement.
+        us = self._us
+        u_mean = (0.5 * (us[0] + us[-1]) + sum(us[1:-1])) / (len(us) - 1)
+        self.filter.predict(dt, u_mean)
+        self.filter.update(z, mask, u)
+        self._us = [u]
+        self.t_last = t
+        if self.samples % self.cfg.save_every < self.cfg.stage2_every:
             self._save_good()
