@@ -109,8 +109,12 @@ def write_json(report: dict, path: str | Path) -> None:
     Path(path).write_text(json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n", encoding="utf-8")
 
 
-def plot(trace, windows, path: str | Path, truth: dict | None = None, title: str = "") -> None:
-    """Each parameter over time with its +-2 sigma band, UKF and EKF, truth if known."""
+def plot(trace, windows, path: str | Path, truth: dict | None = None, title: str = "",
+         params: dict | None = None) -> None:
+    """Each parameter over time with its +-2 sigma band, UKF and EKF, truth if known.
+
+    ``params`` (the result's UKF parameters) labels each panel with its final status.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -140,7 +144,9 @@ def plot(trace, windows, path: str | Path, truth: dict | None = None, title: str
                 ax.axvspan(w["start"], end, color="tab:green" if w["stage"] == 1 else "tab:orange",
                            alpha=0.07, lw=0)
             spec = BY_NAME[name]
-            ax.set_title(f"{name} [{spec.unit}] (stage {spec.stage})", fontsize=10)
+            status = (params or {}).get(name, {}).get("status")
+            ax.set_title(f"{name} [{spec.unit}] (stage {spec.stage})" + (f": {status.replace('_', ' ')}"
+                                                                         if status else ""), fontsize=10)
             # keep the axis on the estimate, not on a wide early band
             finite = ukf_val[np.isfinite(ukf_val)]
             ref = [truth["parameters"][name]] if truth and truth.get("parameters", {}).get(name) else []

@@ -95,6 +95,6 @@ def run(args) -> int:
         print(f"wrote {args.json_out}")
     if args.plot:
         report.plot(pipeline.estimator.trace, result["windows"], args.plot, truth,
-                    title=f"{Path(args.log).name}: {profile.vehicle.name}")
+                    title=f"{Path(args.log).name}: {profile.vehicle.name}", params=result["parameters"])
         print(f"wrote {args.plot}")
     return 0
