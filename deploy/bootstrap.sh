@@ -37,7 +37,7 @@ if [ "$mode" = test ] && [ "$(id -u)" = 0 ]; then modprobe vcan 2>/dev/null || t
 
 case "$mode" in
     test) exec .venv/bin/python -m pytest "$@" ;;
-    run)  exec .venv/bin/vdp serve --simulate "$@" ;;
+    run)  exec .venv/bin/vdp serve --simulate --loop "$@" ;;
     simulate) exec .venv/bin/vdp simulate "$@" ;;
     *) echo "usage: bash deploy/bootstrap.sh run|test|simulate [args...]" >&2; exit 2 ;;
 esac

@@ -150,7 +150,9 @@ class TwoStageEstimator:
     def stage(self) -> str:
         if self.handover_t is None:
             return "stage1"
-        return "done" if self.s2["ukf"].converged() else "stage2"
+        # done when every stage-2 parameter is either converged or known not to be identifiable
+        settled = all(e.status in ("converged", "not_identifiable") for e in self.s2["ukf"].snapshot().values())
+        return "done" if settled else "stage2"
 
     def restore(self, params: dict) -> None:
         """Start from stored estimates (value, std, samples) instead of the priors."""
