@@ -9,7 +9,10 @@ usually known.  A channel silent for longer than its ``stale_after`` is NaN in
 the sample, so no filter ever predicts across the gap.
 
 Bus time that goes backwards is rejected; a jump forward larger than
-``max_gap`` restarts the grid (a gap marker, never one huge step).
+``max_gap`` restarts the grid (a gap marker, never one huge step).  When
+``RESYNC_AFTER`` frames in a row are behind the clock, it was the clock that
+moved (a clock step back, or one frame stamped far in the future): the grid
+restarts at the new time, so one bad timestamp never stops estimation.
 
 :class:`SampleRing` keeps the most recent samples in a fixed-size array, so
 memory stays flat however long the car drives.
@@ -28,6 +31,7 @@ from . import channels
 log = logging.getLogger(__name__)
 
 _DEPTH = 4  # values kept per channel for interpolation
+RESYNC_AFTER = 10  # frames in a row behind the clock before the grid follows them back
 
 
 @dataclass
@@ -71,6 +75,7 @@ class Aligner:
         self.gap = True
         self.clock_backwards = 0
         self.clock_jumps = 0
+        self._behind = 0  # frames in a row behind the clock
 
     def newest(self, ch: int) -> float:
         """Bus time of the newest value of channel ``ch`` (-inf if none)."""
@@ -82,14 +87,25 @@ class Aligner:
             self.clock_backwards += 1
             return []
         out: list[Sample] = []
-        if t < self.last_time - 1e-3:
+        back = t < self.last_time - 1e-3
+        if back:
             self.clock_backwards += 1
-            return out
-        if self.next_tick is None or t - self.last_time > self.max_gap:
+            self._behind += 1
+            if self._behind < RESYNC_AFTER:
+                return out
+            # Not a stray frame: the clock stepped back, or the newest time was one frame's
+            # glitch.  Waiting for the clock to catch up would stop estimation until then.
+            log.info("bus time went %.3f s back for %d frames in a row; restarting the sample grid",
+                     self.last_time - t, self._behind)
+            self.last_time = t
+        self._behind = 0
+        if back or self.next_tick is None or t - self.last_time > self.max_gap:
             if self.next_tick is not None:
                 self.clock_jumps += 1
-                log.info("bus time jumped %.3f s forward; restarting the sample grid", t - self.last_time)
-            keep_emitted = self._emitted
+                if not back:
+                    log.info("bus time jumped %.3f s forward; restarting the sample grid", t - self.last_time)
+            # after a step back, values older than those already reported are new again
+            keep_emitted = self._emitted if not back else [-math.inf] * channels.N
             self.reset_history()
             self._emitted = keep_emitted
             self.next_tick = math.ceil(t / self.tick) * self.tick

@@ -118,13 +118,32 @@ def deriv(x, u, k: Known):
     return out
 
 
+def _input_grid(u, n: int) -> np.ndarray:
+    """Inputs at the 2n+1 start, mid and end points of n sub-steps.
+
+    ``u`` is one row (held) or rows sampled evenly over the step, first at its
+    start and last at its end (linearly interpolated).
+    """
+    if u.ndim == 1:
+        return np.broadcast_to(u, (2 * n + 1, len(u)))
+    pos = np.linspace(0.0, len(u) - 1, 2 * n + 1)
+    j = np.minimum(pos.astype(int), len(u) - 2)
+    w = (pos - j)[:, None]
+    return u[j] + w * (u[j + 1] - u[j])
+
+
 def fx(x, dt, u, k: Known, substeps: int | None = None):
-    """Discrete transition: midpoint sub-steps for (v_y, yaw), trapezoidal for roll."""
+    """Discrete transition: midpoint sub-steps for (v_y, yaw), trapezoidal for roll.
+
+    ``u`` is one input row, held over the step, or the inputs sampled evenly
+    over it (first row at the start, last at the end), interpolated at each
+    sub-step: a steering ramp held at its mean would lag the real one.
+    """
     if substeps is None:
         substeps = max(1, math.ceil(dt / MAX_SUBSTEP - 1e-9))
+    u = np.asarray(u, dtype=float)
     x = np.array(x, dtype=float, copy=True)
     h = dt / substeps
-    pre = _inputs(u, k)
     c_a, i_z, i_x = _params(x)
     stiff = k.k_phi - k.m * k.g * k.h
     # trapezoidal step for [phi, phi_dot]: (I - h/2 A) x' = (I + h/2 A) x + h/2 (b + b')
@@ -133,15 +152,17 @@ def fx(x, dt, u, k: Known, substeps: int | None = None):
     det = m22 - m12 * m21
     fb = k.m * k.h / i_x * (h / 2)
     v_y, yaw, phi, phi_d = x[..., V_Y], x[..., YAW], x[..., PHI], x[..., PHI_D]
-    ay0 = None
-    for _ in range(substeps):
-        vy_d, yaw_d, a0, _, _ = _rates(v_y, yaw, c_a, i_z, pre, k) if ay0 is None else first
-        vy_d1, yaw_d1, _, _, _ = _rates(v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_a, i_z, pre, k)
+    # per-step input constants at every start, mid and end point, as plain floats
+    pres = list(zip(*(np.broadcast_to(a, (2 * substeps + 1,)).tolist()
+                      for a in _inputs(_input_grid(u, substeps), k))))
+    start = _rates(v_y, yaw, c_a, i_z, pres[0], k)
+    for i in range(substeps):
+        vy_d, yaw_d, a0 = start[0], start[1], start[2]
+        vy_d1, yaw_d1, _, _, _ = _rates(v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_a, i_z, pres[2 * i + 1], k)
         v_y = v_y + h * vy_d1
         yaw = yaw + h * yaw_d1
-        first = _rates(v_y, yaw, c_a, i_z, pre, k)
-        a1 = first[2]
-        ay0 = a1
+        start = _rates(v_y, yaw, c_a, i_z, pres[2 * i + 2], k)
+        a1 = start[2]
         r1 = phi + h / 2 * phi_d
         r2 = phi_d + h / 2 * (a21 * phi + a22 * phi_d) + fb * (a0 + a1)
         phi, phi_d = (m22 * r1 - m12 * r2) / det, (r2 - m21 * r1) / det

@@ -55,7 +55,7 @@ class LearnerConfig:
     # the speed error is correlated over many samples; inflate its std for the filter
     speed_corr: float = 20.0
     block: int = 10  # stage 1 averages this many samples (at least 3) per filter step
-    stage2_every: int = 2  # stage 2 steps its filter every this many samples
+    stage2_every: int = 4  # stage 2 steps its filter every this many samples
 
 
 @dataclass
@@ -264,8 +264,8 @@ class Stage1(StageLearner):
         u, z, mask = self.inputs(s)
         if not (np.all(np.isfinite(u)) and mask.all()):
             return
-        if self.t_last is not None and t - self.t_last > self.cfg.max_gap:
-            self._acc = []
+        if self.t_last is not None and (s.gap or t - self.t_last > self.cfg.max_gap):
+            self._acc = []  # a block never spans a gap or a clock jump (the grid restarts with gap set)
         self.t_last = t
         self.samples += 1
         # Block averages of inputs and measurements: the torque noise is input
@@ -314,7 +314,7 @@ class Stage2(StageLearner):
         return lateral.hx(x, u, self.known)
 
     def _jac_f(self, x, u):
-        return lateral.jac_f(x, u, self.known)
+        return lateral.jac_f(x, u.mean(axis=0) if u.ndim == 2 else u, self.known)
 
     def _jac_h(self, x, u):
         return lateral.jac_h(x, u, self.known)
@@ -371,12 +371,11 @@ class Stage2(StageLearner):
         self.samples += 1
         if len(self._us) <= self.cfg.stage2_every:
             return
-        # The input over the step is its trapezoidal mean: holding either end
-        # shifts the steering by half a sample, which a yaw inertia would absorb.
-        # The filter steps every stage2_every samples (CPU), with the newest measurement.
-        us = self._us
-        u_mean = (0.5 * (us[0] + us[-1]) + sum(us[1:-1])) / (len(us) - 1)
-        self.filter.predict(dt, u_mean)
+        # The filter steps every stage2_every samples (CPU) with the newest measurement;
+        # the model sees every input sample of the step, interpolated between them:
+        # holding the steering at either end (or its mean) would shift it in time,
+        # and a yaw inertia would absorb the shift.
+        self.filter.predict(dt, np.array(self._us))
         self.filter.update(z, mask, u)
         self._us = [u]
         self.t_last = t

@@ -183,7 +183,7 @@ class Supervisor:
         if not ok and hard:
             g.open, g.since = False, None
             return False
-        if g.since is None:
+        if g.since is None or t < g.since:  # (t < since: the bus clock stepped back)
             g.since = t
         if t - g.since >= (self.cfg.t_on if ok else self.cfg.t_off):
             g.open, g.since = ok, None

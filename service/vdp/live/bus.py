@@ -12,11 +12,19 @@ Notifier: its ``on_error`` records the error and wakes a keeper thread, which
 stops the Notifier, shuts the bus, and opens it again with exponential backoff
 (bounded, never a spin).  The keeper also checks the receive thread is alive
 (heartbeat), so a thread that died any other way is noticed too.
+
+Where the bus is an OS socket (socketcan, udp_multicast) the kernel queues frames
+until the receive thread reads them, in a buffer of ``net.core.rmem_default``
+(about 200 KiB: some 30 ms of a saturated bus).  The receive thread shares the GIL
+with the estimator and the API, so a burst of API requests can hold it off longer
+than that, and the kernel then drops frames without anyone counting them.  So the
+link asks for :data:`RECEIVE_BUFFER` on every socket it opens.
 """
 
 from __future__ import annotations
 
 import logging
+import socket
 import threading
 import time
 from dataclasses import dataclass
@@ -45,6 +53,9 @@ LISTEN_ONLY: dict[str, dict] = {
 }
 
 POLL = 0.5  # s: Notifier recv timeout and keeper heartbeat
+# Kernel receive buffer asked for the bus socket: about a second of a saturated 1 Mbit/s
+# bus (the kernel counts ~0.5-1 KiB per queued frame), so a GIL pause never loses frames.
+RECEIVE_BUFFER = 8 << 20
 STABLE = 60.0  # s up before a failure starts the backoff over at reconnect_min
 
 
@@ -58,6 +69,35 @@ def bus_kwargs(cfg: BusSettings) -> dict:
     if cfg.interface == "udp_multicast":
         kw.pop("receive_own_messages")  # python-can refuses the key for this interface
     return kw
+
+
+def bus_socket(bus: can.BusABC) -> socket.socket | None:
+    """The OS socket under a python-can bus, where there is one (socketcan, udp_multicast)."""
+    sock = getattr(bus, "socket", None)  # socketcan
+    if sock is None:
+        sock = getattr(getattr(bus, "_multicast", None), "_socket", None)  # udp_multicast
+    return sock if isinstance(sock, socket.socket) else None
+
+
+def enlarge_receive_buffer(bus: can.BusABC, size: int = RECEIVE_BUFFER) -> int | None:
+    """Ask the kernel for ``size`` bytes of receive buffer; return what it gave (None: no socket)."""
+    sock = bus_socket(bus)
+    if sock is None:
+        return None
+    # SO_RCVBUFFORCE goes past net.core.rmem_max but needs CAP_NET_ADMIN; SO_RCVBUF is capped by it.
+    for opt in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        if opt is None:
+            continue
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, opt, size)
+            break
+        except OSError:
+            continue
+    try:
+        # Linux reports twice what was asked (it counts its bookkeeping): halve it back
+        return sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) // 2
+    except OSError:
+        return None
 
 
 def open_bus(cfg: BusSettings) -> can.BusABC:
@@ -77,6 +117,7 @@ class LinkState:
     last_error: str | None = None
     retry_in: float | None = None
     listen_only: bool | None = None  # None: the interface has no such mode
+    receive_buffer: int | None = None  # bytes of kernel receive buffer (None: not a socket)
 
 
 class BusLink:
@@ -99,6 +140,7 @@ class BusLink:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
+        self._warned_buffer = False
         if cfg.listen_only and cfg.interface not in LISTEN_ONLY and cfg.interface not in ("virtual",
                                                                                               "udp_multicast"):
             log.info("python-can's %s interface has no listen-only mode; vdp never transmits, and for "
@@ -126,7 +168,7 @@ class BusLink:
         i = self.info
         return {"interface": self.cfg.interface, "channel": self.cfg.channel, "state": i.state,
                 "since": i.since, "reconnects": i.reconnects, "errors": i.errors, "last_error": i.last_error,
-                "retry_in": i.retry_in, "listen_only": i.listen_only}
+                "retry_in": i.retry_in, "listen_only": i.listen_only, "receive_buffer": i.receive_buffer}
 
     # -- called from the receive thread -----------------------------------------------------------
     def failed(self, exc: BaseException) -> None:
@@ -179,6 +221,7 @@ class BusLink:
     def _open(self) -> None:
         self._failed.clear()
         bus = self.opener(self.cfg)
+        self._buffer(bus)
         try:
             notifier = can.Notifier(bus, self.listeners, timeout=POLL)
         except Exception as exc:
@@ -186,6 +229,20 @@ class BusLink:
             raise BusError(f"cannot start receiving from {self.cfg.interface} '{self.cfg.channel}': {exc}") from exc
         with self._lock:
             self.bus, self.notifier = bus, notifier
+
+    def _buffer(self, bus: can.BusABC) -> None:
+        try:
+            got = enlarge_receive_buffer(bus)
+        except Exception as exc:  # a bus without a usable socket is still a bus
+            log.debug("receive buffer: %s", exc)
+            return
+        self.info.receive_buffer = got
+        if got is not None and got < RECEIVE_BUFFER and not self._warned_buffer:
+            self._warned_buffer = True
+            log.warning("the kernel gave the %s bus a receive buffer of %d KiB, not %d: a pause of the "
+                        "receive thread may lose frames on a busy bus. Raise the limit (sysctl -w "
+                        "net.core.rmem_max=%d) or run vdp with CAP_NET_ADMIN", self.cfg.interface,
+                        got >> 10, RECEIVE_BUFFER >> 10, RECEIVE_BUFFER)
 
     def _watch(self) -> None:
         """Return when the bus failed or we are stopping; check the receive thread every POLL."""

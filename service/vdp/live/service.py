@@ -160,7 +160,7 @@ class Service:
         self._rates: deque = deque()
         self.frames_per_s = 0.0
         self._resets_seen: dict = {}
-        self._diverged: tuple[float, str] | None = None  # (monotonic time, what)
+        self._diverged: dict[str, tuple[float, str]] = {}  # filter kind -> (monotonic time, what)
         self._dropped_seen = 0
         self._dropped_at: float | None = None
         self._commit_lock = threading.Lock()
@@ -302,7 +302,7 @@ class Service:
     def _note_resets(self, resets: dict) -> None:
         for kind, n in resets.items():
             if isinstance(n, int) and n > self._resets_seen.get(kind, 0):
-                self._diverged = (time.monotonic(), f"the {kind.upper()} filter diverged and was reset to its "
+                self._diverged[kind] = (time.monotonic(), f"the {kind.upper()} filter diverged and was reset to its "
                                   f"last good estimate ({n} time{'s' if n > 1 else ''} so far)")
             self._resets_seen[kind] = n
 
@@ -417,8 +417,8 @@ class Service:
         invalid = pub.decode.get("invalid_channels") or []
         if invalid:
             reasons.append(f"invalid channels (bad counter or checksum): {', '.join(invalid)}")
-        if self._diverged is not None and now - self._diverged[0] <= hold:
-            reasons.append(self._diverged[1])
+        # each filter kind on its own: the EKF diverging must not hide that the UKF did
+        reasons += [what for when, what in self._diverged.values() if now - when <= hold]
         bad = sorted(n for n, p in (pub.snapshot.get("parameters") or {}).items() if p.get("status") == "invalid")
         if bad:
             reasons.append(f"invalid estimates: {', '.join(bad)}")
