@@ -23,20 +23,23 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "service"))
 
+from vdp.core.learner import LearnerConfig  # noqa: E402
 from vdp.core.params import NAMES  # noqa: E402
 
 TOL = {"l_f": 0.01, "h": 0.03, "C_K": 0.02, "C_alpha": 0.03, "I_z": 0.05, "I_x": 0.10}
 
 
 def run_one(args) -> dict:
-    scenario, seed, noise = args
+    scenario, seed, noise, every = args
+    from vdp.core.estimator import EstimatorConfig
+    from vdp.core.learner import LearnerConfig
     from vdp.pipeline import Pipeline
     from vdp.profile import load_profile
     from vdp.sim.run import simulate
 
     profile = load_profile(ROOT / "profiles" / "paper.toml")
     frames, truth = simulate(profile, scenario, seed=seed, noise=noise)
-    pipe = Pipeline(profile)
+    pipe = Pipeline(profile, EstimatorConfig(learner=LearnerConfig(stage2_every=every)))
     t0 = time.perf_counter()
     first = None
     n = 0
@@ -113,9 +116,11 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--stage2-every", type=int, default=LearnerConfig().stage2_every,
+                    help="stage 2 steps its filter every N samples (default: the estimator's)")
     ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
     a = ap.parse_args()
-    jobs = [(a.scenario, s, a.noise) for s in range(a.first_seed, a.first_seed + a.seeds)]
+    jobs = [(a.scenario, s, a.noise, a.stage2_every) for s in range(a.first_seed, a.first_seed + a.seeds)]
     with ProcessPoolExecutor(max_workers=a.jobs) as ex:
         runs = list(ex.map(run_one, jobs))
     if a.verbose:
@@ -123,7 +128,7 @@ def main() -> int:
             errs = " ".join(f"{n}={100 * r['ukf'][n]['err']:+.2f}%" if r["ukf"][n]["err"] is not None else f"{n}=-"
                             for n in NAMES)
             print(f"seed {r['seed']}: {errs} t2%={r['t_stage1_2pct']} windows={r['windows']}")
-    print(summarise(runs, a.scenario, a.noise))
+    print(summarise(runs, a.scenario, a.noise) + f"\n(stage 2 filter step every {a.stage2_every} samples)")
     return 0
 
 
