@@ -318,9 +318,10 @@ def paper_run(name: str, tmp_path_factory) -> tuple[dict, dict]:
 @pytest.mark.parametrize("name,stage", [
     ("toyota_rav4", 1),
     pytest.param("toyota_rav4", 2, marks=pytest.mark.xfail(
-        strict=True, reason="besides the clipping: C_alpha and I_z come out about 7 % low on the RAV4 "
-                            "(3 % without noise, 5 % with vdp's finer sensors: the estimator's bias "
-                            "under noise on this car, plus its 1.5 deg steering steps)")),
+        strict=True, reason="known gap: on the RAV4's own layout C_alpha and I_z come out low, "
+                            "-2.5 % without noise and about -5 % with it (seed 11), against 3 % / 5 % "
+                            "tolerances; its sensors are coarse (1.5 deg steering-wheel steps, 10-bit "
+                            "KINEMATICS); the cause of the bias is not pinned down yet")),
     ("vw_golf_mk7", 1), ("vw_golf_mk7", 2), ("hyundai_elantra_2017", 1), ("hyundai_elantra_2017", 2)])
 def test_paper_drive_converges_on_the_cars_layout(name, stage, tmp_path_factory):
     res, truth = paper_run(name, tmp_path_factory)
