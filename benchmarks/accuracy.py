@@ -39,7 +39,7 @@ def run_one(args) -> dict:
 
     profile = load_profile(ROOT / "profiles" / "paper.toml")
     frames, truth = simulate(profile, scenario, seed=seed, noise=noise)
-    pipe = Pipeline(profile, EstimatorConfig(learner=LearnerConfig(stage2_every=every)))
+    pipe = Pipeline(profile, EstimatorConfig(learner=LearnerConfig(stage2_step=every)))
     t0 = time.perf_counter()
     first = None
     n = 0
@@ -116,11 +116,11 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--stage2-every", type=int, default=LearnerConfig().stage2_every,
-                    help="stage 2 steps its filter every N samples (default: the estimator's)")
+    ap.add_argument("--stage2-step", type=float, default=LearnerConfig().stage2_step,
+                    help="s between stage 2's filter steps (default: the estimator's)")
     ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
     a = ap.parse_args()
-    jobs = [(a.scenario, s, a.noise, a.stage2_every) for s in range(a.first_seed, a.first_seed + a.seeds)]
+    jobs = [(a.scenario, s, a.noise, a.stage2_step) for s in range(a.first_seed, a.first_seed + a.seeds)]
     with ProcessPoolExecutor(max_workers=a.jobs) as ex:
         runs = list(ex.map(run_one, jobs))
     if a.verbose:
@@ -128,7 +128,7 @@ def main() -> int:
             errs = " ".join(f"{n}={100 * r['ukf'][n]['err']:+.2f}%" if r["ukf"][n]["err"] is not None else f"{n}=-"
                             for n in NAMES)
             print(f"seed {r['seed']}: {errs} t2%={r['t_stage1_2pct']} windows={r['windows']}")
-    print(summarise(runs, a.scenario, a.noise) + f"\n(stage 2 filter step every {a.stage2_every} samples)")
+    print(summarise(runs, a.scenario, a.noise) + f"\n(stage 2 filter step every {a.stage2_step * 1000:g} ms)")
     return 0
 
 

@@ -62,6 +62,15 @@ def rss_mb() -> float:
     return float("nan")
 
 
+def udp_rcvbuf_errors() -> int | None:
+    """Datagrams the kernel dropped because a UDP socket's receive buffer was full (this netns)."""
+    try:
+        lines = [ln.split() for ln in open("/proc/net/snmp") if ln.startswith("Udp:")]
+        return int(lines[1][lines[0].index("RcvbufErrors")])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def percentile(xs: list[float], q: float) -> float:
     if not xs:
         return float("nan")

@@ -27,9 +27,9 @@ class Pipeline:
     def __init__(self, profile: Profile, cfg: EstimatorConfig | None = None, ring_capacity: int = 3000):
         self.profile = profile
         self.decoder = FrameDecoder(profile)
-        self.aligner = Aligner(stale_after=self._stale_after())
-        self.ring = SampleRing(ring_capacity)
         self.estimator = TwoStageEstimator(profile.vehicle, profile.priors, cfg)
+        self.aligner = Aligner(stale_after=self._stale_after(), tick=self.estimator.cfg.tick)
+        self.ring = SampleRing(ring_capacity)
         self.frames = 0
         self.samples = 0
         self.started = time.monotonic()

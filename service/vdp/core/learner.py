@@ -54,8 +54,17 @@ class LearnerConfig:
     param_walk: float = 1e-4
     # the speed error is correlated over many samples; inflate its std for the filter
     speed_corr: float = 20.0
-    block: int = 10  # stage 1 averages this many samples (at least 3) per filter step
-    stage2_every: int = 4  # stage 2 steps its filter every this many samples
+    tick: float = 0.01  # s between aligned samples (set by the estimator from its config)
+    block_time: float = 0.1  # s: stage 1 averages the samples of this long a block per filter step
+    stage2_step: float = 0.04  # s: stage 2 steps its filter this often (CPU), inputs in between still used
+
+    @property
+    def block(self) -> int:
+        return max(3, round(self.block_time / self.tick))
+
+    @property
+    def stage2_every(self) -> int:
+        return max(1, round(self.stage2_step / self.tick))
 
 
 @dataclass
@@ -240,8 +249,9 @@ class Stage1(StageLearner):
         """Wheel noise plus the speed's error, common to both axles (rank-one term)."""
         c = longitudinal.speed_sensitivity(self.filter.x, u, self.known)
         n = self.cfg.block
-        # averaging n samples shrinks the wheel noise, not the slowly varying speed error
-        corr = self.cfg.speed_corr / math.sqrt(n)
+        # averaging n samples shrinks the wheel noise, not the slowly varying speed
+        # error; speed_corr is stated per 10 ms of data, so the block's span counts
+        corr = self.cfg.speed_corr / math.sqrt(n * self.cfg.tick / 0.01)
         return self._R0() / n + np.outer(c, c) * (u[longitudinal.U_VX_STD] * corr) ** 2
 
     @staticmethod

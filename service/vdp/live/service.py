@@ -374,8 +374,10 @@ class Service:
         return self._pub
 
     def backlog(self) -> float:
-        """Fill fraction of the estimation queue."""
-        return self.queue.qsize() / self.queue.maxsize
+        """Fill fraction of the estimation queue, counting the simulator's frames still on its
+        virtual bus: that queue has no bound, so a lagging receive thread would grow it."""
+        flight = self.sim.sent - self.intake.received if self.sim is not None else 0
+        return (self.queue.qsize() + max(flight, 0)) / self.queue.maxsize
 
     def sync(self, timeout: float = 60.0) -> Published:
         """Wait until every frame queued so far is estimated; return the snapshot after it (tests)."""
