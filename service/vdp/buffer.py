@@ -31,6 +31,7 @@ from . import channels
 log = logging.getLogger(__name__)
 
 _DEPTH = 4  # values kept per channel for interpolation
+_EPS = 1e-6  # s: time comparisons tolerate float rounding of absolute Unix times (~2e-7 s)
 RESYNC_AFTER = 10  # frames in a row behind the clock before the grid follows them back
 
 
@@ -108,12 +109,16 @@ class Aligner:
             keep_emitted = self._emitted if not back else [-math.inf] * channels.N
             self.reset_history()
             self._emitted = keep_emitted
-            self.next_tick = math.ceil(t / self.tick) * self.tick
+            # ticks are whole multiples of the tick (n * tick, never a running sum), so
+            # a log with absolute times and one restarted at 0 put them at the same places
+            self._n = math.ceil(t / self.tick - _EPS)
+            self.next_tick = self._n * self.tick
             self.gap = True
         else:
             while self.next_tick + self.delay <= t:
                 out.append(self._sample(self.next_tick))
-                self.next_tick += self.tick
+                self._n += 1
+                self.next_tick = self._n * self.tick
         if t > self.last_time:
             self.last_time = t
         for ch, value in pairs:
@@ -139,7 +144,7 @@ class Aligner:
                 continue
             vh = self._v[ch]
             k = 0  # index of the first value after T
-            while k < _DEPTH and th[k] <= T:
+            while k < _DEPTH and th[k] <= T + _EPS:  # a frame on the tick belongs to it
                 k += 1
             if k == _DEPTH:
                 v, age, before = vh[-1], T - th[-1], th[-1]  # hold
