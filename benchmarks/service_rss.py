@@ -5,9 +5,9 @@
 
 Simulated `paper` drives back to back (a new seed each, realistic noise), with the
 saturated bus's filler IDs unless ``--extra-ids 0``, go onto a python-can virtual
-bus as fast as the service keeps up (the sender waits while the estimation queue
-is half full, as ``vdp serve --simulate --sim-speed 0`` does, or 4096 frames are
-still on the virtual bus), through the whole
+bus as fast as the service keeps up (the sender waits while 2048 frames are queued
+for estimation or still on the virtual bus: a car's real-time bus keeps the queue
+near empty), through the whole
 service: Notifier, rotating raw log, pipeline, store commits, snapshots.  RSS is
 read from /proc/self/status every ``--every`` seconds of bus time.  It prints the
 samples, the peak, and the growth from the end of the warm-up (the first 10 % of
@@ -135,10 +135,11 @@ def main() -> int:
     svc.start()
     c.wait_up(svc)
     start = 1700000000.0
-    # The virtual bus queues without bound between the sender and the receive thread: pause on
-    # frames in flight there too, or a starved receive thread would grow the benchmark's memory.
+    # Back-pressure as a car gives it: a real-time bus keeps the estimation queue near empty
+    # (see service_saturated.py), so pause at 2048 frames queued, not at half the queue, and on
+    # frames still in flight on the virtual bus (that queue has no bound).
     sender = c.SenderThread(svc.bus_cfg.channel, seconds, start, extra_ids=a.extra_ids,
-                            backlog=lambda: max(svc.backlog(), (sender.sent - svc.intake.received) / 8192))
+                            backlog=lambda: max(svc.queue.qsize(), sender.sent - svc.intake.received) / 4096)
     w0 = time.monotonic()
     samples = [(0.0, 0.0, c.rss_mb(), 0)]
     print(f"{0:>8.0f}s {0:>6.0f}s {samples[0][2]:>7.1f} {0:>12,}", flush=True)
