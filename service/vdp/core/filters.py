@@ -104,6 +104,21 @@ class JointFilter:
         if np.diagonal(f.P).min() <= 0.0:
             raise FilterError(f"{self.kind}: covariance lost positive definiteness")
 
+    def update(self, z, mask, u, R=None) -> None:
+        """Measurement update with the rows in ``mask`` (a sensor may be missing or not new)."""
+        mask = np.asarray(mask, dtype=bool)
+        if not mask.any():
+            return
+        R = self.R if R is None else R
+        try:
+            self._update(np.asarray(z)[mask], R[np.ix_(mask, mask)], mask, u)
+        except (LinAlgError, ValueError, FloatingPointError) as exc:
+            raise FilterError(f"{self.kind} update: {exc}") from None
+        self._check()
+
+    def _update(self, z, R, mask, u) -> None:
+        raise NotImplementedError
+
     # scaled wrappers of the model
     def _fx_s(self, xs, dt, u):
         return self._fx(xs * self.scale, dt, u) / self.scale
@@ -130,16 +145,9 @@ class UKF(JointFilter):
             raise FilterError(f"ukf predict: {exc}") from None
         self._check()
 
-    def update(self, z, mask, u, R=None) -> None:
-        mask = np.asarray(mask, dtype=bool)
-        if not mask.any():
-            return
-        R = self.R if R is None else R
-        try:
-            self._f.update_masked(np.asarray(z)[mask], R[np.ix_(mask, mask)], mask, u=u)
-        except (LinAlgError, ValueError, FloatingPointError) as exc:
-            raise FilterError(f"ukf update: {exc}") from None
-        self._check()  # (every update follows a predict, which draws fresh sigma points)
+    def _update(self, z, R, mask, u) -> None:
+        # (every update follows a predict, which draws fresh sigma points)
+        self._f.update_masked(z, R, mask, u=u)
 
 
 def transition(A: np.ndarray, dt: float) -> np.ndarray:
@@ -196,20 +204,11 @@ class EKF(JointFilter):
             raise FilterError(f"ekf predict: {exc}") from None
         self._check()
 
-    def update(self, z, mask, u, R=None) -> None:
-        mask = np.asarray(mask, dtype=bool)
-        if not mask.any():
-            return
-        R = self.R if R is None else R
-
+    def _update(self, z, R, mask, u) -> None:
         def H(xs):
             return (self._jac_h(xs * self.scale, u) * self.scale[None, :])[mask]
 
         def h(xs):
             return self._hx_s(xs, u)[mask]
 
-        try:
-            self._f.update(np.asarray(z)[mask], H, h, R=R[np.ix_(mask, mask)])
-        except (LinAlgError, ValueError, FloatingPointError) as exc:
-            raise FilterError(f"ekf update: {exc}") from None
-        self._check()
+        self._f.update(z, H, h, R=R)
