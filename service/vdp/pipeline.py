@@ -78,6 +78,11 @@ class Pipeline:
             self.ring.append(s)
             self.estimator.handle(s.t, s)
 
+    def pass_over(self, counts: dict[int, int]) -> None:
+        """Count frames a source left out because no plan decodes their id (see LogSource.keep_ids)."""
+        self.frames += sum(counts.values())
+        self.decoder.stats.add_unknown(counts)
+
     def snapshot(self) -> dict:
         snap = self.estimator.snapshot()
         snap["capabilities"] = self.capabilities()

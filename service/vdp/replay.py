@@ -15,6 +15,9 @@ def replay(source, pipeline, truth: dict | None = None,
     """Feed every frame of ``source`` to ``pipeline``; return the result document."""
     t0 = time.monotonic()
     first = last = None
+    keep_ids = getattr(source, "keep_ids", None)
+    if keep_ids is not None:  # lines of ids the profile does not decode never become Messages
+        keep_ids(pipeline.decoder.ids)
     feed = pipeline.feed
     n = 0
     for msg in source:
@@ -24,6 +27,10 @@ def replay(source, pipeline, truth: dict | None = None,
             first = msg.timestamp
         if progress is not None and n % PROGRESS_EVERY == 0:
             progress(source.position, n)
+    passed = getattr(source.stats, "passed_over", None)
+    if passed:
+        pipeline.pass_over(passed)
+        n += sum(passed.values())
     if n:
         last = pipeline.last_bus_time if pipeline.last_bus_time is not None else first
     wall = time.monotonic() - t0

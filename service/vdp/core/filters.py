@@ -31,9 +31,22 @@ def _chol_upper(A: np.ndarray) -> np.ndarray:
         raise LinAlgError(str(exc)) from None
 
 
+class _PaperPoints(MerweScaledSigmaPoints):
+    """filterpy's scaled sigma points, built in three array operations.
+
+    Same points in the same order (x, then x + U_k, then x - U_k for the rows of
+    the upper Cholesky factor U of (lambda + n) P); filterpy fills them row by row.
+    """
+
+    def sigma_points(self, x, P):
+        n = self.n
+        U = self.sqrt((self.alpha ** 2 * (n + self.kappa)) * P)  # lambda + n = alpha^2 (n + kappa)
+        return np.concatenate((x[None, :], x + U, x - U))
+
+
 def paper_points(n: int) -> MerweScaledSigmaPoints:
     """Sigma points of Table 3: alpha = 0.01, beta = 2, kappa = 3 - L."""
-    return MerweScaledSigmaPoints(n, alpha=0.01, beta=2.0, kappa=3.0 - n, sqrt_method=_chol_upper)
+    return _PaperPoints(n, alpha=0.01, beta=2.0, kappa=3.0 - n, sqrt_method=_chol_upper)
 
 
 class _VectorUKF(UnscentedKalmanFilter):

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -119,6 +120,14 @@ def deriv(x, u, k: Known):
     return out
 
 
+@lru_cache(maxsize=64)
+def _grid_weights(rows: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row index and weight of the 2n+1 sub-step points among ``rows`` even input samples."""
+    pos = np.linspace(0.0, rows - 1, 2 * n + 1)
+    j = np.minimum(pos.astype(int), rows - 2)
+    return j, (pos - j)[:, None]
+
+
 def _input_grid(u, n: int) -> np.ndarray:
     """Inputs at the 2n+1 start, mid and end points of n sub-steps.
 
@@ -127,10 +136,44 @@ def _input_grid(u, n: int) -> np.ndarray:
     """
     if u.ndim == 1:
         return np.broadcast_to(u, (2 * n + 1, len(u)))
-    pos = np.linspace(0.0, len(u) - 1, 2 * n + 1)
-    j = np.minimum(pos.astype(int), len(u) - 2)
-    w = (pos - j)[:, None]
+    j, w = _grid_weights(len(u), n)
     return u[j] + w * (u[j + 1] - u[j])
+
+
+def _roll_map(i_x, h: float, k: Known):
+    """One sub-step of the roll, eq (9), as r' = T r + p a_y0 + q a_y1 with r = (phi, phi_dot).
+
+    It is ROLL_SPLIT trapezoidal steps (A-stable: the roll pole is the fastest mode)
+    with a_y linear from a_y0 to a_y1 over the sub-step.  The roll is linear and i_x is
+    fixed over a step, so the steps collapse into this map once per step:
+    (I - g/2 A) r' = (I + g/2 A) r + g/2 b (a_y + a_y'), i.e. r' = S r + w (a_y + a_y').
+    """
+    n = ROLL_SPLIT
+    g = h / n
+    a21, a22 = -(k.k_phi - k.m * k.g * k.h) / i_x, -k.c_phi / i_x
+    m21, m22 = -g / 2 * a21, 1.0 - g / 2 * a22  # I - g/2 A = [[1, -g/2], [m21, m22]]
+    det = m22 + g / 2 * m21
+    # S = (I - g/2 A)^-1 (I + g/2 A), w = (I - g/2 A)^-1 [0, m h g / (2 i_x)]
+    s11 = (m22 + g / 2 * (g / 2 * a21)) / det
+    s12 = (m22 * g / 2 + g / 2 * (1.0 + g / 2 * a22)) / det
+    s21 = (-m21 + g / 2 * a21) / det
+    s22 = (-m21 * g / 2 + 1.0 + g / 2 * a22) / det
+    fb = k.m * k.h / i_x * (g / 2) / det
+    w1, w2 = g / 2 * fb, fb
+    # r_n = S^n r_0 + sum_j S^(n-1-j) w (b_j + b_j+1), b_j = a_y0 + (a_y1 - a_y0) j / n
+    t11, t12, t21, t22 = s11, s12, s21, s22
+    p1 = q1 = p2 = q2 = 0.0
+    v1, v2 = w1, w2  # S^(n-1-j) w, from j = n-1 down
+    for j in range(n - 1, -1, -1):
+        c1 = (2 * j + 1) / n  # weight of a_y1 in b_j + b_j+1
+        p1, p2 = p1 + (2.0 - c1) * v1, p2 + (2.0 - c1) * v2
+        q1, q2 = q1 + c1 * v1, q2 + c1 * v2
+        if j:
+            v1, v2 = s11 * v1 + s12 * v2, s21 * v1 + s22 * v2
+    for _ in range(n - 1):
+        t11, t12, t21, t22 = (s11 * t11 + s12 * t21, s11 * t12 + s12 * t22,
+                              s21 * t11 + s22 * t21, s21 * t12 + s22 * t22)
+    return (t11, t12, t21, t22), (p1, p2), (q1, q2)
 
 
 def fx(x, dt, u, k: Known, substeps: int | None = None):
@@ -146,14 +189,7 @@ def fx(x, dt, u, k: Known, substeps: int | None = None):
     x = np.array(x, dtype=float, copy=True)
     h = dt / substeps
     c_a, i_z, i_x = _params(x)
-    stiff = k.k_phi - k.m * k.g * k.h
-    # trapezoidal steps for [phi, phi_dot], ROLL_SPLIT per sub-step (the roll pole is
-    # the fastest mode and costs little): (I - g/2 A) x' = (I + g/2 A) x + g/2 (b + b')
-    g = h / ROLL_SPLIT
-    a21, a22 = -stiff / i_x, -k.c_phi / i_x
-    m12, m21, m22 = -g / 2, -g / 2 * a21, 1.0 - g / 2 * a22
-    det = m22 - m12 * m21
-    fb = k.m * k.h / i_x * (g / 2)
+    (t11, t12, t21, t22), (p1, p2), (q1, q2) = _roll_map(i_x, h, k)
     v_y, yaw, phi, phi_d = x[..., V_Y], x[..., YAW], x[..., PHI], x[..., PHI_D]
     # per-step input constants at every start, mid and end point, as plain floats
     pres = list(zip(*(a.tolist() for a in _inputs(_input_grid(u, substeps), k))))
@@ -165,12 +201,9 @@ def fx(x, dt, u, k: Known, substeps: int | None = None):
         yaw = yaw + h * yaw_d1
         start = _rates(v_y, yaw, c_a, i_z, pres[2 * i + 2], k)
         a1 = start[2]
-        for j in range(ROLL_SPLIT):  # a_y linear over the sub-step
-            b0 = a0 + (a1 - a0) * (j / ROLL_SPLIT)
-            b1 = a0 + (a1 - a0) * ((j + 1) / ROLL_SPLIT)
-            r1 = phi + g / 2 * phi_d
-            r2 = phi_d + g / 2 * (a21 * phi + a22 * phi_d) + fb * (b0 + b1)
-            phi, phi_d = (m22 * r1 - m12 * r2) / det, (r2 - m21 * r1) / det
+        # the roll does not act back on v_y and yaw (a_y has no phi term), so it follows
+        phi, phi_d = (t11 * phi + t12 * phi_d + p1 * a0 + q1 * a1,
+                      t21 * phi + t22 * phi_d + p2 * a0 + q2 * a1)
     x[..., V_Y], x[..., YAW], x[..., PHI], x[..., PHI_D] = v_y, yaw, phi, phi_d
     return x
 

@@ -69,6 +69,13 @@ class DecodeStats:
                 out[o[0]] += plan.good
         return out
 
+    def add_unknown(self, counts: dict[int, int]) -> None:
+        """Frames of undecoded ids that never reached decode() (filtered at the source)."""
+        unk = self.unknown
+        for key, n in counts.items():
+            unk[key] = unk.get(key, 0) + n
+            self.frames += n
+
     def error(self, key: int, kind: str) -> None:
         k = (key, kind)
         self.errors[k] = self.errors.get(k, 0) + 1

@@ -49,6 +49,7 @@ _FD_LENGTHS = frozenset((0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64))
 _DIRS = {b"R": True, b"r": True, b"T": False, b"t": False}
 _INF = math.inf
 _ID_CACHE_MAX = 1 << 16
+_EXT_KEY = 1 << 31  # marks an extended id in keep_ids() keys, as the decoder does
 
 
 def channel_keys(want: str) -> frozenset[Any]:
@@ -81,6 +82,8 @@ class LogStats:
     reasons: dict[str, int] = field(default_factory=dict)
     examples: list[BadLine] = field(default_factory=list)
     channels: set[str] = field(default_factory=set)
+    # frames of ids outside keep_ids(): id key -> count (never handed out)
+    passed_over: dict[int, int] = field(default_factory=dict)
 
     def add_bad(self, n: int, reason: str, text: str) -> None:
         self.bad += 1
@@ -90,7 +93,9 @@ class LogStats:
 
     def as_dict(self) -> dict[str, Any]:
         return {
-            "lines": self.lines, "frames": self.frames, "error_frames": self.error_frames,
+            # frames in the log: handed out plus passed over
+            "lines": self.lines, "frames": self.frames + sum(self.passed_over.values()),
+            "error_frames": self.error_frames, "passed_over": sum(self.passed_over.values()),
             "skipped_other_channels": self.skipped, "bad_lines": self.bad, "resyncs": self.resyncs,
             "bad_reasons": dict(self.reasons), "channels": sorted(self.channels),
             "bad_examples": [{self.unit: b.line, "reason": b.reason, "text": b.text}
@@ -122,6 +127,7 @@ class LogSource:
         self._want = channel_keys(channel) if channel is not None else None
         self._used = False
         self._first_good: int | None = None
+        self._keep: frozenset[int] | None = None
         name = path.name
         suffixes = [s.lower() for s in path.suffixes]
         named_gz = bool(suffixes) and suffixes[-1] == ".gz"
@@ -209,6 +215,18 @@ class LogSource:
         return min(1.0, self.position / self.size) if self.size else 1.0
 
     # -- iteration ---------------------------------------------------------
+    def keep_ids(self, keys) -> None:
+        """Hand out only frames whose id is in ``keys`` (extended ids with bit 31 set).
+
+        A bus carries many ids nobody decodes; a candump line of one is counted in
+        ``stats.passed_over`` by id and never becomes a Message, which is most of a
+        replay's reading cost.  Error, remote, FD and unusual frames are still handed
+        out, as are frames of formats read by python-can.
+        """
+        if self._used:
+            raise RuntimeError("keep_ids() must come before iterating")
+        self._keep = frozenset(keys)
+
     def __iter__(self) -> Iterator[can.Message]:
         if self._used:
             raise RuntimeError("a LogSource can be iterated only once; open the log again")
@@ -301,7 +319,9 @@ class LogSource:
         """
         st = self.stats
         chans: dict[bytes, tuple[Any, bool]] = {}  # channel text -> (channel, wanted)
-        ids: dict[bytes, tuple[int, bool]] = {}  # id text -> (id, extended), valid plain ids only
+        # id text -> (id, extended, kept, key), valid plain ids only
+        ids: dict[bytes, tuple[int, bool, bool, int]] = {}
+        over = st.passed_over
         unhex = binascii.unhexlify
         msg_cls = can.Message
         last = 0.0
@@ -351,6 +371,10 @@ class LogSource:
                 back_run = 0
                 id_b, sep, data = frame.partition(b"#")
                 key = ids.get(id_b)
+                if key is not None and not key[2]:
+                    over[key[3]] = over.get(key[3], 0) + 1
+                    last = ts
+                    continue
                 try:
                     payload = unhex(data)
                 except ValueError:
@@ -390,7 +414,7 @@ class LogSource:
         return value, self._want is None or value in self._want
 
     def _odd(self, n: int, line: bytes, ts: float, chan: Any, rx: bool, id_b: bytes, sep: bytes,
-             data: bytes, ids: dict[bytes, tuple[int, bool]]) -> can.Message | None:
+             data: bytes, ids: dict[bytes, tuple[int, bool, bool, int]]) -> can.Message | None:
         """Everything but a plain known-id classic frame: new ids, remote, FD, error frames, bad lines."""
         if not sep:
             self._bad(n, "no '#' between id and data", line)
@@ -412,7 +436,8 @@ class LogSource:
             self._bad(n, "extended id above 0x1FFFFFFF", line)
             return None
         if not err and len(ids) < _ID_CACHE_MAX:
-            ids[id_b] = (aid, ext)
+            key = aid | _EXT_KEY if ext else aid
+            ids[id_b] = (aid, ext, self._keep is None or key in self._keep, key)
         fd = remote = False
         flags = 0
         dlc = None
