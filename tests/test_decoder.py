@@ -21,7 +21,7 @@ from vdp import channels
 from vdp.errors import ProfileError
 from vdp.io.checks import vdp_checksum
 from vdp.io.decoder import DecodeListener, FrameDecoder, compile_extractor
-from vdp.profile import MessageCheck, load_profile
+from vdp.profile import ChannelMap, MessageCheck, load_profile
 from conftest import REAL
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -266,6 +266,70 @@ def test_alt_source_when_primary_silent_or_invalid():
     assert dec.invalid_messages == {"WHEELS"}
     assert dec.decode(frame(EXTRA_DB, "WHEELS_SLOW", t=1.145, WS_FL_ALT=6.0)) == [(fl, pytest.approx(6.0))]
     assert dec.stats.as_dict()["samples"]["wheel_speed_fl"] == 9
+
+
+# -- a channel split into a coarse and a fine signal (data/fine.dbc) -------------
+
+FINE_DB = cantools.database.load_file(str(DATA / "fine.dbc"), strict=True)
+
+
+def split(message="STEER_ANGLE_SENSOR", signal="STEER_ANGLE", fine="STEER_FRACTION", **keys):
+    """The paper's vehicle with only the steering-wheel angle, read from fine.dbc."""
+    cm = ChannelMap("steering_angle", message, signal, "deg", steering_wheel=True, fine=fine,
+                    where="fine.toml [channels.steering_angle]", **keys)
+    return dataclasses.replace(PAPER, dbc=DATA / "fine.dbc", channels={"steering_angle": cm}, checks={})
+
+
+def test_fine_signal_is_added_to_the_coarse_one():
+    dec = FrameDecoder(split(), FINE_DB)
+    flipped = FrameDecoder(split(sign=-1.0, scale=2.0), FINE_DB)
+    ratio = PAPER.vehicle.steering_ratio
+    for coarse, frac in ((0.0, 0.0), (-1.5, 0.7), (3.0, -0.7), (-4.5, 0.3), (498.0, 0.7)):
+        msg = frame(FINE_DB, "STEER_ANGLE_SENSOR", STEER_ANGLE=coarse, STEER_FRACTION=frac, STEER_RATE=-7)
+        assert as_dict(dec.decode(msg)) == {"steering_angle": pytest.approx((coarse + frac) * DEG / ratio)}
+        # the profile's scale and sign apply to the sum
+        assert as_dict(flipped.decode(msg)) == {"steering_angle": pytest.approx(-2 * (coarse + frac) * DEG / ratio)}
+    # raw 0x8 (-0.8) is outside the DBC's [-0.7|0.7] (Toyota never sends it): a bad frame, no sample
+    assert dec.decode(frame(FINE_DB, "STEER_ANGLE_SENSOR", STEER_ANGLE=1.5, STEER_FRACTION=-0.8)) == []
+    assert errors(dec) == {(37, "range"): 1}
+    assert dec.stats.as_dict()["samples"] == {"steering_angle": 5}
+
+
+def test_fine_signal_on_an_offset_grid():
+    dec = FrameDecoder(split("FLOOR_SPLIT", "ANGLE", "REST"), FINE_DB)
+    got = as_dict(dec.decode(frame(FINE_DB, "FLOOR_SPLIT", ANGLE=-0.75, REST=1.4)))
+    assert got == {"steering_angle": pytest.approx(0.65 * DEG / PAPER.vehicle.steering_ratio)}
+
+
+@pytest.mark.parametrize("profile,pattern", [
+    (split(fine="STEER_FRACTIN"), "fine signal 'STEER_FRACTIN' is not in message 'STEER_ANGLE_SENSOR' of fine.dbc; "
+                                  "similar: STEER_FRACTION"),
+    (split(signal="STEER_FRACTION", fine="STEER_ANGLE"),
+     r"fine signal 'STEER_ANGLE' \(steps of 1.5\) is not finer than 'STEER_FRACTION' \(steps of 0.1\)"),
+    (split("FLOOR_SPLIT", "ANGLE", "SHORT_REST"),
+     r"fine signal 'SHORT_REST' carries \[0, 0.7\] in steps of 0.1, less than one step of 'ANGLE' \(1.5\): "
+     r"their sum would have gaps"),
+    (split("FLOOR_SPLIT", "ANGLE", "REST_RAD"),
+     "fine signal 'REST_RAD' is in 'rad' but 'ANGLE' is in 'deg'; the two are added, so they must share a unit"),
+], ids=["missing", "not-finer", "gaps", "other-unit"])
+def test_fine_signal_errors(profile, pattern):
+    with pytest.raises(ProfileError, match=rf"^fine.toml \[channels.steering_angle\]: {pattern}"):
+        FrameDecoder(profile, FINE_DB)
+
+
+def test_fine_signal_in_an_unknown_unit_warns(caplog):
+    with caplog.at_level(logging.WARNING, logger="vdp.io.decoder"):
+        dec = FrameDecoder(split("FLOOR_SPLIT", "ANGLE", "REST_DEGREE"), FINE_DB)
+    assert "FLOOR_SPLIT.ANGLE in 'deg' and its fine signal REST_DEGREE in 'degree'" in caplog.text
+    got = as_dict(dec.decode(frame(FINE_DB, "FLOOR_SPLIT", ANGLE=2.25, REST_DEGREE=0.3)))
+    assert got == {"steering_angle": pytest.approx(2.55 * DEG / PAPER.vehicle.steering_ratio)}
+
+
+def test_fine_signal_must_be_an_integer():
+    cm = dataclasses.replace(EXTRA.channels["accel_x"], fine="ACCEL_Y")
+    with pytest.raises(ProfileError, match=r"\[channels.accel_x\]: 'fine' needs integer signals, "
+                                           r"but FLOATS.ACCEL_X is a float"):
+        FrameDecoder(dataclasses.replace(EXTRA, channels={**EXTRA.channels, "accel_x": cm}), EXTRA_DB)
 
 
 # -- bad frames ------------------------------------------------------------------

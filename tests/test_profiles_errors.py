@@ -110,6 +110,16 @@ LOAD_CASES = [
      "'sign_signal' must be a signal name"),
     ("steering-wheel-elsewhere", edit(YAW, yaw(**base_yaw(steering_wheel="true"))), "[channels.yaw_rate]",
      "'steering_wheel' applies to steering_angle only"),
+    ("fine-number", edit(YAW, yaw(**base_yaw(fine="0.1"))), "[channels.yaw_rate]",
+     "'fine' must be a signal name, got 0.1"),
+    ("fine-empty", edit(YAW, yaw(**base_yaw(fine='""'))), "[channels.yaw_rate]", "'fine' must be a signal name"),
+    ("fine-is-signal", edit(YAW, yaw(**base_yaw(fine='"YAW_RATE"'))), "[channels.yaw_rate]",
+     "'fine' must be another signal than signal 'YAW_RATE'"),
+    ("fine-is-sign-signal", edit(YAW, yaw(**base_yaw(fine='"ROLL_RATE"', sign_signal='"ROLL_RATE"'))),
+     "[channels.yaw_rate]", "'fine' must be another signal than sign_signal 'ROLL_RATE'"),
+    ("alt-fine-is-signal", edit(YAW, yaw(**base_yaw(alt='{ message = "A", signal = "B", unit = "deg/s", '
+                                                      'fine = "B" }'))),
+     "[channels.yaw_rate.alt]", "'fine' must be another signal than signal 'B'"),
     ("alt-of-alt", edit(YAW, yaw(**base_yaw(alt='{ message = "A", signal = "B", unit = "deg/s", '
                                                 'alt = { message = "C", signal = "D", unit = "deg/s" } }'))),
      "[channels.yaw_rate.alt]", "cannot have its own 'alt'"),
@@ -181,6 +191,13 @@ DBC_CASES = [
     ("alt-same-message", edit(YAW, yaw(**base_yaw(alt='{ message = "IMU_RATES", signal = "ROLL_RATE", '
                                                         'unit = "deg/s" }'))),
      "[channels.yaw_rate.alt]", "the alternative source must be another message than the primary 'IMU_RATES'"),
+    ("missing-fine-signal", edit(YAW, yaw(**base_yaw(fine='"YAW_RATE_FINE"'))), "[channels.yaw_rate]",
+     "fine signal 'YAW_RATE_FINE' is not in message 'IMU_RATES' of vdp.dbc; similar: YAW_RATE"),
+    ("fine-not-finer", edit(YAW, yaw(**base_yaw(fine='"ROLL_RATE"'))), "[channels.yaw_rate]",
+     r"fine signal 'ROLL_RATE' \(steps of 0.005\) is not finer than 'YAW_RATE' \(steps of 0.005\)"),
+    ("fine-other-unit", edit('signal = "STEER_WHEEL_ANGLE",', 'signal = "STEER_WHEEL_ANGLE", fine = "STEER_WHEEL_RATE",'),
+     "[channels.steering_angle]", "fine signal 'STEER_WHEEL_RATE' is in 'deg/s' but 'STEER_WHEEL_ANGLE' is in "
+                                  "'deg'; the two are added, so they must share a unit"),
     ("checks-missing-message", add('IMU_RATE = { counter = "COUNTER" }', "[checks]"), "[checks.IMU_RATE]",
      "message 'IMU_RATE' is not in vdp.dbc"),
     ("checks-missing-counter", edit('IMU_RATES          = { counter = "COUNTER"', 'IMU_RATES = { counter = "CNT"'),

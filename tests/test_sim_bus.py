@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
@@ -19,7 +20,8 @@ from vdp import channels
 from vdp.cli import main
 from vdp.errors import ConfigError, ProfileError
 from vdp.io.checks import vdp_checksum
-from vdp.profile import load_profile
+from vdp.io.decoder import FrameDecoder
+from vdp.profile import ChannelMap, load_profile
 from vdp.sim.encode import Encoder, signal_range
 from vdp.sim.run import (START_TIME, Simulation, open_bus, resolve_profile, send_live, simulate,
                          trace, truth_path, write_log)
@@ -37,7 +39,8 @@ def decode_si(profile, db, msg: can.Message) -> dict[str, float]:
     decoded = db.decode_message(msg.arbitration_id, msg.data, decode_choices=False)
     out = {}
     for ch, cm in _maps(profile, db, msg.arbitration_id):
-        si = cm.factor(profile.vehicle) * (decoded[cm.signal] * cm.scale + cm.offset)
+        v = decoded[cm.signal] + (decoded[cm.fine] if cm.fine else 0.0)
+        si = cm.factor(profile.vehicle) * (v * cm.scale + cm.offset)
         if cm.sign_signal and decoded[cm.sign_signal]:
             si = -si
         out[ch] = si
@@ -57,7 +60,7 @@ def quantum(profile, db, ch: str, frame_id: int | None = None) -> float:
     cm = profile.channels[ch]
     if frame_id is not None:
         cm = dict(_maps(profile, db, frame_id))[ch]
-    sig = db.get_message_by_name(cm.message).get_signal_by_name(cm.signal)
+    sig = db.get_message_by_name(cm.message).get_signal_by_name(cm.fine or cm.signal)
     return 0.5 * abs(sig.scale * cm.scale * cm.factor(profile.vehicle)) * (1 + 1e-9) + 1e-12
 
 
@@ -186,6 +189,53 @@ def test_encoding_inverts_the_profile_mapping(ch, u):
     got = decode_si(PROFILE, DB, can.Message(arbitration_id=plan.frame_id, data=data, is_extended_id=False))
     want = min(max(si, lo_si), hi_si)  # clipped into the DBC range
     assert abs(got[ch] - want) <= quantum(PROFILE, DB, ch)
+
+
+# -- a channel split into a coarse and a fine signal -----------------------------------
+FINE_DB = cantools.database.load_file(str(ROOT / "tests" / "data" / "fine.dbc"))
+SPLITS = {  # message: (coarse, fine)
+    "STEER_ANGLE_SENSOR": ("STEER_ANGLE", "STEER_FRACTION"),  # Toyota: round to 1.5 deg, the rest -0.7..0.7
+    "FLOOR_SPLIT": ("ANGLE", "REST"),  # a grid offset by 0.75 deg, the rest 0..1.4
+}
+
+
+def split_profile(message: str, coarse: str, fine: str, **keys):
+    """The paper's vehicle with only the steering-wheel angle, read from fine.dbc."""
+    cm = ChannelMap("steering_angle", message, coarse, "deg", steering_wheel=True, fine=fine,
+                    where="fine.toml [channels.steering_angle]", **keys)
+    return dataclasses.replace(PROFILE, dbc=ROOT / "tests" / "data" / "fine.dbc",
+                               channels={"steering_angle": cm}, checks={})
+
+
+@settings(max_examples=200, deadline=None)
+@given(message=st.sampled_from(sorted(SPLITS)), deg=st.floats(-450.0, 450.0), sign=st.sampled_from([1.0, -1.0]))
+def test_coarse_and_fine_signals_round_trip(message, deg, sign):
+    """The encoder splits a value the way the car does; the decoder's sum is within half a fine step."""
+    coarse, fine = SPLITS[message]
+    prof = split_profile(message, coarse, fine, sign=sign)
+    enc = Encoder(prof, FINE_DB)
+    plan = enc.plans[0]
+    si = math.radians(deg) / prof.vehicle.steering_ratio
+    msg = can.Message(arbitration_id=plan.frame_id, data=enc.encode(plan, {"steering_angle": si}),
+                      is_extended_id=False)
+    raw = FINE_DB.decode_message(msg.arbitration_id, msg.data, decode_choices=False)
+    sig = FINE_DB.get_message_by_name(message).get_signal_by_name(fine)
+    assert sig.minimum - 1e-9 <= raw[fine] <= sig.maximum + 1e-9  # never a fraction the car would not send
+    if message == "STEER_ANGLE_SENSOR":
+        assert abs(raw[coarse] - sign * deg) <= 0.75 + 1e-9  # rounded to the nearest 1.5 deg
+    got = FrameDecoder(prof, FINE_DB).decode(msg)
+    assert [i for i, _ in got] == [channels.INDEX["steering_angle"]]
+    assert abs(got[0][1] - si) <= quantum(prof, FINE_DB, "steering_angle")
+    assert decode_si(prof, FINE_DB, msg)["steering_angle"] == pytest.approx(got[0][1], abs=1e-12)
+
+
+def test_encoder_checks_the_fine_signal():
+    with pytest.raises(ProfileError, match=r"\[channels.steering_angle\]: fine signal 'NOPE' is not in message "
+                                           r"'FLOOR_SPLIT'"):
+        Encoder(split_profile("FLOOR_SPLIT", "ANGLE", "NOPE"), FINE_DB)
+    with pytest.raises(ProfileError, match=r"fine signal 'SHORT_REST' carries \[0, 0.7\] in steps of 0.1, "
+                                           r"less than one step of 'ANGLE' \(1.5\)"):
+        Encoder(split_profile("FLOOR_SPLIT", "ANGLE", "SHORT_REST"), FINE_DB)
 
 
 # -- determinism -------------------------------------------------------------------------

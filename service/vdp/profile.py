@@ -10,7 +10,10 @@ Conversion of a decoded DBC signal value ``v`` to the canonical SI value::
                                                         [/ steering_ratio for steering_wheel]
 
 ``sign`` may instead come from another signal of the same message
-(``sign_signal``): a non-zero value there flips the sign.
+(``sign_signal``): a non-zero value there flips the sign.  A channel split into a
+coarse signal and a finer one of the same message (Toyota's STEER_ANGLE in 1.5 deg
+steps plus STEER_FRACTION in 0.1 deg steps) names the second as ``fine``: ``v`` is
+then the sum of the two decoded values.
 
 ``[can] dbc`` is a path relative to the profile, or ``opendbc:NAME`` for a DBC of
 the installed opendbc package (the ``opendbc`` extra): a file it ships, or one its
@@ -129,6 +132,7 @@ class ChannelMap:
     sign: float = 1.0
     sign_signal: str | None = None
     steering_wheel: bool = False  # the signal is the steering-wheel angle
+    fine: str | None = None  # a finer signal of the same message, added to ``signal``
     alt: "ChannelMap | None" = None
     where: str = ""  # "profile.toml [channels.x]" for error messages
 
@@ -240,7 +244,8 @@ def _priors(where: str, raw: Any) -> dict[str, Prior]:
     return out
 
 
-_MAP_KEYS = {"message", "signal", "unit", "scale", "offset", "sign", "sign_signal", "steering_wheel", "alt"}
+_MAP_KEYS = {"message", "signal", "unit", "scale", "offset", "sign", "sign_signal", "steering_wheel", "fine",
+             "alt"}
 
 
 def _channel(where: str, name: str, raw: Any, nested: bool = False) -> ChannelMap:
@@ -274,6 +279,13 @@ def _channel(where: str, name: str, raw: Any, nested: bool = False) -> ChannelMa
     ss = raw.get("sign_signal")
     if ss is not None and not isinstance(ss, str):
         raise ProfileError(f"{w}: 'sign_signal' must be a signal name")
+    fine = raw.get("fine")
+    if fine is not None:
+        if not isinstance(fine, str) or not fine:
+            raise ProfileError(f"{w}: 'fine' must be a signal name, got {fine!r}")
+        if fine in (raw["signal"], ss):
+            raise ProfileError(f"{w}: 'fine' must be another signal than "
+                               f"{'signal' if fine == raw['signal'] else 'sign_signal'} '{fine}'")
     alt = None
     if "alt" in raw:
         if nested:
@@ -281,7 +293,7 @@ def _channel(where: str, name: str, raw: Any, nested: bool = False) -> ChannelMa
         alt = _channel(where, name, raw["alt"], nested=True)
     return ChannelMap(channel=name, message=raw["message"], signal=raw["signal"], unit=unit,
                       scale=scale, offset=_num(w, "offset", raw.get("offset", 0.0)), sign=sign,
-                      sign_signal=ss, steering_wheel=sw, alt=alt, where=w)
+                      sign_signal=ss, steering_wheel=sw, fine=fine, alt=alt, where=w)
 
 
 def _checks(where: str, raw: Any) -> dict[str, MessageCheck]:

@@ -57,9 +57,11 @@ def profile_fingerprint(profile) -> str:
     """
     def chan(cm) -> dict:
         d = asdict(cm)
-        d.pop("where", None)
-        if d.get("alt"):
-            d["alt"].pop("where", None)
+        for m in (d, d.get("alt")):
+            if m:
+                m.pop("where", None)
+                if m.get("fine") is None:
+                    m.pop("fine", None)  # a key added later: unset, it leaves older fingerprints as they were
         return d
 
     doc = {

@@ -9,7 +9,8 @@ Hot path: one dict lookup finds a frame's plan (unknown IDs stop there), and
 messages whose needed signals are plain integers are read by a small function
 generated from the DBC layout (shifts and masks on one ``int.from_bytes``),
 about 3x faster than ``cantools.Message.decode`` (benchmarks/bench_reader.py).
-Multiplexed messages and float signals go through cantools.
+Multiplexed messages and float signals go through cantools.  A channel with a
+``fine`` signal (coarse + fine layouts) sums the two in the output loop.
 """
 
 from __future__ import annotations
@@ -120,7 +121,8 @@ class _Plan:
     def __init__(self, key: int, name: str, frame_id: int, length: int, cycle_ms: float | None):
         self.key, self.name, self.frame_id, self.length = key, name, frame_id, length
         self.extract: Callable[[Any], tuple] = _nothing
-        self.outputs: list[tuple[int, int, float, float, int, _Plan | None]] = []
+        # (channel, value slot, mul, add, sign slot, primary plan if an alt, fine slot); -1: none
+        self.outputs: list[tuple[int, int, float, float, int, _Plan | None, int]] = []
         self.cnt_pos = self.cs_pos = -1
         self.cnt_mod = 16
         self.prev_count: int | None = None
@@ -193,6 +195,8 @@ class FrameDecoder:
                 sig = self._signal(m.where, msg, m.signal)
                 if m.sign_signal:
                     self._signal(m.where, msg, m.sign_signal, "sign_signal")
+                if m.fine:
+                    check_fine(m.where, msg, sig, self._signal(m.where, msg, m.fine, "fine signal"))
                 if (sig.unit in UNIT_FACTORS and UNIT_FACTORS[sig.unit] != UNIT_FACTORS[m.unit]
                         and m.scale == 1.0 and m.offset == 0.0):
                     log.warning("%s: DBC gives %s.%s in '%s' but the profile says '%s'",
@@ -219,7 +223,7 @@ class FrameDecoder:
         prof = self.profile
         # Per message: ordered list of needed signals (name, raw, range-checked).
         needs: dict[int, list[tuple[str, bool, bool]]] = {}
-        outs: dict[int, list[tuple[int, str, float, float, str | None, ChannelMap | None]]] = {}
+        outs: dict[int, list[tuple[int, str, float, float, str | None, ChannelMap | None, str | None]]] = {}
         msgs: dict[int, Any] = {}
         for cmap in prof.channels.values():
             for m, primary in ((cmap, None), (cmap.alt, cmap)):
@@ -232,9 +236,12 @@ class FrameDecoder:
                 _need(need, m.signal, raw=False, check=True)
                 if m.sign_signal:
                     _need(need, m.sign_signal, raw=False, check=False)
+                if m.fine:
+                    _need(need, m.fine, raw=False, check=True)
                 f = m.factor(prof.vehicle)
                 outs.setdefault(plan.key, []).append(
-                    (channels.INDEX[cmap.channel], m.signal, f * m.scale, f * m.offset, m.sign_signal, primary))
+                    (channels.INDEX[cmap.channel], m.signal, f * m.scale, f * m.offset, m.sign_signal, primary,
+                     m.fine))
                 if primary is None:
                     plan.channels.append(cmap.channel)
         for key, msg in msgs.items():
@@ -253,10 +260,11 @@ class FrameDecoder:
                 plan.cs_pos = pos[chk.checksum] if chk.checksum and chk.checksum_kind == "vdp" else -1
                 plan.checked = plan.cnt_pos >= 0 or plan.cs_pos >= 0
             plan.extract = compile_extractor(msg, need) or _cantools_extractor(msg, need)
-            for idx, sig, mul, add, sign_sig, primary in outs[key]:
+            for idx, sig, mul, add, sign_sig, primary, fine in outs[key]:
                 prim_plan = self._plan(self.db.get_message_by_name(primary.message)) if primary else None
-                plan.outputs.append((idx, pos[sig], mul, add, pos[sign_sig] if sign_sig else -1, prim_plan))
-            if not msg.is_multiplexed() and all(o[4] < 0 and o[5] is None for o in plan.outputs):
+                plan.outputs.append((idx, pos[sig], mul, add, pos[sign_sig] if sign_sig else -1, prim_plan,
+                                     pos[fine] if fine else -1))
+            if not msg.is_multiplexed() and all(o[4] < 0 and o[5] is None and o[6] < 0 for o in plan.outputs):
                 plan.plain = [o[:4] for o in plan.outputs]
 
     # -- decoding ----------------------------------------------------------
@@ -336,10 +344,15 @@ class FrameDecoder:
             return [(idx, vals[pos] * mul + add) for idx, pos, mul, add in plain]
         out = []
         samples = st._counted
-        for idx, pos, mul, add, sign_pos, primary in plan.outputs:
+        for idx, pos, mul, add, sign_pos, primary, fine_pos in plan.outputs:
             v = vals[pos]
             if v is None or (primary is not None and not primary.stale(t)):
                 continue  # not in this mux page, or the primary source is current
+            if fine_pos >= 0:
+                f = vals[fine_pos]
+                if f is None:
+                    continue  # the fine part is on another mux page: no whole value in this frame
+                v += f
             v = v * mul + add
             if sign_pos >= 0 and vals[sign_pos]:
                 v = -v
@@ -443,16 +456,52 @@ def limits(msg: Any, sig: Any) -> tuple[float, float]:
     hi = math.inf if sig.maximum is None else float(sig.maximum)
     if sig.is_float:
         return lo, hi
-    scale, offset = sig.conversion.scale, sig.conversion.offset
-    tol = abs(scale) * 1e-3
-    raw_lo, raw_hi = (-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.is_signed \
-        else (0, (1 << sig.length) - 1)
-    reach_lo, reach_hi = sorted((raw_lo * scale + offset, raw_hi * scale + offset))
+    tol = abs(sig.conversion.scale) * 1e-3
+    reach_lo, reach_hi = _reach(sig)
     if lo < reach_lo - tol or hi > reach_hi + tol:
         log.info("%s.%s: ignoring DBC range [%g|%g]: its %d bits carry only [%g, %g]",
                  msg.name, sig.name, lo, hi, sig.length, reach_lo, reach_hi)
         return -math.inf, math.inf
     return lo - tol, hi + tol
+
+
+def _reach(sig: Any) -> tuple[float, float]:
+    """The physical values an integer signal's bits can carry."""
+    scale, offset = sig.conversion.scale, sig.conversion.offset
+    raw_lo, raw_hi = (-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.is_signed \
+        else (0, (1 << sig.length) - 1)
+    lo, hi = sorted((raw_lo * scale + offset, raw_hi * scale + offset))
+    return lo, hi
+
+
+def check_fine(where: str, msg: Any, coarse: Any, fine: Any) -> None:
+    """A ``fine`` signal must be able to fill every step of its coarse signal, in its unit.
+
+    Otherwise the sum has gaps (or double counts), and the simulator could not encode
+    every value either.
+    """
+    for sig in (coarse, fine):
+        if sig.is_float:
+            raise ProfileError(f"{where}: 'fine' needs integer signals, but {msg.name}.{sig.name} is a float")
+    cu, fu = coarse.unit or "", fine.unit or ""
+    if cu in UNIT_FACTORS and fu in UNIT_FACTORS and UNIT_FACTORS[cu] != UNIT_FACTORS[fu]:
+        raise ProfileError(f"{where}: fine signal '{fine.name}' is in '{fu}' but '{coarse.name}' is in '{cu}'; "
+                           f"the two are added, so they must share a unit")
+    if cu and fu and cu != fu:  # units vdp does not know: maybe the same, maybe not
+        log.warning("%s: DBC gives %s.%s in '%s' and its fine signal %s in '%s'; they are added as they are",
+                    where, msg.name, coarse.name, cu, fine.name, fu)
+    step, fine_step = abs(coarse.conversion.scale), abs(fine.conversion.scale)
+    if fine_step >= step:
+        raise ProfileError(f"{where}: fine signal '{fine.name}' (steps of {fine_step:g}) is not finer than "
+                           f"'{coarse.name}' (steps of {step:g})")
+    # what the decoder accepts (limits() pads by a sliver) within what the bits carry
+    lo, hi = limits(msg, fine)
+    tol = fine_step * 1e-3
+    reach_lo, reach_hi = _reach(fine)
+    lo, hi = max(lo + tol, reach_lo), min(hi - tol, reach_hi)
+    if hi - lo + fine_step < step * (1 - 1e-6):
+        raise ProfileError(f"{where}: fine signal '{fine.name}' carries [{lo:g}, {hi:g}] in steps of {fine_step:g}, "
+                           f"less than one step of '{coarse.name}' ({step:g}): their sum would have gaps")
 
 
 def compile_extractor(msg: Any, need: Sequence[tuple[str, bool, bool]]) -> Callable[[Any], tuple] | None:

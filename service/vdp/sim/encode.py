@@ -6,6 +6,11 @@ a steering-wheel signal; a ``sign_signal`` flips the sign when non-zero).  Here 
 inverse: ``v = (si / factor - offset) / scale``, clipped into the signal's DBC range,
 so the same simulator can feed any car's DBC.  Unmapped signals of a sent message get
 a constant; rolling counters and checksums follow the profile's ``[checks]``.
+
+A channel with a ``fine`` signal is split: the coarse signal takes the point of its
+grid that leaves the remainder nearest the middle of the fine signal's range, the fine
+signal the remainder (Toyota's STEER_ANGLE rounds to 1.5 deg and STEER_FRACTION
+carries the rest, -0.7 to 0.7 deg, as on the real car).
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ import cantools
 
 from ..errors import ProfileError
 from ..io.checks import COUNTER_MODULO, vdp_checksum
+from ..io.decoder import check_fine
 from ..profile import ChannelMap, Profile
 
 log = logging.getLogger(__name__)
@@ -61,6 +67,11 @@ class SignalPlan:
     lo: float
     hi: float
     sign_signal: str | None = None
+    fine: str | None = None  # the finer signal added to this one
+    fine_lo: float = 0.0
+    fine_hi: float = 0.0
+    grid: float = 0.0  # the coarse signal's DBC offset: its values are grid + k * step
+    step: float = 1.0  # the coarse signal's DBC step
 
     def raw(self, si: float, out: dict) -> None:
         """Put the DBC physical value of canonical ``si`` into ``out`` (and the sign flag)."""
@@ -71,7 +82,13 @@ class SignalPlan:
             if flip:
                 q = -q
         v = (q - self.offset) / self.scale
-        out[self.signal] = self.lo if v < self.lo else (self.hi if v > self.hi else v)
+        if self.fine is None:
+            out[self.signal] = self.lo if v < self.lo else (self.hi if v > self.hi else v)
+            return
+        mid = 0.5 * (self.fine_lo + self.fine_hi)
+        c = clip(self.grid + round((v - mid - self.grid) / self.step) * self.step, self.lo, self.hi)
+        out[self.signal] = c
+        out[self.fine] = clip(v - c, self.fine_lo, self.fine_hi)
 
 
 @dataclass
@@ -164,8 +181,17 @@ class Encoder:
         if any(s.signal == cm.signal for s in plan.signals):
             return  # one signal feeding two channels (e.g. a shared wheel speed): encode once
         lo, hi = signal_range(sig)
-        plan.signals.append(SignalPlan(cm.signal, cm.channel, 1.0 / cm.factor(self.profile.vehicle),
-                                       cm.scale, cm.offset, lo, hi, cm.sign_signal))
+        sp = SignalPlan(cm.signal, cm.channel, 1.0 / cm.factor(self.profile.vehicle),
+                        cm.scale, cm.offset, lo, hi, cm.sign_signal)
+        if cm.fine is not None:
+            try:
+                fine = msg.get_signal_by_name(cm.fine)
+            except KeyError:
+                raise ProfileError(f"{cm.where}: fine signal '{cm.fine}' is not in message '{msg.name}'") from None
+            check_fine(cm.where, msg, sig, fine)
+            sp.fine, (sp.fine_lo, sp.fine_hi) = cm.fine, signal_range(fine)
+            sp.grid, sp.step = float(sig.offset), abs(float(sig.scale))
+        plan.signals.append(sp)
 
     def _checks(self, by_name: dict[str, MessagePlan]) -> None:
         for name, chk in self.profile.checks.items():
