@@ -480,3 +480,55 @@ def test_stats_as_dict_is_json(tmp_path):
     d = json.loads(json.dumps(src.stats.as_dict()))
     assert d["bad_lines"] == 6 and d["bad_examples"][0] == {"line": 8, "reason": "not '(time) channel id#data'",
                                                       "text": "this is not a candump line"}
+
+
+# -- ids nobody decodes ----------------------------------------------------------------
+
+def test_keep_ids_passes_over_other_ids(tmp_path):
+    p = write(tmp_path, "\n".join([
+        "(1.000000) can0 0B1#E803D007",
+        "(1.001000) can0 7DF#0102",  # first line of an id: handed out (it fills the id cache)
+        "(1.002000) can0 7DF#0304",
+        "(x) can0 7DF#0506",  # passed over before its timestamp is read: not a bad line
+        "(1.003000) can0 12345678#AA",
+        "(1.004000) can0 12345678#BB",
+        "(1.005000) can0 0B1#E803D008",
+        "(1.006000) can0 7DF#R",  # a remote frame of such an id too
+        "(1.007000) can0 20000080#0000000000000000",  # error frames are always handed out
+    ]) + "\n")
+    with open_log(p) as src:
+        src.keep_ids({0xB1})
+        frames = list(src)
+    assert [(f.arbitration_id, f.is_remote_frame) for f in frames] == [
+        (0xB1, False), (0x7DF, False), (0x12345678, False), (0xB1, False), (0x80, False)]
+    assert frames[-1].is_error_frame
+    assert src.stats.passed_over == {0x7DF: 3, 0x12345678 | 1 << 31: 1}
+    d = src.stats.as_dict()
+    assert (d["frames"], d["passed_over"], d["bad_lines"], d["error_frames"]) == (9, 4, 0, 1)
+    with pytest.raises(RuntimeError, match="before iterating"):
+        src.keep_ids({0xB1})
+
+
+def test_replay_passing_over_ids_gives_the_same_result(tmp_path):
+    """The reader's id filter changes cost, not results: same estimates and counts as
+    feeding every frame of the drive to the pipeline."""
+    from vdp.pipeline import Pipeline
+    from vdp.replay import replay
+    from vdp.sim.run import Simulation, write_log
+
+    prof = load_profile(ROOT / "profiles" / "paper.toml")
+    frames = list(Simulation(prof, "stage1", seed=5, noise="realistic", duration=8.0,
+                             extra_ids=6, extra_rate=100.0).frames())
+    path = tmp_path / "d.log"
+    write_log(iter(frames), path)
+    res = replay(open_log(path), Pipeline(prof))
+    ref = Pipeline(prof)
+    for f in frames:
+        ref.feed(f)
+    want = ref.snapshot()
+    assert res["log"]["passed_over"] > 0.4 * len(frames)  # half of this bus is filler
+    assert res["log"]["frames"] == len(frames) == ref.frames
+    got_dec, want_dec = res["log"]["decode"], ref.decoder.stats.as_dict()
+    for key in ("frames", "decoded", "unknown_ids", "unknown_distinct", "errors_by_kind"):
+        assert got_dec[key] == want_dec[key], key
+    assert res["parameters"] == want["parameters"] and res["parameters"]["C_K"]["samples"] > 200

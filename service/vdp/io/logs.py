@@ -219,9 +219,10 @@ class LogSource:
         """Hand out only frames whose id is in ``keys`` (extended ids with bit 31 set).
 
         A bus carries many ids nobody decodes; a candump line of one is counted in
-        ``stats.passed_over`` by id and never becomes a Message, which is most of a
-        replay's reading cost.  Error, remote, FD and unusual frames are still handed
-        out, as are frames of formats read by python-can.
+        ``stats.passed_over`` by id and read no further than its id (a bad timestamp
+        there goes unnoticed, and does not matter), which is most of a replay's reading
+        cost.  The first line of each id (it fills the id cache) and error frames are still
+        handed out, as are frames of formats read by python-can.
         """
         if self._used:
             raise RuntimeError("keep_ids() must come before iterating")
@@ -348,6 +349,11 @@ class LogSource:
                 if not ch[1]:
                     skipped += 1
                     continue
+                id_b, sep, data = frame.partition(b"#")
+                key = ids.get(id_b)
+                if key is not None and not key[2]:
+                    over[key[3]] = over.get(key[3], 0) + 1  # an id nobody decodes (keep_ids)
+                    continue
                 try:
                     ts = float(ts_b[1:-1])
                 except ValueError:
@@ -369,12 +375,6 @@ class LogSource:
                                 self.path, lineno, last - ts)
                     st.resyncs += 1
                 back_run = 0
-                id_b, sep, data = frame.partition(b"#")
-                key = ids.get(id_b)
-                if key is not None and not key[2]:
-                    over[key[3]] = over.get(key[3], 0) + 1
-                    last = ts
-                    continue
                 try:
                     payload = unhex(data)
                 except ValueError:
