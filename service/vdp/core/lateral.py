@@ -52,6 +52,7 @@ V_MIN = 1.0  # m/s, guards the slip-angle denominators
 MAX_SUBSTEP = 0.01  # s: midpoint steps this short keep the yaw/lateral error well below the noise
 ROLL_SPLIT = 4  # roll steps per sub-step: its fast pole (~70 1/s) wants ~2.5 ms
 PARAM_FLOOR = np.array([1.0e3, 50.0, 50.0])  # keeps a wild sigma point physical
+_FLOOR = tuple(PARAM_FLOOR.tolist())
 
 
 @dataclass(frozen=True)
@@ -74,7 +75,11 @@ class Known:
 
 
 def _inputs(u, k: Known):
-    """Per-step constants from the inputs (they do not depend on the state)."""
+    """Per-step constants from the inputs (they do not depend on the state); floats for one row."""
+    if np.ndim(u) == 1:
+        d, v_x, w_f, a_x = np.asarray(u, dtype=float).tolist()
+        f_zf = k.m * k.g * k.l_r / k.L - k.m * a_x * k.h / k.L  # eq (3a)
+        return d, max(v_x, V_MIN), math.sin(d), math.cos(d), k.C_K * f_zf, w_f * k.r
     d = u[..., U_DELTA]
     v_x = np.maximum(u[..., U_VX], V_MIN)
     f_zf = k.m * k.g * k.l_r / k.L - k.m * u[..., U_AX] * k.h / k.L  # eq (3a)
@@ -82,11 +87,15 @@ def _inputs(u, k: Known):
     return d, v_x, np.sin(d), np.cos(d), k.C_K * f_zf, u[..., U_WF] * k.r
 
 
-def _rates(v_y, yaw, c_a, i_z, pre, k: Known):
-    """(v_y_dot, yaw_acc, a_y, Y_f, F_yr) for given lateral states; eqs (5), (7), (10)-(12)."""
+def _rates(v_y, yaw, c_a, i_z, pre, k: Known, clamp=np.maximum):
+    """(v_y_dot, yaw_acc, a_y, Y_f, F_yr) for given lateral states; eqs (5), (7), (10)-(12).
+
+    ``clamp`` is np.maximum for arrays of sigma points, the builtin max for one state
+    in plain floats (the EKF's), where numpy's per-call cost would dominate.
+    """
     d, v_x, sd, cd, ck_fz, w_r = pre
     p = v_y + k.l_f * yaw
-    v_w = np.maximum(v_x * cd + p * sd, V_MIN)
+    v_w = clamp(v_x * cd + p * sd, V_MIN)
     f_xf = ck_fz * (w_r / v_w - 1.0)
     f_yf = c_a * (d - p / v_x)  # eq (12a), corrected
     f_yr = c_a * (k.l_r * yaw - v_y) / v_x  # eq (12b), corrected
@@ -95,23 +104,30 @@ def _rates(v_y, yaw, c_a, i_z, pre, k: Known):
     return a_y - v_x * yaw, (k.l_f * y_f - k.l_r * f_yr) / i_z, a_y, y_f, f_yr  # eqs (5), (8), (10)
 
 
-def _params(x):
-    return (np.maximum(x[..., C_A], PARAM_FLOOR[0]), np.maximum(x[..., I_Z], PARAM_FLOOR[1]),
-            np.maximum(x[..., I_X], PARAM_FLOOR[2]))
+def _unpack(x):
+    """(v_y, yaw, phi, phi_dot, C_alpha, I_z, I_x, clamp), the parameters floored.
+
+    Plain floats and the builtin max for one state (the EKF's: numpy's per-call cost
+    would dominate), arrays and np.maximum for many (the UKF's sigma points).
+    """
+    if np.ndim(x) == 1:
+        v_y, yaw, phi, phi_d, c_a, i_z, i_x = np.asarray(x, dtype=float).tolist()
+        return v_y, yaw, phi, phi_d, max(c_a, _FLOOR[0]), max(i_z, _FLOOR[1]), max(i_x, _FLOOR[2]), max
+    return (x[..., V_Y], x[..., YAW], x[..., PHI], x[..., PHI_D], np.maximum(x[..., C_A], _FLOOR[0]),
+            np.maximum(x[..., I_Z], _FLOOR[1]), np.maximum(x[..., I_X], _FLOOR[2]), np.maximum)
 
 
 def forces(x, u, k: Known):
     """Lateral force terms: (front body-y force Y_f, rear F_yr, a_y)."""
-    c_a, i_z, _ = _params(x)
-    _, _, a_y, y_f, f_yr = _rates(x[..., V_Y], x[..., YAW], c_a, i_z, _inputs(u, k), k)
+    v_y, yaw, _, _, c_a, i_z, _, clamp = _unpack(x)
+    _, _, a_y, y_f, f_yr = _rates(v_y, yaw, c_a, i_z, _inputs(u, k), k, clamp)
     return y_f, f_yr, a_y
 
 
 def deriv(x, u, k: Known):
     """Continuous-time dynamics x_dot = f(x, u), eqs (5), (8)-(10) corrected."""
-    c_a, i_z, i_x = _params(x)
-    vy_d, yaw_d, a_y, _, _ = _rates(x[..., V_Y], x[..., YAW], c_a, i_z, _inputs(u, k), k)
-    phi, phi_d = x[..., PHI], x[..., PHI_D]
+    v_y, yaw, phi, phi_d, c_a, i_z, i_x, clamp = _unpack(x)
+    vy_d, yaw_d, a_y, _, _ = _rates(v_y, yaw, c_a, i_z, _inputs(u, k), k, clamp)
     out = np.zeros(np.shape(x))
     out[..., V_Y] = vy_d
     out[..., YAW] = yaw_d
@@ -188,18 +204,18 @@ def fx(x, dt, u, k: Known, substeps: int | None = None):
     u = np.asarray(u, dtype=float)
     x = np.array(x, dtype=float, copy=True)
     h = dt / substeps
-    c_a, i_z, i_x = _params(x)
+    v_y, yaw, phi, phi_d, c_a, i_z, i_x, clamp = _unpack(x)
     (t11, t12, t21, t22), (p1, p2), (q1, q2) = _roll_map(i_x, h, k)
-    v_y, yaw, phi, phi_d = x[..., V_Y], x[..., YAW], x[..., PHI], x[..., PHI_D]
     # per-step input constants at every start, mid and end point, as plain floats
     pres = list(zip(*(a.tolist() for a in _inputs(_input_grid(u, substeps), k))))
-    start = _rates(v_y, yaw, c_a, i_z, pres[0], k)
+    start = _rates(v_y, yaw, c_a, i_z, pres[0], k, clamp)
     for i in range(substeps):
         vy_d, yaw_d, a0 = start[0], start[1], start[2]
-        vy_d1, yaw_d1, _, _, _ = _rates(v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_a, i_z, pres[2 * i + 1], k)
+        vy_d1, yaw_d1, _, _, _ = _rates(v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_a, i_z, pres[2 * i + 1], k,
+                                        clamp)
         v_y = v_y + h * vy_d1
         yaw = yaw + h * yaw_d1
-        start = _rates(v_y, yaw, c_a, i_z, pres[2 * i + 2], k)
+        start = _rates(v_y, yaw, c_a, i_z, pres[2 * i + 2], k, clamp)
         a1 = start[2]
         # the roll does not act back on v_y and yaw (a_y has no phi term), so it follows
         phi, phi_d = (t11 * phi + t12 * phi_d + p1 * a0 + q1 * a1,
@@ -211,16 +227,17 @@ def fx(x, dt, u, k: Known, substeps: int | None = None):
 def hx(x, u, k: Known):
     """Measurements: yaw-rate gyro, roll-rate gyro, lateral accelerometer (eq 7)."""
     _, _, a_y = forces(x, u, k)
+    if np.ndim(x) == 1:
+        return np.array([x[YAW], x[PHI_D], a_y])
     return np.stack([x[..., YAW], x[..., PHI_D], a_y], axis=-1)
 
 
 def _dforces(x, u, k: Known):
     """Gradients of (Y_f, F_yr) with respect to the state (single state only)."""
-    d, v_x = u[U_DELTA], max(u[U_VX], V_MIN)
-    v_y, yaw, c_a = x[V_Y], x[YAW], max(x[C_A], PARAM_FLOOR[0])
+    d, v_x, sd, cd, ck_fz, w_r = _inputs(u, k)
+    v_y, yaw, _, _, c_a, _, _, _ = _unpack(x)
     alpha_f = d - (v_y + k.l_f * yaw) / v_x
     alpha_r = -(v_y - k.l_r * yaw) / v_x
-    _, _, sd, cd, ck_fz, w_r = _inputs(u, k)
     v_w = v_x * cd + (v_y + k.l_f * yaw) * sd
     # d F_xf / d v_w through s_f = omega r / v_w - 1 (zero where v_w is clamped)
     dfx_dvw = -ck_fz * w_r / v_w**2 if v_w > V_MIN else 0.0

@@ -31,6 +31,8 @@ from .params import BY_NAME, STAGE1, STAGE2
 
 log = logging.getLogger(__name__)
 
+_BOTH_AXLES = np.ones(2, dtype=bool)  # stage 1 steps only on blocks with both axles' speeds
+
 
 @dataclass(frozen=True)
 class Noise:
@@ -255,11 +257,12 @@ class Stage1(StageLearner):
         return self._R0() / n + np.outer(c, c) * (u[longitudinal.U_VX_STD] * corr) ** 2
 
     @staticmethod
-    def inputs(s):
+    def inputs(s) -> tuple[list, list, bool]:
+        """(u, z, all finite) of one sample, as lists: arrays are built once per block."""
         y = s.vals if s.vals is not None else s.values.tolist()
-        u = np.array([y[ch.T_F], y[ch.T_R], y[ch.AX] - s.ax_bias, s.v_x, s.v_std, 0.0, 0.0])
-        z = np.array([0.5 * (y[ch.WS_FL] + y[ch.WS_FR]), 0.5 * (y[ch.WS_RL] + y[ch.WS_RR])])
-        return u, z, np.isfinite(z)
+        u = [y[ch.T_F], y[ch.T_R], y[ch.AX] - s.ax_bias, s.v_x, s.v_std, 0.0, 0.0]
+        z = [0.5 * (y[ch.WS_FL] + y[ch.WS_FR]), 0.5 * (y[ch.WS_RL] + y[ch.WS_RR])]
+        return u, z, math.isfinite(sum(u) + z[0] + z[1])  # a NaN or inf anywhere makes the sum so
 
     def set_params(self, theta, cov, samples: int) -> None:
         super().set_params(theta, cov, samples)
@@ -271,8 +274,8 @@ class Stage1(StageLearner):
         self._acc = []
 
     def _step(self, t, s):
-        u, z, mask = self.inputs(s)
-        if not (np.all(np.isfinite(u)) and mask.all()):
+        u, z, ok = self.inputs(s)
+        if not ok:
             return
         if self.t_last is not None and (s.gap or t - self.t_last > self.cfg.max_gap):
             self._acc = []  # a block never spans a gap or a clock jump (the grid restarts with gap set)
@@ -296,7 +299,7 @@ class Stage1(StageLearner):
         if self.filter is None:
             self.filter = self._new_filter(self.theta, self.theta_P, self._R0())
         self.filter.predict(dt, u)
-        self.filter.update(z, mask, u, R=self._R(u))
+        self.filter.update(z, _BOTH_AXLES, u, R=self._R(u))
         if self.samples % self.cfg.save_every < self.cfg.block:
             self._save_good()
 
@@ -340,7 +343,8 @@ class Stage2(StageLearner):
         g, a = (n.gyro * n.inflate) ** 2, (n.accel * n.inflate) ** 2
         return np.diag([g, g, a])
 
-    def inputs(self, s):
+    def inputs(self, s) -> list:
+        """The model's input row u of one sample (a list: arrays are built once per step)."""
         y = s.vals if s.vals is not None else s.values.tolist()
         v_x = y[ch.SPEED]
         # the rear wheels give a smoother v_x than GNSS: omega r / (1 + s_r), eqs (13)-(14)
@@ -351,21 +355,27 @@ class Stage2(StageLearner):
             s_r = (y[ch.T_R] / k.r) / (k.C_K * max(f_zr, 0.05 * k.m * k.g))
             v_x = w_r * k.r / (1.0 + s_r)
         w_f = 0.5 * (y[ch.WS_FL] + y[ch.WS_FR])
-        u = np.array([y[ch.DELTA], v_x, w_f, y[ch.AX]])
+        return [y[ch.DELTA], v_x, w_f, y[ch.AX]]
+
+    @staticmethod
+    def measurements(s) -> tuple[np.ndarray, np.ndarray]:
+        """z = [yaw rate, roll rate, a_y] of one sample, gyro offsets removed, and which are finite."""
+        y = s.vals if s.vals is not None else s.values.tolist()
         z = np.array([y[ch.YAW] - s.yaw_bias, y[ch.ROLL] - s.roll_bias, y[ch.AY]])
-        return u, z, np.isfinite(z)
+        return z, np.isfinite(z)
 
     def _step(self, t, s):
         if self.known is None:
             return
-        u, z, mask = self.inputs(s)
-        if not np.all(np.isfinite(u)):
+        u = self.inputs(s)
+        if not math.isfinite(u[0] + u[1] + u[2] + u[3]):
             self.end_window()
             return
         dt = None if self.t_last is None else t - self.t_last
         if self.filter is None or s.gap or dt is None or dt <= 0 or dt > self.cfg.max_gap:
             if self.filter is not None:
                 self._keep_params()
+            z, mask = self.measurements(s)
             yaw = z[0] if mask[0] else 0.0
             roll_rate = z[1] if mask[1] else 0.0
             # v_y from steady-state kinematics is unknown: start at 0 with a wide std
@@ -385,8 +395,10 @@ class Stage2(StageLearner):
         # the model sees every input sample of the step, interpolated between them:
         # holding the steering at either end (or its mean) would shift it in time,
         # and a yaw inertia would absorb the shift.
-        self.filter.predict(dt, np.array(self._us))
-        self.filter.update(z, mask, u)
+        us = np.array(self._us)
+        z, mask = self.measurements(s)
+        self.filter.predict(dt, us)
+        self.filter.update(z, mask, us[-1])
         self._us = [u]
         self.t_last = t
         if self.samples % self.cfg.save_every < self.cfg.stage2_every:
