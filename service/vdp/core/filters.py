@@ -87,7 +87,8 @@ class JointFilter:
 
     def __init__(self, x0, P0, Q_rate, R, scale, fx: Callable, hx: Callable):
         self.scale = np.asarray(scale, dtype=float)
-        self.Q_rate = np.asarray(Q_rate, dtype=float) / np.outer(self.scale, self.scale)
+        self._scale2 = np.outer(self.scale, self.scale)
+        self.Q_rate = np.asarray(Q_rate, dtype=float) / self._scale2
         self.R = np.asarray(R, dtype=float)
         self._fx, self._hx = fx, hx
         self._set(np.asarray(x0, dtype=float), np.asarray(P0, dtype=float))
@@ -99,14 +100,14 @@ class JointFilter:
 
     @property
     def P(self) -> np.ndarray:
-        return self._f.P * np.outer(self.scale, self.scale)
+        return self._f.P * self._scale2
 
     def set_state(self, x, P) -> None:
         self._set(np.asarray(x, dtype=float), np.asarray(P, dtype=float))
 
     def _set(self, x, P):
         self._f.x = x / self.scale
-        self._f.P = P / np.outer(self.scale, self.scale)
+        self._f.P = P / self._scale2
 
     def _check(self) -> None:
         f = self._f

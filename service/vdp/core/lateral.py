@@ -50,7 +50,7 @@ N_Z = 3
 
 V_MIN = 1.0  # m/s, guards the slip-angle denominators
 MAX_SUBSTEP = 0.01  # s: midpoint steps this short keep the yaw/lateral error well below the noise
-ROLL_SPLIT = 4  # roll steps per sub-step: its fast pole (~70 1/s) wants ~2.5 ms
+ROLL_SPLIT = 4  # roll steps per sub-step: its fast pole (~70 1/s) wants ~2.5 ms (a power of 2)
 PARAM_FLOOR = np.array([1.0e3, 50.0, 50.0])  # keeps a wild sigma point physical
 _FLOOR = tuple(PARAM_FLOOR.tolist())
 
@@ -94,14 +94,16 @@ def _rates(v_y, yaw, c_a, i_z, pre, k: Known, clamp=np.maximum):
     in plain floats (the EKF's), where numpy's per-call cost would dominate.
     """
     d, v_x, sd, cd, ck_fz, w_r = pre
-    p = v_y + k.l_f * yaw
+    l_f, l_r = k.l_f, k.l_r
+    p = v_y + l_f * yaw
     v_w = clamp(v_x * cd + p * sd, V_MIN)
-    f_xf = ck_fz * (w_r / v_w - 1.0)
-    f_yf = c_a * (d - p / v_x)  # eq (12a), corrected
-    f_yr = c_a * (k.l_r * yaw - v_y) / v_x  # eq (12b), corrected
-    y_f = f_xf * sd + f_yf * cd
+    # Y_f = F_xf sin(d) + F_yf cos(d) with F_xf = C_sigma (w_r / v_w - 1) (NOTES 8) and
+    # F_yf = C_alpha (d - p / v_x) (eq 12a, corrected), constants folded (fewer array operations)
+    xs = ck_fz * sd
+    y_f = (xs * w_r) / v_w - xs + c_a * (d * cd - p * (cd / v_x))
+    f_yr = c_a * (l_r * yaw - v_y) / v_x  # eq (12b), corrected
     a_y = (y_f + f_yr) / k.m  # eq (7)
-    return a_y - v_x * yaw, (k.l_f * y_f - k.l_r * f_yr) / i_z, a_y, y_f, f_yr  # eqs (5), (8), (10)
+    return a_y - v_x * yaw, (l_f * y_f - l_r * f_yr) / i_z, a_y, y_f, f_yr  # eqs (5), (8), (10)
 
 
 def _unpack(x):
@@ -159,36 +161,36 @@ def _input_grid(u, n: int) -> np.ndarray:
 def _roll_map(i_x, h: float, k: Known):
     """One sub-step of the roll, eq (9), as r' = T r + p a_y0 + q a_y1 with r = (phi, phi_dot).
 
-    It is ROLL_SPLIT trapezoidal steps (A-stable: the roll pole is the fastest mode)
-    with a_y linear from a_y0 to a_y1 over the sub-step.  The roll is linear and i_x is
-    fixed over a step, so the steps collapse into this map once per step:
-    (I - g/2 A) r' = (I + g/2 A) r + g/2 b (a_y + a_y'), i.e. r' = S r + w (a_y + a_y').
+    It is ROLL_SPLIT trapezoidal steps of g = h / ROLL_SPLIT (A-stable: the roll pole is
+    the fastest mode) with a_y linear from a_y0 to a_y1 over the sub-step.  The roll is
+    linear and i_x fixed over a step, so the steps collapse into this map, once per step.
+    One step: (I - g/2 A) r' = (I + g/2 A) r + g/2 b (a_y + a_y'), i.e. r' = S r + w (a_y + a_y'),
+    with A = [[0, 1], [-c y, -d y]], b = [0, m h y], y = 1 / i_x, c = k_phi - m g h, d = c_phi.
     """
     n = ROLL_SPLIT
-    g = h / n
-    a21, a22 = -(k.k_phi - k.m * k.g * k.h) / i_x, -k.c_phi / i_x
-    m21, m22 = -g / 2 * a21, 1.0 - g / 2 * a22  # I - g/2 A = [[1, -g/2], [m21, m22]]
-    det = m22 + g / 2 * m21
-    # S = (I - g/2 A)^-1 (I + g/2 A), w = (I - g/2 A)^-1 [0, m h g / (2 i_x)]
-    s11 = (m22 + g / 2 * (g / 2 * a21)) / det
-    s12 = (m22 * g / 2 + g / 2 * (1.0 + g / 2 * a22)) / det
-    s21 = (-m21 + g / 2 * a21) / det
-    s22 = (-m21 * g / 2 + 1.0 + g / 2 * a22) / det
-    fb = k.m * k.h / i_x * (g / 2) / det
-    w1, w2 = g / 2 * fb, fb
-    # r_n = S^n r_0 + sum_j S^(n-1-j) w (b_j + b_j+1), b_j = a_y0 + (a_y1 - a_y0) j / n
+    e = h / n / 2  # g/2
+    c, d = k.k_phi - k.m * k.g * k.h, k.c_phi
+    y = 1.0 / i_x
+    inv = 1.0 / (1.0 + (e * d + e * e * c) * y)  # 1 / det(I - g/2 A)
+    yd = y * inv
+    s11, s12 = inv + (e * d - e * e * c) * yd, 2.0 * e * inv
+    s21, s22 = (-2.0 * e * c) * yd, inv - (e * d + e * e * c) * yd
+    w2 = (e * k.m * k.h) * yd
+    w1 = e * w2
+    # r_n = S^n r_0 + sum_j S^(n-1-j) w (b_j + b_j+1), b_j = a_y0 + (a_y1 - a_y0) j / n:
+    # with V_m = S^m w, p = sum_m (2 - c_m) V_m and q = sum_m c_m V_m, c_m = (2 (n-1-m) + 1) / n
+    v1, v2 = w1, w2
+    c0 = (2 * (n - 1) + 1) / n
+    p1, p2, q1, q2 = (2.0 - c0) * v1, (2.0 - c0) * v2, c0 * v1, c0 * v2
+    for m in range(1, n):
+        v1, v2 = s11 * v1 + s12 * v2, s21 * v1 + s22 * v2
+        cm = (2 * (n - 1 - m) + 1) / n
+        p1, p2, q1, q2 = p1 + (2.0 - cm) * v1, p2 + (2.0 - cm) * v2, q1 + cm * v1, q2 + cm * v2
+    # T = S^n by squaring (n a power of two)
     t11, t12, t21, t22 = s11, s12, s21, s22
-    p1 = q1 = p2 = q2 = 0.0
-    v1, v2 = w1, w2  # S^(n-1-j) w, from j = n-1 down
-    for j in range(n - 1, -1, -1):
-        c1 = (2 * j + 1) / n  # weight of a_y1 in b_j + b_j+1
-        p1, p2 = p1 + (2.0 - c1) * v1, p2 + (2.0 - c1) * v2
-        q1, q2 = q1 + c1 * v1, q2 + c1 * v2
-        if j:
-            v1, v2 = s11 * v1 + s12 * v2, s21 * v1 + s22 * v2
-    for _ in range(n - 1):
-        t11, t12, t21, t22 = (s11 * t11 + s12 * t21, s11 * t12 + s12 * t22,
-                              s21 * t11 + s22 * t21, s21 * t12 + s22 * t22)
+    for _ in range(n.bit_length() - 1):
+        t11, t12, t21, t22 = (t11 * t11 + t12 * t21, t12 * (t11 + t22),
+                              t21 * (t11 + t22), t21 * t12 + t22 * t22)
     return (t11, t12, t21, t22), (p1, p2), (q1, q2)
 
 
