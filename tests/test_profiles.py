@@ -2,8 +2,8 @@
 simulator driving each car's own layout (scaling, quantisation, sign bits, counters).
 
 Real buses lack per-axle torque, a roll-rate gyro and GNSS speed.  To exercise both
-stages on a car's layout, ``with_addons`` adds vdp's own torque, roll-rate and GNSS
-messages (dbc/vdp.dbc) to the car's DBC, as a retrofitted sensor box would.
+stages on a car's layout, ``vdp.sim.addons.with_addons`` adds vdp's own torque, roll-rate
+and GNSS messages (dbc/vdp.dbc, as a second DBC of the bus), as a retrofitted sensor box would.
 """
 
 from __future__ import annotations
@@ -23,8 +23,9 @@ from vdp.cli import main
 from vdp.core.estimator import EstimatorConfig
 from vdp.io.decoder import FrameDecoder
 from vdp.pipeline import Pipeline
-from vdp.profile import ChannelMap, MessageCheck, Profile, load_profile
+from vdp.profile import ChannelMap, Profile, load_profile
 from vdp.replay import replay
+from vdp.sim.addons import CAR_TRUTH, with_addons
 from vdp.sim.run import Simulation
 from conftest import REAL
 
@@ -34,7 +35,6 @@ ROOT = Path(__file__).resolve().parents[1]
 PROFILES = ROOT / "profiles"
 CARS = ("toyota_rav4", "vw_golf_mk7", "hyundai_elantra_2017")
 SHARED_TOYOTA_DBC = REAL / "toyota_new_mc_pt_generated.dbc"
-VDP_DBC = ROOT / "dbc" / "vdp.dbc"
 UNMAPPED = {"wheel_torque_front", "wheel_torque_rear", "roll_rate", "speed"}
 
 # opendbc gives Toyota's KINEMATICS signals [0|65535], a range their bits cannot carry;
@@ -229,39 +229,6 @@ def test_hyundai_falls_back_to_the_yaw_rate_sensor_when_esp12_is_silent():
 
 # -- both stages on a car's layout, with vdp's add-on sensors --------------------------
 
-ADDONS = {  # channel: (vdp.dbc message, signal, unit)
-    "wheel_torque_front": ("WHEEL_TORQUE", "TORQUE_FRONT", "Nm"),
-    "wheel_torque_rear": ("WHEEL_TORQUE", "TORQUE_REAR", "Nm"),
-    "roll_rate": ("IMU_RATES", "ROLL_RATE", "deg/s"),
-    "speed": ("GNSS_VELOCITY", "GNSS_SPEED", "m/s"),
-}
-
-
-def with_addons(prof: Profile, out_dir: Path) -> Profile:
-    """The car plus vdp's torque, roll-rate and GNSS messages, in one merged DBC.
-
-    A profile reads one DBC, so the car's and vdp's are merged here; see the report's
-    proposal for ``dbc = [...]`` in profiles.
-    """
-    db = cantools.database.load_file(str(prof.dbc), strict=False)
-    ours = cantools.database.load_file(str(VDP_DBC))
-    taken = {m.frame_id for m in db.messages}
-    for name in sorted({m for m, _, _ in ADDONS.values()}):
-        msg = ours.get_message_by_name(name)
-        assert msg.frame_id not in taken, f"{name} collides with an id of {prof.dbc.name}"
-        db.messages.append(msg)
-    db.refresh()
-    path = out_dir / f"{prof.dbc.stem}+vdp.dbc"
-    path.write_text(db.as_dbc_string())
-    chans = dict(prof.channels)
-    for ch, (msg, sig, unit) in ADDONS.items():
-        chans[ch] = ChannelMap(ch, msg, sig, unit, where=f"{prof.path} [channels.{ch}] (add-on)")
-    checks = dict(prof.checks)
-    for name in ("WHEEL_TORQUE", "IMU_RATES"):
-        checks[name] = MessageCheck(name, counter="COUNTER", checksum="CHECKSUM")
-    return dataclasses.replace(prof, dbc=path, channels=chans, checks=checks)
-
-
 class Frames:
     """A simulated drive as a replay source (what open_log returns, minus the file)."""
 
@@ -285,7 +252,7 @@ def run_drive(prof: Profile, scenario: str, seed: int, params=None, duration=Non
 
 @pytest.mark.parametrize("name", CARS)
 def test_stage1_runs_on_the_cars_layout_with_addons(name, tmp_path):
-    prof = with_addons(car(name), tmp_path)
+    prof = with_addons(car(name))
     assert Pipeline(prof).capabilities() == {"1": None, "2": None}
     res, _ = run_drive(prof, "stage1", seed=4, duration=12.0)
     assert [w["stage"] for w in res["windows"]] == [1]
@@ -293,14 +260,6 @@ def test_stage1_runs_on_the_cars_layout_with_addons(name, tmp_path):
     assert res["log"]["decode"]["errors"] == {}
 
 
-# Plausible truths for each car (not Table 6, whose I_x = 4175 kg m^2 no car this size
-# has), each off its profile's prior so the filter has to move.
-TRUTH = {
-    "toyota_rav4": {"l_f": 1.2, "h": 0.62, "C_K": 10.0, "C_alpha": 95000.0, "I_z": 2900.0, "I_x": 650.0},
-    "vw_golf_mk7": {"l_f": 1.1, "h": 0.53, "C_K": 10.0, "C_alpha": 85000.0, "I_z": 2400.0, "I_x": 520.0},
-    "hyundai_elantra_2017": {"l_f": 1.12, "h": 0.52, "C_K": 10.0, "C_alpha": 80000.0, "I_z": 2200.0,
-                             "I_x": 480.0},
-}
 TOLERANCE = {"l_f": 0.01, "h": 0.03, "C_K": 0.02, "C_alpha": 0.03, "I_z": 0.05}  # the estimator issue's
 STAGES = {1: ("l_f", "h", "C_K"), 2: ("C_alpha", "I_z")}
 _paper_runs: dict[str, tuple[dict, dict]] = {}
@@ -309,8 +268,7 @@ _paper_runs: dict[str, tuple[dict, dict]] = {}
 def paper_run(name: str, tmp_path_factory) -> tuple[dict, dict]:
     """The full paper drive on the car's layout, once per car for both stage checks."""
     if name not in _paper_runs:
-        prof = with_addons(car(name), tmp_path_factory.mktemp(name))
-        _paper_runs[name] = run_drive(prof, "paper", seed=11, params=TRUTH[name])
+        _paper_runs[name] = run_drive(with_addons(car(name)), "paper", seed=11, params=CAR_TRUTH[name])
     return _paper_runs[name]
 
 
@@ -328,10 +286,9 @@ def test_paper_drive_converges_on_the_cars_layout(name, stage, tmp_path_factory)
     for p in STAGES[stage]:
         est = res["parameters"][p]
         assert est["value"] == pytest.approx(truth[p], rel=TOLERANCE[p]), (p, est, truth[p])
-        # And not by luck: the filter's own std is inside the tolerance.  (Not half of it: the
-        # RAV4, heavier and stiffer, gets a C_alpha std of about 2 % of its value from this
-        # drive on any bus layout, the paper's included.)  The estimator's "converged" uses
-        # thresholds tuned for the paper's car, which a stiffer car's equally good estimate
-        # can miss; so status is not required.
+        # And not by luck: the filter's own std is inside the tolerance.  Not half of it, which
+        # is what "converged" asks (params.py): the RAV4, heavier and stiffer, gets a C_alpha
+        # std of about 2 % of its value from this drive on any bus layout, the paper's
+        # included, and so says "uncertain", as it should.
         assert est["status"] in ("converged", "uncertain") and est["std"] < TOLERANCE[p] * truth[p], \
             (p, est)
