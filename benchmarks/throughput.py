@@ -11,6 +11,10 @@ one run measures:
   supervisor, UKF and EKF (frames/s, and how many times faster than real time);
 - the ratio of the two (target: >= 0.5).
 
+``--layers`` adds the cost of the front of the pipeline alone: our reader (with
+the ids nobody decodes passed over, as replay does), then the decoder, then the
+aligner; what remains of the replay is the estimator.
+
 Times are the process's CPU time, so that other load on the machine skews them less.
 """
 
@@ -76,12 +80,50 @@ def ours(path: Path) -> tuple[int, float, float, dict]:
     return result["log"]["frames"], wall, result["log"]["duration_s"], result
 
 
+def layers(path: Path) -> None:
+    from vdp.io.logs import open_log
+    from vdp.pipeline import Pipeline
+    from vdp.profile import load_profile
+
+    profile = load_profile(ROOT / "profiles" / "paper.toml")
+
+    def source(pipe):
+        src = open_log(path)
+        src.keep_ids(pipe.decoder.ids)
+        return src
+
+    def reader():
+        for _ in source(Pipeline(profile)):
+            pass
+
+    def decoder():
+        pipe = Pipeline(profile)
+        dec = pipe.decoder.decode
+        for msg in source(pipe):
+            dec(msg)
+
+    def aligner():
+        pipe = Pipeline(profile)
+        dec, push = pipe.decoder.decode, pipe.aligner.push
+        for msg in source(pipe):
+            pairs = dec(msg)
+            if pairs:
+                for _ in push(msg.timestamp, pairs):
+                    pass
+
+    for name, fn in (("reader", reader), ("reader + decoder", decoder), ("reader + decoder + aligner", aligner)):
+        t0 = clock()
+        fn()
+        print(f"  {name}: {clock() - t0:.1f} s of CPU")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--minutes", type=float, default=60.0)
     ap.add_argument("--log", type=Path, default=None, help="where to build/keep the log (default /tmp)")
     ap.add_argument("--filler-ids", type=int, default=14, help="unrelated IDs, each at --filler-rate Hz")
     ap.add_argument("--filler-rate", type=float, default=100.0)
+    ap.add_argument("--layers", action="store_true", help="also time the reader, decoder and aligner alone")
     a = ap.parse_args()
     path = a.log or Path(f"/tmp/vdp-throughput-{a.minutes:g}min.log")
     if not path.exists():
@@ -104,6 +146,9 @@ def main() -> int:
     windows = result["windows"]
     busy = sum((w["end"] or duration) - w["start"] for w in windows)
     print(f"windows: {len(windows)}, filters ran on {100 * busy / duration:.0f} % of the drive")
+    if a.layers:
+        print("front of the pipeline alone:")
+        layers(path)
     return 0
 
 
