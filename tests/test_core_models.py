@@ -102,6 +102,21 @@ def test_roll_step_stays_stable_for_small_inertia():
     assert abs(x[lateral.PHI]) < 0.01 and abs(x[lateral.PHI_D]) < 0.5
 
 
+@pytest.mark.parametrize("k_phi, c_phi", [(90000.0, 6000.0), (36000 * 180 / math.pi, 5737 * 180 / math.pi)])
+def test_quasi_static_roll_balances_eq9(k_phi, c_phi):
+    """The roll angle a stage-2 window starts from leaves no roll acceleration (eq 9)."""
+    k = lateral.Known(m=1656.0, L=2.66, r=0.35, k_phi=k_phi, c_phi=c_phi, l_f=1.2, h=0.62, C_K=10.0)
+    x = np.array([-0.19, -0.28, 0.0, 0.004, 9.5e4, 2900.0, 650.0])
+    u = np.array([-0.079, 10.0, 10.0 / 0.35, 0.0])
+    a_y = lateral.hx(x, u, k)[lateral.Z_AY]
+    x[lateral.PHI] = lateral.quasi_static_roll(a_y, x[lateral.PHI_D], k)
+    assert abs(lateral.deriv(x, u, k)[lateral.PHI_D]) < 1e-9
+    if k_phi == 90000.0:  # a production car's roll stiffness: degrees, not the paper's hundredths
+        assert math.degrees(abs(x[lateral.PHI])) > 1.0
+    assert lateral.quasi_static_roll(3.0, 0.0, lateral.Known(m=1656.0, L=2.66, r=0.35, k_phi=5000.0,
+                                                               c_phi=c_phi, l_f=1.2, h=0.62, C_K=10.0)) == 0.0
+
+
 def test_stage1_slip_sign_follows_torque():
     x = np.array([1.4, 0.637, 10.0])
     w = longitudinal.hx(x, np.array([800.0, 800.0, 1.0, 20.0, 0.01, 3.3, 3.3]), K1)

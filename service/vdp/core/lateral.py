@@ -119,6 +119,21 @@ def _unpack(x):
             np.maximum(x[..., I_Z], _FLOOR[1]), np.maximum(x[..., I_X], _FLOOR[2]), np.maximum)
 
 
+def quasi_static_roll(a_y: float, phi_dot: float, k: Known) -> float:
+    """Roll angle at which eq (9) has no roll acceleration for this a_y and roll rate.
+
+    m h (a_y + g phi) - k_phi phi - c_phi phi_dot = 0 (known constants and stage 1's h
+    only).  A stage-2 window can open in a steady corner, where phi is far from 0 on
+    a car of ordinary roll stiffness (about 2 deg at 3 m/s^2): starting the filter at
+    this value keeps its first steps from bending C_alpha to explain a roll it has
+    put in itself.  0 when k_phi does not exceed m g h (no static roll balance).
+    """
+    stiff = k.k_phi - k.m * k.g * k.h
+    if not stiff > 0.0:
+        return 0.0
+    return (k.m * k.h * a_y - k.c_phi * phi_dot) / stiff
+
+
 def forces(x, u, k: Known):
     """Lateral force terms: (front body-y force Y_f, rear F_yr, a_y)."""
     v_y, yaw, _, _, c_a, i_z, _, clamp = _unpack(x)

@@ -378,8 +378,10 @@ class Stage2(StageLearner):
             z, mask = self.measurements(s)
             yaw = z[0] if mask[0] else 0.0
             roll_rate = z[1] if mask[1] else 0.0
-            # v_y from steady-state kinematics is unknown: start at 0 with a wide std
-            x0 = np.concatenate([[0.0, yaw, 0.0, roll_rate], self.theta])
+            # the roll angle, unmeasured, from its balance with the measured a_y (a window
+            # may open mid-corner); v_y would need the unknown C_alpha: 0 with a wide std
+            phi = lateral.quasi_static_roll(z[2], roll_rate, self.known) if mask[2] else 0.0
+            x0 = np.concatenate([[0.0, yaw, phi, roll_rate], self.theta])
             P0 = np.zeros((7, 7))
             P0[:4, :4] = np.diag([0.5 ** 2, 0.02 ** 2, 0.01 ** 2, 0.02 ** 2])
             P0[4:, 4:] = self.theta_P
