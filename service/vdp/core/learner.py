@@ -33,6 +33,18 @@ log = logging.getLogger(__name__)
 
 _BOTH_AXLES = np.ones(2, dtype=bool)  # stage 1 steps only on blocks with both axles' speeds
 
+# Stage 2's dynamic states walk by model error only (std per sqrt(s), eqs (5), (8), (9)).
+# v_y has no sensor: the filter sees it through a_y alone, so its walk decides how much
+# of the accelerometer's noise it takes for v_y, and a noisy v_y is a noisy slip angle,
+# which pulls C_alpha and I_z low (errors in variables).  0.05 m/s per sqrt(s) let v_y
+# move in one 40 ms filter step as if pushed by 0.25 m/s^2 of unmodelled lateral
+# acceleration, five times the accelerometer's noise, and took 3 % off C_alpha and I_z
+# on the RAV4's drive (8 % with 0.1 m/s^2 of noise); 0.005 allows 0.025 m/s^2.
+V_Y_WALK = 0.005  # m/s per sqrt(s)
+YAW_WALK = 0.02  # rad/s per sqrt(s)
+PHI_WALK = 1e-4  # rad per sqrt(s)
+PHI_D_WALK = 0.005  # rad/s per sqrt(s)
+
 
 @dataclass(frozen=True)
 class Noise:
@@ -333,9 +345,7 @@ class Stage2(StageLearner):
         return lateral.jac_h(x, u, self.known)
 
     def _q_rate(self):
-        n = self.cfg.noise
-        # dynamic states: model error (yaw/lateral) and a_y noise driving v_y
-        dyn = [(0.05) ** 2, (0.02) ** 2, (1e-4) ** 2, (0.005) ** 2]
+        dyn = np.square([V_Y_WALK, YAW_WALK, PHI_WALK, PHI_D_WALK])
         return np.diag(np.concatenate([dyn, self._param_q()]))
 
     def _R(self):
