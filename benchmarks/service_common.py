@@ -197,6 +197,21 @@ def settings(tmp: Path, interface: str = "virtual", channel: str | None = None, 
     )
 
 
+def start_service(netns: bool):
+    """A started in-process service on a fresh temp dir: (service, dir), once its bus is up.
+
+    udp_multicast inside the private namespace (``--netns``), else the virtual bus."""
+    import tempfile
+
+    from vdp.live import Service
+
+    tmp = Path(tempfile.mkdtemp(prefix="vdp-bench-"))
+    svc = Service(settings(tmp, "udp_multicast", GROUP) if netns else settings(tmp))
+    svc.start()
+    wait_up(svc)
+    return svc, tmp
+
+
 def wait_up(svc, limit: float = 30.0) -> None:
     end = time.monotonic() + limit
     while not svc.link.up:

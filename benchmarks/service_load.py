@@ -17,7 +17,6 @@ import argparse
 import json
 import shutil
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -37,14 +36,8 @@ def main() -> int:
     if a.netns and not c.in_netns():
         return c.reexec_in_netns()
 
-    from vdp.live import Service
-
-    tmp = Path(tempfile.mkdtemp(prefix="vdp-bench-"))
-    s = c.settings(tmp, "udp_multicast", c.GROUP) if a.netns else c.settings(tmp)
-    svc = Service(s)
-    svc.start()
-    c.wait_up(svc)
-    api = c.ApiServer(s, svc).start()
+    svc, tmp = c.start_service(a.netns)
+    api = c.ApiServer(svc.settings, svc).start()
     start = float(int(time.time()) + 2)
     if a.netns:
         sender = c.sender_process(a.seconds, start)

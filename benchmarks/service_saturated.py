@@ -26,7 +26,6 @@ import argparse
 import json
 import shutil
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -47,13 +46,7 @@ def main() -> int:
     if a.netns and not c.in_netns():
         return c.reexec_in_netns()
 
-    from vdp.live import Service
-
-    tmp = Path(tempfile.mkdtemp(prefix="vdp-bench-"))
-    s = c.settings(tmp, "udp_multicast", c.GROUP) if a.netns else c.settings(tmp)
-    svc = Service(s)
-    svc.start()
-    c.wait_up(svc)
+    svc, tmp = c.start_service(a.netns)
     api = c.ApiServer(s, svc).start() if a.api_rate else None
     kw = {"extra_ids": a.extra_ids, "extra_rate": a.extra_rate}
     start = float(int(time.time()) + 2)  # the first frame's wall-clock time
