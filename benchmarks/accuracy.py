@@ -35,7 +35,8 @@ TOL = {"l_f": 0.01, "h": 0.03, "C_K": 0.02, "C_alpha": 0.03, "I_z": 0.05, "I_x":
 
 
 def run_one(args) -> dict:
-    scenario, seed, noise, every, car = args
+    scenario, seed, noise, every, car, coarse = args
+    import dataclasses
     import logging
     from vdp.core.estimator import EstimatorConfig
     from vdp.core.learner import LearnerConfig
@@ -49,6 +50,9 @@ def run_one(args) -> dict:
         profile, params = load_profile(ROOT / "profiles" / "paper.toml"), None
     else:
         profile, params = with_addons(load_profile(ROOT / "profiles" / f"{car}.toml")), CAR_TRUTH[car]
+    if coarse:  # each channel's coarse signal alone, as a profile without `fine` reads it
+        chans = {n: dataclasses.replace(cm, fine=None) for n, cm in profile.channels.items()}
+        profile = dataclasses.replace(profile, channels=chans)
     frames, truth = simulate(profile, scenario, seed=seed, noise=noise, params=params)
     pipe = Pipeline(profile, EstimatorConfig(learner=LearnerConfig(stage2_step=every)))
     t0 = time.perf_counter()
@@ -132,6 +136,8 @@ def main() -> int:
                     help="s between stage 2's filter steps (default: the estimator's)")
     ap.add_argument("--car", default=None, help="a shipped car profile (e.g. toyota_rav4): its DBC layout "
                     "plus vdp's add-on sensors, and its plausible truth")
+    ap.add_argument("--coarse", action="store_true", help="ignore the profile's `fine` signals "
+                    "(the RAV4's steering then reads STEER_ANGLE alone, in 1.5 deg steps)")
     ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
     a = ap.parse_args()
     if a.car is not None and not (ROOT / "profiles" / f"{a.car}.toml").exists():
@@ -139,7 +145,7 @@ def main() -> int:
     from vdp.sim.addons import CAR_TRUTH
     if a.car is not None and a.car not in CAR_TRUTH:
         ap.error(f"no simulation truth for {a.car}; cars with one: {', '.join(CAR_TRUTH)}")
-    jobs = [(a.scenario, s, a.noise, a.stage2_step, a.car) for s in range(a.first_seed, a.first_seed + a.seeds)]
+    jobs = [(a.scenario, s, a.noise, a.stage2_step, a.car, a.coarse) for s in range(a.first_seed, a.first_seed + a.seeds)]
     with ProcessPoolExecutor(max_workers=a.jobs) as ex:
         runs = list(ex.map(run_one, jobs))
     if a.verbose:

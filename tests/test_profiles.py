@@ -279,9 +279,8 @@ def paper_run(name: str, tmp_path_factory) -> tuple[dict, dict]:
 def test_paper_drive_converges_on_the_cars_layout(name, stage, tmp_path_factory):
     res, truth = paper_run(name, tmp_path_factory)
     if name == "toyota_rav4":
-        # STEER_ANGLE alone (1.5 deg steps) put C_alpha and I_z 2-5 % low (seed 11: -2.0 / -2.2 %
-        # noise-free, -4.7 / -4.5 % with noise): its rounding is noise on the steering input,
-        # which the filter takes as exact.  STEER_FRACTION fills in the fine part, as on the car.
+        # The sensor's resolution is STEER_ANGLE (1.5 deg steps) plus STEER_FRACTION, as
+        # openpilot reads it; the profile must say so (decoding is tested above).
         assert car(name).channels["steering_angle"].fine == "STEER_FRACTION"
     for p in STAGES[stage]:
         est = res["parameters"][p]

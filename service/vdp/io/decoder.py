@@ -31,7 +31,7 @@ from .. import channels
 from ..errors import ProfileError
 from ..profile import UNIT_FACTORS, ChannelMap, Profile
 from .checks import counter_ok, vdp_checksum
-from .logs import channel_keys
+from .logs import EXT_KEY as _EXT, channel_keys
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +40,6 @@ KINDS = ("unknown_id", "dlc", "remote", "error_frame", "range", "nonfinite", "mu
 BAD_RUN_INVALID = 3  # consecutive counter/checksum failures that flag a message invalid
 ALT_AFTER_CYCLES = 5.0  # primary silent this many cycle times: use the alternative source
 DEFAULT_CYCLE = 0.1  # [s] until a message without GenMsgCycleTime has shown its period
-_EXT = 1 << 31  # plan key bit for extended ids: 0x123 and 0x00000123 are different messages
 
 Sink = Callable[[float, list[tuple[int, float]]], Any]
 

@@ -49,7 +49,7 @@ _FD_LENGTHS = frozenset((0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64))
 _DIRS = {b"R": True, b"r": True, b"T": False, b"t": False}
 _INF = math.inf
 _ID_CACHE_MAX = 1 << 16
-_EXT_KEY = 1 << 31  # marks an extended id in keep_ids() keys, as the decoder does
+EXT_KEY = 1 << 31  # marks an extended id in id keys (keep_ids, the decoder's plans): 0x123 != 0x00000123
 
 
 def channel_keys(want: str) -> frozenset[Any]:
@@ -436,7 +436,7 @@ class LogSource:
             self._bad(n, "extended id above 0x1FFFFFFF", line)
             return None
         if not err and len(ids) < _ID_CACHE_MAX:
-            key = aid | _EXT_KEY if ext else aid
+            key = aid | EXT_KEY if ext else aid
             ids[id_b] = (aid, ext, self._keep is None or key in self._keep, key)
         fd = remote = False
         flags = 0
