@@ -86,10 +86,22 @@ def _bind(host: str, port: int) -> socket.socket:
     return sock
 
 
-def _terminate(signum, frame):
-    # uvicorn shuts down gracefully on SIGTERM, then raises the signal again for whoever
-    # handled it before: that is us, and a clean stop (commit, close the raw log) follows.
-    raise SystemExit(0)
+class _Terminate:
+    """SIGTERM before and after uvicorn's own handler: stop cleanly (commit, close the raw log).
+
+    Until the server exists, raise SystemExit (only service.start() can be running).  Once
+    it exists, only ask it to stop: an exception thrown into the main thread at an
+    arbitrary point (say, while it holds a lock a worker needs) could hang the exit.
+    uvicorn re-raises the signal to us after its graceful shutdown; that is then a no-op.
+    """
+
+    def __init__(self):
+        self.server = None
+
+    def __call__(self, signum, frame):
+        if self.server is None:
+            raise SystemExit(0)
+        self.server.should_exit = True
 
 
 def run(args) -> int:
@@ -102,9 +114,14 @@ def run(args) -> int:
     check_host(settings.api.host)
     sock = _bind(settings.api.host, settings.api.port)
     service = Service(settings)
-    previous = signal.signal(signal.SIGTERM, _terminate)
+    terminate = _Terminate()
+    previous = signal.signal(signal.SIGTERM, terminate)
     try:
         service.start()
+        verbose = logging.getLogger().level <= logging.INFO
+        config = uvicorn.Config(create_app(settings, service), log_level="info" if verbose else "warning",
+                                access_log=verbose, lifespan="on", timeout_graceful_shutdown=5)
+        terminate.server = server = uvicorn.Server(config)
         host, port = sock.getsockname()[:2]
         url = f"http://{'[' + host + ']' if ':' in host else host}:{port}"
         what = (f"simulating '{settings.simulate.scenario}' at {settings.simulate.speed:g}x on a virtual bus"
@@ -118,10 +135,7 @@ def run(args) -> int:
             print(f"vdp serve: not using the stored estimates: {service.store_error}", file=sys.stderr, flush=True)
         if settings.raw_log.enabled:
             print(f"vdp serve: raw CAN log in {settings.raw_log.dir}", file=sys.stderr, flush=True)
-        verbose = logging.getLogger().level <= logging.INFO
-        config = uvicorn.Config(create_app(settings, service), log_level="info" if verbose else "warning",
-                                access_log=verbose, lifespan="on", timeout_graceful_shutdown=5)
-        uvicorn.Server(config).run(sockets=[sock])
+        server.run(sockets=[sock])
     finally:
         service.stop()
         sock.close()
