@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from vdp.core import lateral
 from vdp.core.params import NAMES
 from vdp.pipeline import Pipeline
 from vdp.profile import load_profile
@@ -45,6 +46,18 @@ def test_paper_drive_converges_to_truth(profile, noise, seed):
     assert abs(ix["value"] - truth["I_x"]) <= 2 * ix["std"]
     # the EKF baseline runs beside it on the same windows
     assert all(snap["baseline_ekf"][n]["samples"] > 0 for n in NAMES)
+    # stage 2 considers stage 1's l_f: never moved, its uncertainty reaches C_alpha (1 % of
+    # l_f is about 4 % of C_alpha here), so the two end up clearly correlated
+    for kind, l2 in pipe.estimator.s2.items():
+        s1 = pipe.estimator.s1[kind].snapshot()["l_f"]
+        assert l2.known.l_f == s1.value and l2.l_f_std == pytest.approx(s1.std)
+        if l2.filter is not None:
+            x, P, c, lf = l2.filter.x, l2.filter.P, lateral.C_A, lateral.L_F
+            assert x[lf] == pytest.approx(s1.value, rel=1e-12)
+            cov, sd, var = P[c, lf], math.sqrt(P[lf, lf]), P[c, c]
+        else:
+            cov, sd, var = l2.cross[0][0], l2.cross[1], l2.theta_P[0, 0]
+        assert cov / (sd * math.sqrt(var)) > 0.1, kind
     stages = {w["stage"] for w in snap["windows"]}
     assert stages == {1, 2}
 

@@ -100,7 +100,7 @@ class TwoStageEstimator:
             if stage == 2:
                 if l2.filter is None:
                     e = l1.snapshot()
-                    l2.set_stage1(e["l_f"].value, e["h"].value, e["C_K"].value)
+                    l2.set_stage1(e["l_f"].value, e["h"].value, e["C_K"].value, e["l_f"].std)
                 l2.handle(t, s)
             elif l2.filter is not None:
                 l2.end_window()

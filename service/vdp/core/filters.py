@@ -8,6 +8,12 @@ The UKF uses the paper's sigma points (Table 3): alpha = 0.01, beta = 2,
 kappa = 3 - L.  With alpha this small the weights are large and of both signs,
 so the covariance is symmetrised after every step and a failed Cholesky or a
 non-finite state raises :class:`FilterError`; the learner then resets.
+
+A *consider* state (Schmidt-Kalman) is one the update never moves: it enters the
+model with its prior uncertainty, which the covariance carries into the other
+states, but the measurements are not allowed to re-estimate it.  Its gain row is
+zero, so the covariance update takes the general form for any gain,
+P - K Pxz^T - Pxz K^T + K S K^T (with an optimal gain it reduces to P - K S K^T).
 """
 
 from __future__ import annotations
@@ -61,6 +67,8 @@ class _VectorUKF(UnscentedKalmanFilter):
         sigmas = self.points_fn.sigma_points(self.x, self.P)
         self.sigmas_f = fx(sigmas, dt, **fx_args)
 
+    consider: int | None = None
+
     def update_masked(self, z, R, mask, **hx_args):
         sigmas_h = self.hx(self.sigmas_f, **hx_args)[:, mask]
         zp, S = unscented_transform(sigmas_h, self.Wm, self.Wc, R)
@@ -69,10 +77,16 @@ class _VectorUKF(UnscentedKalmanFilter):
         Pxz = np.einsum("i,ij,ik->jk", self.Wc, dx, dz)
         self.S = S
         self.SI = np.linalg.inv(S)
-        self.K = Pxz @ self.SI
+        self.K = K = Pxz @ self.SI
         self.y = z - zp
-        self.x = self.x + self.K @ self.y
-        self.P = self.P - self.K @ S @ self.K.T
+        if self.consider is None:
+            self.x = self.x + K @ self.y
+            self.P = self.P - K @ S @ K.T
+            return
+        K[self.consider] = 0.0
+        self.x = self.x + K @ self.y
+        KPxz = K @ Pxz.T
+        self.P = self.P - KPxz - KPxz.T + K @ S @ K.T
 
 
 class JointFilter:
@@ -85,7 +99,8 @@ class JointFilter:
 
     kind = "base"
 
-    def __init__(self, x0, P0, Q_rate, R, scale, fx: Callable, hx: Callable):
+    def __init__(self, x0, P0, Q_rate, R, scale, fx: Callable, hx: Callable, consider: int | None = None):
+        self.consider = consider  # index of a consider state (module docstring), or None
         self.scale = np.asarray(scale, dtype=float)
         self._scale2 = np.outer(self.scale, self.scale)
         self.Q_rate = np.asarray(Q_rate, dtype=float) / self._scale2
@@ -144,19 +159,25 @@ class JointFilter:
 class UKF(JointFilter):
     kind = "ukf"
 
-    def __init__(self, x0, P0, Q_rate, R, scale, fx, hx):
+    def __init__(self, x0, P0, Q_rate, R, scale, fx, hx, consider: int | None = None):
         n = len(x0)
         self._f = _VectorUKF(dim_x=n, dim_z=len(R), dt=0.01, hx=None, fx=None, points=paper_points(n))
-        super().__init__(x0, P0, Q_rate, R, scale, fx, hx)
+        super().__init__(x0, P0, Q_rate, R, scale, fx, hx, consider)
+        self._f.consider = consider
         self._f.fx = self._fx_s
         self._f.hx = self._hx_s
 
     def predict(self, dt: float, u) -> None:
-        self._f.Q = self.Q_rate * dt
+        f = self._f
+        f.Q = self.Q_rate * dt
+        c = self.consider
+        held = None if c is None else f.x[c]
         try:
-            self._f.predict(dt=dt, u=u)
+            f.predict(dt=dt, u=u)
         except (LinAlgError, ValueError, FloatingPointError) as exc:
             raise FilterError(f"ukf predict: {exc}") from None
+        if c is not None:
+            f.x[c] = held  # the weighted mean returns it only to rounding (weights of ~1e4, both signs)
         self._check()
 
     def _update(self, z, R, mask, u) -> None:
@@ -196,10 +217,10 @@ class EKF(JointFilter):
 
     kind = "ekf"
 
-    def __init__(self, x0, P0, Q_rate, R, scale, fx, hx, jac_f, jac_h):
+    def __init__(self, x0, P0, Q_rate, R, scale, fx, hx, jac_f, jac_h, consider: int | None = None):
         n = len(x0)
         self._f = _ModelEKF(dim_x=n, dim_z=len(R))
-        super().__init__(x0, P0, Q_rate, R, scale, fx, hx)
+        super().__init__(x0, P0, Q_rate, R, scale, fx, hx, consider)
         self._jac_f, self._jac_h = jac_f, jac_h
         self._dt = 0.01
 
@@ -225,4 +246,15 @@ class EKF(JointFilter):
         def h(xs):
             return self._hx_s(xs, u)[mask]
 
-        self._f.update(z, H, h, R=R)
+        if self.consider is None:
+            self._f.update(z, H, h, R=R)
+            return
+        # filterpy's update with the consider row of the gain zeroed; Joseph form holds for any gain
+        f = self._f
+        Hx = H(f.x)
+        S = Hx @ f.P @ Hx.T + R
+        K = f.P @ Hx.T @ np.linalg.inv(S)
+        K[self.consider] = 0.0
+        f.x = f.x + K @ (z - h(f.x))
+        IKH = np.eye(len(f.x)) - K @ Hx
+        f.P = IKH @ f.P @ IKH.T + K @ R @ K.T

@@ -2,12 +2,18 @@
 
 Filter state (SI units)::
 
-    x = [v_y, yaw_rate, phi, phi_dot, C_alpha, I_z, I_x]
+    x = [v_y, yaw_rate, phi, phi_dot, C_alpha, I_z, I_x, l_f]
 
 v_y and the roll angle phi have no sensor on a production car, so they are
 filter states estimated jointly with the parameters (NOTES item 13; the
 paper's "future work").  Inputs ``u`` (columns below) and measurements
 ``z = [yaw_rate, roll_rate, a_y]``.
+
+l_f is stage 1's estimate, carried as a *consider* state (Schmidt): the filter
+never updates it, but its stage-1 uncertainty flows into C_alpha and I_z
+through the covariance.  Stage 2 is sensitive to it: 1 % of l_f moves
+C_alpha by about 4 % and I_z by about 5 % on the paper's drive, while h and
+C_K hardly matter (so they stay constants in ``Known``).
 
 Errata applied (NOTES.md):
 - eq (5): v_y_dot = a_y - v_x * yaw_rate (the paper has +);
@@ -34,11 +40,13 @@ from functools import lru_cache
 
 import numpy as np
 
-V_Y, YAW, PHI, PHI_D, C_A, I_Z, I_X = range(7)
-STATE_NAMES = ("v_y", "yaw_rate", "phi", "phi_dot", "C_alpha", "I_z", "I_x")
-STATE_UNITS = ("m/s", "rad/s", "rad", "rad/s", "N/rad", "kg*m^2", "kg*m^2")
+V_Y, YAW, PHI, PHI_D, C_A, I_Z, I_X, L_F = range(8)
+N_X = 8
+STATE_NAMES = ("v_y", "yaw_rate", "phi", "phi_dot", "C_alpha", "I_z", "I_x", "l_f")
+STATE_UNITS = ("m/s", "rad/s", "rad", "rad/s", "N/rad", "kg*m^2", "kg*m^2", "m")
 PARAM_SLICE = slice(4, 7)
-SCALE = np.array([0.5, 0.2, 0.005, 0.02, 5.0e4, 2.0e3, 3.0e3])
+CONSIDER = L_F  # a state the filters never update (its prior uncertainty is considered)
+SCALE = np.array([0.5, 0.2, 0.005, 0.02, 5.0e4, 2.0e3, 3.0e3, 0.01])
 
 # input columns
 U_DELTA, U_VX, U_WF, U_AX = range(4)
@@ -57,7 +65,11 @@ _FLOOR = tuple(PARAM_FLOOR.tolist())
 
 @dataclass(frozen=True)
 class Known:
-    """Known constants of stage 2, including stage 1's results (SI)."""
+    """Known constants of stage 2, including stage 1's results (SI).
+
+    ``l_f`` is stage 1's value, used outside the filter state (the rear load in
+    the learner's v_x); the model itself takes l_f from the state (``L_F``).
+    """
 
     m: float
     L: float
@@ -73,33 +85,45 @@ class Known:
     def l_r(self) -> float:
         return self.L - self.l_f
 
+    @property
+    def ck_slope(self) -> float:
+        """C_K F_zf = base - ck_slope l_f, as F_zf = m (g (L - l_f) - a_x h) / L (eq 3a)."""
+        return self.C_K * self.m * self.g / self.L
+
 
 def _inputs(u, k: Known):
-    """Per-step constants from the inputs (they do not depend on the state); floats for one row."""
+    """Per-step constants from the inputs (they do not depend on the state); floats for one row.
+
+    The fifth is C_K F_zf at l_f = 0 (eq 3a); ``_geometry`` takes the l_f part off.
+    """
+    base = k.C_K * k.m / k.L
     if np.ndim(u) == 1:
         d, v_x, w_f, a_x = np.asarray(u, dtype=float).tolist()
-        f_zf = k.m * k.g * k.l_r / k.L - k.m * a_x * k.h / k.L  # eq (3a)
-        return d, max(v_x, V_MIN), math.sin(d), math.cos(d), k.C_K * f_zf, w_f * k.r
+        return d, max(v_x, V_MIN), math.sin(d), math.cos(d), base * (k.g * k.L - a_x * k.h), w_f * k.r
     d = u[..., U_DELTA]
     v_x = np.maximum(u[..., U_VX], V_MIN)
-    f_zf = k.m * k.g * k.l_r / k.L - k.m * u[..., U_AX] * k.h / k.L  # eq (3a)
     # NOTES 8: C_sigma = C_K F_zf; the slip uses the front wheel-frame speed (eq 13)
-    return d, v_x, np.sin(d), np.cos(d), k.C_K * f_zf, u[..., U_WF] * k.r
+    return d, v_x, np.sin(d), np.cos(d), base * (k.g * k.L - u[..., U_AX] * k.h), u[..., U_WF] * k.r
 
 
-def _rates(v_y, yaw, c_a, i_z, pre, k: Known, clamp=np.maximum):
+def _geometry(l_f, k: Known):
+    """(l_f, l_r, the l_f part of C_K F_zf) of a state or of each sigma point."""
+    return l_f, k.L - l_f, k.ck_slope * l_f
+
+
+def _rates(v_y, yaw, c_a, i_z, pre, geo, k: Known, clamp=np.maximum):
     """(v_y_dot, yaw_acc, a_y, Y_f, F_yr) for given lateral states; eqs (5), (7), (10)-(12).
 
     ``clamp`` is np.maximum for arrays of sigma points, the builtin max for one state
     in plain floats (the EKF's), where numpy's per-call cost would dominate.
     """
-    d, v_x, sd, cd, ck_fz, w_r = pre
-    l_f, l_r = k.l_f, k.l_r
+    d, v_x, sd, cd, ck_fz0, w_r = pre
+    l_f, l_r, ck_cut = geo
     p = v_y + l_f * yaw
     v_w = clamp(v_x * cd + p * sd, V_MIN)
     # Y_f = F_xf sin(d) + F_yf cos(d) with F_xf = C_sigma (w_r / v_w - 1) (NOTES 8) and
     # F_yf = C_alpha (d - p / v_x) (eq 12a, corrected), constants folded (fewer array operations)
-    xs = ck_fz * sd
+    xs = (ck_fz0 - ck_cut) * sd
     y_f = (xs * w_r) / v_w - xs + c_a * (d * cd - p * (cd / v_x))
     f_yr = c_a * (l_r * yaw - v_y) / v_x  # eq (12b), corrected
     a_y = (y_f + f_yr) / k.m  # eq (7)
@@ -107,16 +131,16 @@ def _rates(v_y, yaw, c_a, i_z, pre, k: Known, clamp=np.maximum):
 
 
 def _unpack(x):
-    """(v_y, yaw, phi, phi_dot, C_alpha, I_z, I_x, clamp), the parameters floored.
+    """(v_y, yaw, phi, phi_dot, C_alpha, I_z, I_x, l_f, clamp), the parameters floored.
 
     Plain floats and the builtin max for one state (the EKF's: numpy's per-call cost
     would dominate), arrays and np.maximum for many (the UKF's sigma points).
     """
     if np.ndim(x) == 1:
-        v_y, yaw, phi, phi_d, c_a, i_z, i_x = np.asarray(x, dtype=float).tolist()
-        return v_y, yaw, phi, phi_d, max(c_a, _FLOOR[0]), max(i_z, _FLOOR[1]), max(i_x, _FLOOR[2]), max
+        v_y, yaw, phi, phi_d, c_a, i_z, i_x, l_f = np.asarray(x, dtype=float).tolist()
+        return v_y, yaw, phi, phi_d, max(c_a, _FLOOR[0]), max(i_z, _FLOOR[1]), max(i_x, _FLOOR[2]), l_f, max
     return (x[..., V_Y], x[..., YAW], x[..., PHI], x[..., PHI_D], np.maximum(x[..., C_A], _FLOOR[0]),
-            np.maximum(x[..., I_Z], _FLOOR[1]), np.maximum(x[..., I_X], _FLOOR[2]), np.maximum)
+            np.maximum(x[..., I_Z], _FLOOR[1]), np.maximum(x[..., I_X], _FLOOR[2]), x[..., L_F], np.maximum)
 
 
 def quasi_static_roll(a_y: float, phi_dot: float, k: Known) -> float:
@@ -136,15 +160,15 @@ def quasi_static_roll(a_y: float, phi_dot: float, k: Known) -> float:
 
 def forces(x, u, k: Known):
     """Lateral force terms: (front body-y force Y_f, rear F_yr, a_y)."""
-    v_y, yaw, _, _, c_a, i_z, _, clamp = _unpack(x)
-    _, _, a_y, y_f, f_yr = _rates(v_y, yaw, c_a, i_z, _inputs(u, k), k, clamp)
+    v_y, yaw, _, _, c_a, i_z, _, l_f, clamp = _unpack(x)
+    _, _, a_y, y_f, f_yr = _rates(v_y, yaw, c_a, i_z, _inputs(u, k), _geometry(l_f, k), k, clamp)
     return y_f, f_yr, a_y
 
 
 def deriv(x, u, k: Known):
     """Continuous-time dynamics x_dot = f(x, u), eqs (5), (8)-(10) corrected."""
-    v_y, yaw, phi, phi_d, c_a, i_z, i_x, clamp = _unpack(x)
-    vy_d, yaw_d, a_y, _, _ = _rates(v_y, yaw, c_a, i_z, _inputs(u, k), k, clamp)
+    v_y, yaw, phi, phi_d, c_a, i_z, i_x, l_f, clamp = _unpack(x)
+    vy_d, yaw_d, a_y, _, _ = _rates(v_y, yaw, c_a, i_z, _inputs(u, k), _geometry(l_f, k), k, clamp)
     out = np.zeros(np.shape(x))
     out[..., V_Y] = vy_d
     out[..., YAW] = yaw_d
@@ -221,18 +245,19 @@ def fx(x, dt, u, k: Known, substeps: int | None = None):
     u = np.asarray(u, dtype=float)
     x = np.array(x, dtype=float, copy=True)
     h = dt / substeps
-    v_y, yaw, phi, phi_d, c_a, i_z, i_x, clamp = _unpack(x)
+    v_y, yaw, phi, phi_d, c_a, i_z, i_x, l_f, clamp = _unpack(x)
+    geo = _geometry(l_f, k)
     (t11, t12, t21, t22), (p1, p2), (q1, q2) = _roll_map(i_x, h, k)
     # per-step input constants at every start, mid and end point, as plain floats
     pres = list(zip(*(a.tolist() for a in _inputs(_input_grid(u, substeps), k))))
-    start = _rates(v_y, yaw, c_a, i_z, pres[0], k, clamp)
+    start = _rates(v_y, yaw, c_a, i_z, pres[0], geo, k, clamp)
     for i in range(substeps):
         vy_d, yaw_d, a0 = start[0], start[1], start[2]
-        vy_d1, yaw_d1, _, _, _ = _rates(v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_a, i_z, pres[2 * i + 1], k,
-                                        clamp)
+        vy_d1, yaw_d1, _, _, _ = _rates(v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_a, i_z, pres[2 * i + 1], geo,
+                                        k, clamp)
         v_y = v_y + h * vy_d1
         yaw = yaw + h * yaw_d1
-        start = _rates(v_y, yaw, c_a, i_z, pres[2 * i + 2], k, clamp)
+        start = _rates(v_y, yaw, c_a, i_z, pres[2 * i + 2], geo, k, clamp)
         a1 = start[2]
         # the roll does not act back on v_y and yaw (a_y has no phi term), so it follows
         phi, phi_d = (t11 * phi + t12 * phi_d + p1 * a0 + q1 * a1,
@@ -251,21 +276,26 @@ def hx(x, u, k: Known):
 
 def _dforces(x, u, k: Known):
     """Gradients of (Y_f, F_yr) with respect to the state (single state only)."""
-    d, v_x, sd, cd, ck_fz, w_r = _inputs(u, k)
-    v_y, yaw, _, _, c_a, _, _, _ = _unpack(x)
-    alpha_f = d - (v_y + k.l_f * yaw) / v_x
-    alpha_r = -(v_y - k.l_r * yaw) / v_x
-    v_w = v_x * cd + (v_y + k.l_f * yaw) * sd
+    d, v_x, sd, cd, ck_fz0, w_r = _inputs(u, k)
+    v_y, yaw, _, _, c_a, _, _, l_f, _ = _unpack(x)
+    l_r = k.L - l_f
+    ck_fz = ck_fz0 - k.ck_slope * l_f
+    alpha_f = d - (v_y + l_f * yaw) / v_x
+    alpha_r = -(v_y - l_r * yaw) / v_x
+    v_w = v_x * cd + (v_y + l_f * yaw) * sd
     # d F_xf / d v_w through s_f = omega r / v_w - 1 (zero where v_w is clamped)
     dfx_dvw = -ck_fz * w_r / v_w**2 if v_w > V_MIN else 0.0
-    dyf = np.zeros(7)
-    dyf[V_Y] = dfx_dvw * sd * sd + c_a * (-1.0 / v_x) * cd
-    dyf[YAW] = dfx_dvw * k.l_f * sd * sd + c_a * (-k.l_f / v_x) * cd
+    dyf = np.zeros(N_X)
+    dyf[V_Y] = dfx_dvw * sd * sd + c_a * (-1.0 / v_x) * cd  # d Y_f / d p, p = v_y + l_f r
+    dyf[YAW] = l_f * dyf[V_Y]
     dyf[C_A] = alpha_f * cd if x[C_A] > PARAM_FLOOR[0] else 0.0
-    dfr = np.zeros(7)
+    # l_f moves p and, through the front load (eq 3a), C_sigma
+    dyf[L_F] = yaw * dyf[V_Y] - k.ck_slope * sd * (w_r / max(v_w, V_MIN) - 1.0)
+    dfr = np.zeros(N_X)
     dfr[V_Y] = -c_a / v_x
-    dfr[YAW] = c_a * k.l_r / v_x
+    dfr[YAW] = c_a * l_r / v_x
     dfr[C_A] = alpha_r if x[C_A] > PARAM_FLOOR[0] else 0.0
+    dfr[L_F] = -c_a * yaw / v_x
     return dyf, dfr
 
 
@@ -276,11 +306,14 @@ def jac_f(x, u, k: Known):
     dyf, dfr = _dforces(x, u, k)
     day = (dyf + dfr) / k.m
     f = deriv(x, u, k)
+    y_f, f_yr, _ = forces(x, u, k)
     i_z, i_x = max(x[I_Z], PARAM_FLOOR[1]), max(x[I_X], PARAM_FLOOR[2])
-    A = np.zeros((7, 7))
+    l_f = x[L_F]
+    A = np.zeros((N_X, N_X))
     A[V_Y] = day
     A[V_Y, YAW] -= v_x
-    A[YAW] = (k.l_f * dyf - k.l_r * dfr) / i_z
+    A[YAW] = (l_f * dyf - (k.L - l_f) * dfr) / i_z
+    A[YAW, L_F] += (y_f + f_yr) / i_z  # the moment arms, eq (10)
     if x[I_Z] > PARAM_FLOOR[1]:
         A[YAW, I_Z] = -f[YAW] / i_z
     A[PHI, PHI_D] = 1.0
@@ -295,7 +328,7 @@ def jac_f(x, u, k: Known):
 def jac_h(x, u, k: Known):
     """H = d hx / d x, analytic."""
     dyf, dfr = _dforces(np.asarray(x, dtype=float), u, k)
-    H = np.zeros((3, 7))
+    H = np.zeros((3, N_X))
     H[Z_YAW, YAW] = 1.0
     H[Z_ROLL, PHI_D] = 1.0
     H[Z_AY] = (dyf + dfr) / k.m

@@ -44,6 +44,7 @@ V_Y_WALK = 0.005  # m/s per sqrt(s)
 YAW_WALK = 0.02  # rad/s per sqrt(s)
 PHI_WALK = 1e-4  # rad per sqrt(s)
 PHI_D_WALK = 0.005  # rad/s per sqrt(s)
+L_F_STD_MIN = 1e-4  # m: stage 1's l_f is never taken as exact (keeps the covariance positive definite)
 
 
 @dataclass(frozen=True)
@@ -124,10 +125,13 @@ class StageLearner:
         self.theta = np.array([self.priors[k].value for k in self.names])
         self.theta_P = np.diag([self.priors[k].std ** 2 for k in self.names])
         self.prior_std = np.array([self.priors[k].std for k in self.names])
+        # covariance of the parameters with the model's consider state, and that state's std
+        # then (a window keeps it for the next one); None for a model without one
+        self.cross: tuple[np.ndarray, float] | None = None
         self.filter = None
         self.samples = 0
         self.t_last: float | None = None
-        self._good = (self.theta.copy(), self.theta_P.copy())
+        self._good = (self.theta.copy(), self.theta_P.copy(), None)
         self._n, self._p = n, p
 
     def handle(self, t: float, s) -> None:
@@ -140,7 +144,8 @@ class StageLearner:
         """Start from given estimates (a restart restoring stored values)."""
         self.theta = np.asarray(theta, dtype=float).copy()
         self.theta_P = np.asarray(cov, dtype=float).copy()
-        self._good = (self.theta.copy(), self.theta_P.copy())
+        self.cross = None
+        self._good = (self.theta.copy(), self.theta_P.copy(), None)
         self.samples = max(self.samples, int(samples))
         self.filter = None
         self.t_last = None
@@ -194,12 +199,18 @@ class StageLearner:
         x, P = self.filter.x, self.filter.P
         self.theta = x[self._p].copy()
         self.theta_P = P[self._p, self._p].copy()
+        self.cross = self._cross(P)
+
+    def _cross(self, P) -> tuple[np.ndarray, float] | None:
+        c = self.model.CONSIDER
+        return None if c is None else (P[self._p, c].copy(), math.sqrt(P[c, c]))
 
     def _recover(self, why: str) -> None:
         self.resets += 1
         self.last_error = why
         log.warning("stage %d %s diverged (%s); reset to the last good estimate", self.stage, self.kind, why)
-        self.theta, self.theta_P = self._good[0].copy(), self._good[1].copy()
+        theta, cov, self.cross = self._good
+        self.theta, self.theta_P = theta.copy(), cov.copy()
         self.filter = None
         self.t_last = None
 
@@ -208,7 +219,7 @@ class StageLearner:
         theta, cov = x[self._p], P[self._p, self._p]
         in_range = all(BY_NAME[n].lo <= v <= BY_NAME[n].hi for n, v in zip(self.names, theta))
         if in_range and np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov) > 0):
-            self._good = (theta.copy(), cov.copy())
+            self._good = (theta.copy(), cov.copy(), self._cross(P))
 
     def _q_rate(self) -> np.ndarray:
         raise NotImplementedError
@@ -219,8 +230,8 @@ class StageLearner:
         fx = self._fx
         hx = self._hx
         if self.kind == "ukf":
-            return UKF(x0, P0, Q, R, m.SCALE, fx, hx)
-        return EKF(x0, P0, Q, R, m.SCALE, fx, hx, self._jac_f, self._jac_h)
+            return UKF(x0, P0, Q, R, m.SCALE, fx, hx, m.CONSIDER)
+        return EKF(x0, P0, Q, R, m.SCALE, fx, hx, self._jac_f, self._jac_h, m.CONSIDER)
 
     def _param_q(self) -> np.ndarray:
         return (self.cfg.param_walk * self.prior_std) ** 2
@@ -325,12 +336,30 @@ class Stage2(StageLearner):
 
     def reset(self) -> None:
         self.known = None
+        self.l_f_std = None
         super().reset()
 
-    def set_stage1(self, l_f: float, h: float, c_k: float) -> None:
+    def set_stage1(self, l_f: float, h: float, c_k: float, l_f_std: float | None = None) -> None:
+        """Stage 1's results.  ``l_f_std`` is considered (lateral.CONSIDER): stage 2 is
+        sensitive to l_f, and its stds would otherwise take stage 1's l_f as exact."""
         v = self.vehicle
         self.known = lateral.Known(m=v.mass, L=v.wheelbase, r=v.wheel_radius, k_phi=v.roll_stiffness,
                                    c_phi=v.roll_damping, l_f=l_f, h=h, C_K=c_k, g=v.g)
+        ok = l_f_std is not None and math.isfinite(l_f_std) and l_f_std > 0
+        self.l_f_std = max(l_f_std, L_F_STD_MIN) if ok else self.priors["l_f"].std
+
+    def _initial_cov(self) -> np.ndarray:
+        """Dynamic states, the parameters as kept, l_f as stage 1 gives it, and their correlation."""
+        P0 = np.zeros((self._n, self._n))
+        P0[:4, :4] = np.diag([0.5 ** 2, 0.02 ** 2, 0.01 ** 2, 0.02 ** 2])
+        P0[self._p, self._p] = self.theta_P
+        sd, c = self.l_f_std, lateral.L_F
+        P0[c, c] = sd * sd
+        if self.cross is not None:
+            # correlation kept, scaled to stage 1's std now (a congruence: stays positive definite)
+            cov, sd_then = self.cross
+            P0[self._p, c] = P0[c, self._p] = cov * (sd / sd_then)
+        return P0
 
     def _fx(self, x, dt, u):
         return lateral.fx(x, dt, u, self.known)
@@ -346,7 +375,7 @@ class Stage2(StageLearner):
 
     def _q_rate(self):
         dyn = np.square([V_Y_WALK, YAW_WALK, PHI_WALK, PHI_D_WALK])
-        return np.diag(np.concatenate([dyn, self._param_q()]))
+        return np.diag(np.concatenate([dyn, self._param_q(), [0.0]]))  # l_f: constant
 
     def _R(self):
         n = self.cfg.noise
@@ -391,11 +420,8 @@ class Stage2(StageLearner):
             # the roll angle, unmeasured, from its balance with the measured a_y (a window
             # may open mid-corner); v_y would need the unknown C_alpha: 0 with a wide std
             phi = lateral.quasi_static_roll(z[2], roll_rate, self.known) if mask[2] else 0.0
-            x0 = np.concatenate([[0.0, yaw, phi, roll_rate], self.theta])
-            P0 = np.zeros((7, 7))
-            P0[:4, :4] = np.diag([0.5 ** 2, 0.02 ** 2, 0.01 ** 2, 0.02 ** 2])
-            P0[4:, 4:] = self.theta_P
-            self.filter = self._new_filter(x0, P0, self._R())
+            x0 = np.concatenate([[0.0, yaw, phi, roll_rate], self.theta, [self.known.l_f]])
+            self.filter = self._new_filter(x0, self._initial_cov(), self._R())
             self._us = [u]
             self.t_last = t
             return

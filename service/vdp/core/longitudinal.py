@@ -34,6 +34,7 @@ L_F, H, C_K = range(3)
 STATE_NAMES = ("l_f", "h", "C_K")
 STATE_UNITS = ("m", "m", "1")
 PARAM_SLICE = slice(0, 3)
+CONSIDER = None  # no consider state (see lateral)
 # typical magnitudes: the filter works in x / SCALE for a well-conditioned covariance
 SCALE = np.array([1.0, 1.0, 10.0])
 
