@@ -12,8 +12,9 @@ paper's "future work").  Inputs ``u`` (columns below) and measurements
 l_f is stage 1's estimate, carried as a *consider* state (Schmidt): the filter
 never updates it, but its stage-1 uncertainty flows into C_alpha and I_z
 through the covariance.  Stage 2 is sensitive to it: 1 % of l_f moves
-C_alpha by about 4 % and I_z by about 5 % on the paper's drive, while h and
-C_K hardly matter (so they stay constants in ``Known``).
+C_alpha by 3.4 % and I_z by 4.5 % on the paper's drive (more in the city
+drive), while h and C_K hardly matter, so they stay constants in ``Known``
+(benchmarks/sensitivity.py).
 
 Errata applied (NOTES.md):
 - eq (5): v_y_dot = a_y - v_x * yaw_rate (the paper has +);
