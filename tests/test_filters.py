@@ -73,3 +73,25 @@ def test_considering_a_bias_keeps_the_filters_std_honest():
     for runs, ratio in ((honest, (0.9, 1.1)), (naive, (2.0, np.inf))):
         err, claimed = np.array(runs).T
         assert ratio[0] < np.mean(err ** 2) / np.mean(claimed) < ratio[1]
+
+
+def test_a_new_stage2_window_keeps_the_parameters_correlation_with_l_f(repo_root):
+    """What one window learnt about C_alpha's dependence on l_f is kept for the next,
+    rescaled to stage 1's std then, and the starting covariance stays positive definite."""
+    from vdp.core import lateral
+    from vdp.core.learner import Stage2
+    from vdp.profile import load_profile
+
+    profile = load_profile(repo_root / "profiles" / "paper.toml")
+    l2 = Stage2("ukf", profile.vehicle, profile.priors)
+    l2.set_stage1(1.4, 0.6, 10.0, l_f_std=0.002)
+    l2.theta_P = np.diag([2000.0, 50.0, 1000.0]) ** 2
+    l2.cross = (np.array([0.8 * 2000.0 * 0.001, 0.5 * 50.0 * 0.001, 0.0]), 0.001)  # rho 0.8, 0.5 at sd 1 mm
+    P0 = l2._initial_cov()
+    c, p = lateral.L_F, lateral.PARAM_SLICE
+    assert P0[c, c] == pytest.approx(0.002 ** 2)
+    rho = P0[p, c] / np.sqrt(np.diagonal(P0)[p] * P0[c, c])
+    np.testing.assert_allclose(rho, [0.8, 0.5, 0.0])
+    assert np.all(np.linalg.eigvalsh(P0) > 0)
+    l2.set_stage1(1.4, 0.6, 10.0, l_f_std=float("nan"))  # no usable std: the prior's, never exact
+    assert l2.l_f_std == profile.priors["l_f"].std
