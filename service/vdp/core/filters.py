@@ -62,12 +62,12 @@ class _VectorUKF(UnscentedKalmanFilter):
     replaces filterpy's per-point Python loop, which dominates the cost.
     """
 
+    consider: int | None = None  # index of a consider state (module docstring)
+
     def compute_process_sigmas(self, dt, fx=None, **fx_args):
         fx = self.fx if fx is None else fx
         sigmas = self.points_fn.sigma_points(self.x, self.P)
         self.sigmas_f = fx(sigmas, dt, **fx_args)
-
-    consider: int | None = None
 
     def update_masked(self, z, R, mask, **hx_args):
         sigmas_h = self.hx(self.sigmas_f, **hx_args)[:, mask]
