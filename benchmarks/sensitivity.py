@@ -18,6 +18,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "service"))
 
+import numpy as np  # noqa: E402
+
+from vdp.core import lateral  # noqa: E402
 from vdp.core.learner import Stage2  # noqa: E402
 from vdp.pipeline import Pipeline  # noqa: E402
 from vdp.profile import load_profile  # noqa: E402
@@ -27,7 +30,7 @@ STAGE1 = ("l_f", "h", "C_K")
 STAGE2 = ("C_alpha", "I_z", "I_x")
 
 
-def run(profile, frames, truth: dict, moved: str | None, step: float) -> dict:
+def run(profile, frames, truth: dict, moved: str | None, step: float) -> tuple[dict, Pipeline]:
     """Final stage-2 errors (relative) with stage 1's values replaced by the truth, one moved."""
     handed = {n: truth[n] * (1.0 + step if n == moved else 1.0) for n in STAGE1}
     original = Stage2.set_stage1
@@ -43,7 +46,22 @@ def run(profile, frames, truth: dict, moved: str | None, step: float) -> dict:
     finally:
         Stage2.set_stage1 = original
     p = pipe.snapshot()["parameters"]
-    return {n: (p[n]["value"] - truth[n]) / truth[n] for n in STAGE2}
+    return {n: (p[n]["value"] - truth[n]) / truth[n] for n in STAGE2}, pipe
+
+
+def correlation(pipe) -> str:
+    """Stage 1's l_f std as stage 2 considers it, and stage 2's correlation with it (UKF)."""
+    l2 = pipe.estimator.s2["ukf"]
+    if l2.filter is not None:
+        P, p, c = l2.filter.P, lateral.PARAM_SLICE, lateral.L_F
+        cov, sd, var = P[p, c], np.sqrt(P[c, c]), np.diagonal(P)[p]
+    elif l2.cross is not None:
+        (cov, sd), var = l2.cross, np.diagonal(l2.theta_P)
+    else:
+        return "stage 2 did not run"
+    rho = cov / (sd * np.sqrt(var))
+    return (f"stage 1's l_f std {100 * l2.l_f_std / l2.known.l_f:.3f} %; correlation with l_f at the end: "
+            + ", ".join(f"{n} {r:+.2f}" for n, r in zip(STAGE2, rho)))
 
 
 def main() -> int:
@@ -58,7 +76,7 @@ def main() -> int:
     frames, truth = simulate(profile, args.scenario, seed=args.seed, noise=args.noise)
     frames = list(frames)
     truth = truth["parameters"]
-    base = run(profile, frames, truth, None, args.step)
+    base, pipe = run(profile, frames, truth, None, args.step)
     print(f"`{args.scenario}`, seed {args.seed}, noise `{args.noise}`; stage 2 handed the true stage-1 values")
     print("(one moved by %g %%); UKF error at the end, and shift per 1 %% of the moved value\n" % (100 * args.step))
     print("| stage-1 value handed | " + " | ".join(f"`{n}` error" for n in STAGE2) + " | "
@@ -66,10 +84,11 @@ def main() -> int:
     print("|---" * (1 + 2 * len(STAGE2)) + "|")
     print("| all true | " + " | ".join(f"{100 * base[n]:+.2f} %" for n in STAGE2) + " |" + " - |" * len(STAGE2))
     for moved in STAGE1:
-        r = run(profile, frames, truth, moved, args.step)
+        r, _ = run(profile, frames, truth, moved, args.step)
         shift = {n: (r[n] - base[n]) / (100 * args.step) for n in STAGE2}
         print(f"| `{moved}` +{100 * args.step:g} % | " + " | ".join(f"{100 * r[n]:+.2f} %" for n in STAGE2) + " | "
               + " | ".join(f"{100 * shift[n]:+.2f} %" for n in STAGE2) + " |")
+    print(f"\nWith all true: {correlation(pipe)}")
     return 0
 
 
