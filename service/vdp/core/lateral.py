@@ -83,10 +83,6 @@ class Known:
     g: float = 9.8
 
     @property
-    def l_r(self) -> float:
-        return self.L - self.l_f
-
-    @property
     def ck_slope(self) -> float:
         """C_K F_zf = base - ck_slope l_f, as F_zf = m (g (L - l_f) - a_x h) / L (eq 3a)."""
         return self.C_K * self.m * self.g / self.L
