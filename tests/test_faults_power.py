@@ -95,9 +95,11 @@ def seq(p: Path) -> int:
 
 def last_seq(raw: Path, crashed: bool) -> int:
     """The sequence number of a stopped run's last file.  A file the crash left open is
-    closed by the next start under the next number; the next run's own files follow it."""
+    closed by the next start under the next number (unless it holds no whole line: then
+    it is deleted); the next run's own files follow it."""
     top = max((seq(p) for p in closed(raw)), default=0)
-    return top + 1 if crashed and (raw / "vdp-current.log").exists() else top
+    cur = raw / "vdp-current.log"
+    return top + 1 if crashed and cur.exists() and b"\n" in cur.read_bytes() else top
 
 
 def test_kill_9_in_a_loop_loses_nothing_committed_and_no_closed_log(tmp_path):
