@@ -18,9 +18,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "service"))
 
-import numpy as np  # noqa: E402
-
-from vdp.core import lateral  # noqa: E402
 from vdp.core.learner import Stage2  # noqa: E402
 from vdp.pipeline import Pipeline  # noqa: E402
 from vdp.profile import load_profile  # noqa: E402
@@ -52,14 +49,9 @@ def run(profile, frames, truth: dict, moved: str | None, step: float) -> tuple[d
 def correlation(pipe) -> str:
     """Stage 1's l_f std as stage 2 considers it, and stage 2's correlation with it (UKF)."""
     l2 = pipe.estimator.s2["ukf"]
-    if l2.filter is not None:
-        P, p, c = l2.filter.P, lateral.PARAM_SLICE, lateral.L_F
-        cov, sd, var = P[p, c], np.sqrt(P[c, c]), np.diagonal(P)[p]
-    elif l2.cross is not None:
-        (cov, sd), var = l2.cross, np.diagonal(l2.theta_P)
-    else:
+    rho = l2.l_f_correlation()
+    if rho is None:
         return "stage 2 did not run"
-    rho = cov / (sd * np.sqrt(var))
     return (f"stage 1's l_f std {100 * l2.l_f_std / l2.known.l_f:.3f} %; correlation with l_f at the end: "
             + ", ".join(f"{n} {r:+.2f}" for n, r in zip(STAGE2, rho)))
 

@@ -361,6 +361,18 @@ class Stage2(StageLearner):
             P0[self._p, c] = P0[c, self._p] = cov * (sd / sd_then)
         return P0
 
+    def l_f_correlation(self) -> np.ndarray | None:
+        """Correlation of (C_alpha, I_z, I_x) with the considered l_f: the open window's, else
+        the kept one; None before any window."""
+        if self.filter is not None:
+            P, p, c = self.filter.P, self._p, lateral.L_F
+            cov, sd, var = P[p, c], math.sqrt(P[c, c]), np.diagonal(P)[p]
+        elif self.cross is not None:
+            (cov, sd), var = self.cross, np.diagonal(self.theta_P)
+        else:
+            return None
+        return cov / (sd * np.sqrt(var))
+
     def _fx(self, x, dt, u):
         return lateral.fx(x, dt, u, self.known)
 
