@@ -19,7 +19,6 @@ car's plausible truth (vdp.sim.addons) instead of Table 6.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -38,6 +37,7 @@ def run_one(args) -> dict:
     scenario, seed, noise, every, car, coarse = args
     import dataclasses
     import logging
+
     from vdp.core.estimator import EstimatorConfig
     from vdp.core.learner import LearnerConfig
     from vdp.pipeline import Pipeline
@@ -72,8 +72,12 @@ def run_one(args) -> dict:
             e = snap[key][name]
             v, sd = e["value"], e["std"]
             err = None if v is None else (v - tp[name]) / tp[name]
-            out[kind][name] = {"err": err, "std": sd, "status": e["status"],
-                               "covered": bool(v is not None and sd is not None and abs(v - tp[name]) <= 2 * sd)}
+            out[kind][name] = {
+                "err": err,
+                "std": sd,
+                "status": e["status"],
+                "covered": bool(v is not None and sd is not None and abs(v - tp[name]) <= 2 * sd),
+            }
     # time for stage 1 to get within 2 % and stay there, from its first window
     wins = [w for w in snap["windows"] if w["stage"] == 1]
     t_open = wins[0]["start"] if wins else None
@@ -81,24 +85,32 @@ def run_one(args) -> dict:
     if t_open is not None:
         for row in pipe.estimator.trace:
             t, ukf = row[0], row[2]
-            ok = all(ukf[i][0] is not None and abs(ukf[i][0] - tp[n_]) <= 0.02 * tp[n_]
-                     for i, n_ in enumerate(NAMES) if n_ in ("l_f", "h", "C_K"))
+            ok = all(
+                ukf[i][0] is not None and abs(ukf[i][0] - tp[n_]) <= 0.02 * tp[n_]
+                for i, n_ in enumerate(NAMES)
+                if n_ in ("l_f", "h", "C_K")
+            )
             if t >= t_open and ok and t_in is None:
                 t_in = t
             elif not ok and t >= t_open:
                 t_in = None
     out["t_stage1_2pct"] = None if t_in is None else t_in - t_open
-    out["windows"] = [(w["stage"], round(w["start"] - first, 1), None if w["end"] is None else round(w["end"] - first, 1))
-                      for w in snap["windows"]]
+    out["windows"] = [
+        (w["stage"], round(w["start"] - first, 1), None if w["end"] is None else round(w["end"] - first, 1))
+        for w in snap["windows"]
+    ]
     return out
 
 
 def summarise(runs: list[dict], scenario: str, noise: str, car: str | None = None) -> str:
     where = f" on the `{car}` layout" if car else ""
-    lines = [f"### `{scenario}`{where}, noise `{noise}`, {len(runs)} seeds", "",
-             "| parameter | target | UKF mean abs err | UKF max abs err | UKF within target | ±2σ covers truth | "
-             "EKF mean abs err | EKF max abs err | UKF status (runs) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"### `{scenario}`{where}, noise `{noise}`, {len(runs)} seeds",
+        "",
+        "| parameter | target | UKF mean abs err | UKF max abs err | UKF within target | ±2σ covers truth | "
+        "EKF mean abs err | EKF max abs err | UKF status (runs) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for name in NAMES:
         u = [r["ukf"][name] for r in runs]
         e = [r["ekf"][name] for r in runs]
@@ -111,14 +123,19 @@ def summarise(runs: list[dict], scenario: str, noise: str, car: str | None = Non
             status[x["status"]] = status.get(x["status"], 0) + 1
         st = ", ".join(f"{k} {v}" for k, v in sorted(status.items()))
         pct = lambda xs, f: f"{100 * f(xs):.2f} %" if xs else "-"  # noqa: E731
-        lines.append(f"| `{name}` | {100 * TOL[name]:.0f} % | {pct(ue, lambda a: sum(a) / len(a))} | {pct(ue, max)} | "
-                     f"{within}/{len(runs)} | {cov}/{len(runs)} | {pct(ee, lambda a: sum(a) / len(a))} | "
-                     f"{pct(ee, max)} | {st} |")
+        lines.append(
+            f"| `{name}` | {100 * TOL[name]:.0f} % | {pct(ue, lambda a: sum(a) / len(a))} | {pct(ue, max)} | "
+            f"{within}/{len(runs)} | {cov}/{len(runs)} | {pct(ee, lambda a: sum(a) / len(a))} | "
+            f"{pct(ee, max)} | {st} |"
+        )
     ts = [r["t_stage1_2pct"] for r in runs]
     got = [t for t in ts if t is not None]
-    lines += ["", f"Stage 1 within 2 % (and staying there) after its window opened: "
-                  f"{len(got)}/{len(runs)} runs; "
-                  + (f"median {sorted(got)[len(got) // 2]:.1f} s, max {max(got):.1f} s." if got else "never.")]
+    lines += [
+        "",
+        f"Stage 1 within 2 % (and staying there) after its window opened: "
+        f"{len(got)}/{len(runs)} runs; "
+        + (f"median {sorted(got)[len(got) // 2]:.1f} s, max {max(got):.1f} s." if got else "never."),
+    ]
     frames = sum(r["frames"] for r in runs)
     wall = sum(r["wall"] for r in runs)
     lines.append(f"Pipeline (decode + UKF + EKF) on in-memory frames: {frames / wall:,.0f} frames/s.")
@@ -132,26 +149,41 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--stage2-step", type=float, default=LearnerConfig().stage2_step,
-                    help="s between stage 2's filter steps (default: the estimator's)")
-    ap.add_argument("--car", default=None, help="a shipped car profile (e.g. toyota_rav4): its DBC layout "
-                    "plus vdp's add-on sensors, and its plausible truth")
-    ap.add_argument("--coarse", action="store_true", help="ignore the profile's `fine` signals "
-                    "(the RAV4's steering then reads STEER_ANGLE alone, in 1.5 deg steps)")
+    ap.add_argument(
+        "--stage2-step",
+        type=float,
+        default=LearnerConfig().stage2_step,
+        help="s between stage 2's filter steps (default: the estimator's)",
+    )
+    ap.add_argument(
+        "--car",
+        default=None,
+        help="a shipped car profile (e.g. toyota_rav4): its DBC layout "
+        "plus vdp's add-on sensors, and its plausible truth",
+    )
+    ap.add_argument(
+        "--coarse",
+        action="store_true",
+        help="ignore the profile's `fine` signals (the RAV4's steering then reads STEER_ANGLE alone, in 1.5 deg steps)",
+    )
     ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
     a = ap.parse_args()
     if a.car is not None and not (ROOT / "profiles" / f"{a.car}.toml").exists():
         ap.error(f"no profile profiles/{a.car}.toml")
     from vdp.sim.addons import CAR_TRUTH
+
     if a.car is not None and a.car not in CAR_TRUTH:
         ap.error(f"no simulation truth for {a.car}; cars with one: {', '.join(CAR_TRUTH)}")
-    jobs = [(a.scenario, s, a.noise, a.stage2_step, a.car, a.coarse) for s in range(a.first_seed, a.first_seed + a.seeds)]
+    jobs = [
+        (a.scenario, s, a.noise, a.stage2_step, a.car, a.coarse) for s in range(a.first_seed, a.first_seed + a.seeds)
+    ]
     with ProcessPoolExecutor(max_workers=a.jobs) as ex:
         runs = list(ex.map(run_one, jobs))
     if a.verbose:
         for r in runs:
-            errs = " ".join(f"{n}={100 * r['ukf'][n]['err']:+.2f}%" if r["ukf"][n]["err"] is not None else f"{n}=-"
-                            for n in NAMES)
+            errs = " ".join(
+                f"{n}={100 * r['ukf'][n]['err']:+.2f}%" if r["ukf"][n]["err"] is not None else f"{n}=-" for n in NAMES
+            )
             print(f"seed {r['seed']}: {errs} t2%={r['t_stage1_2pct']} windows={r['windows']}")
     print(summarise(runs, a.scenario, a.noise, a.car) + f"\n(stage 2 filter step every {a.stage2_step * 1000:g} ms)")
     return 0

@@ -89,17 +89,24 @@ def main() -> int:
             def run():
                 with open_log(path) as src:
                     return sum(1 for _ in src)
+
             return run
 
         print(f"file: {log} ({log.stat().st_size / 1e6:.1f} MB)")
         rates = {}
-        for label, fn in (("can.LogReader      .log", python_can(log)), ("vdp open_log       .log", ours(log)),
-                          ("can.LogReader   .log.gz", python_can(gz)), ("vdp open_log    .log.gz", ours(gz))):
+        for label, fn in (
+            ("can.LogReader      .log", python_can(log)),
+            ("vdp open_log       .log", ours(log)),
+            ("can.LogReader   .log.gz", python_can(gz)),
+            ("vdp open_log    .log.gz", ours(gz)),
+        ):
             dt, n = best(fn, args.repeat)
             rates[label] = n / dt
             print(f"{label}: {n / dt:10,.0f} frames/s  ({n} frames, {dt:.2f} s)")
-        print(f"open_log / LogReader: {rates['vdp open_log       .log'] / rates['can.LogReader      .log']:.2f}x plain, "
-              f"{rates['vdp open_log    .log.gz'] / rates['can.LogReader   .log.gz']:.2f}x gzip")
+        print(
+            f"open_log / LogReader: {rates['vdp open_log       .log'] / rates['can.LogReader      .log']:.2f}x plain, "
+            f"{rates['vdp open_log    .log.gz'] / rates['can.LogReader   .log.gz']:.2f}x gzip"
+        )
 
         with open_log(log) as src:
             frames = list(src)
@@ -133,8 +140,10 @@ def main() -> int:
         dt, n = best(cantools_all, args.repeat)
         print(f"cantools decode_message:     {dt / n * 1e6:.2f} us/frame (no checks, no conversion)")
         dt, n = best(replay, args.repeat)
-        print(f"open_log + decode:           {n / dt:10,.0f} frames/s "
-              f"({n / dt / rates['can.LogReader      .log']:.2f}x bare can.LogReader)")
+        print(
+            f"open_log + decode:           {n / dt:10,.0f} frames/s "
+            f"({n / dt / rates['can.LogReader      .log']:.2f}x bare can.LogReader)"
+        )
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return 0

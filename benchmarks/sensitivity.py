@@ -52,8 +52,9 @@ def correlation(pipe) -> str:
     rho = l2.l_f_correlation()
     if rho is None:
         return "stage 2 did not run"
-    return (f"stage 1's l_f std {100 * l2.l_f_std / l2.known.l_f:.3f} %; correlation with l_f at the end: "
-            + ", ".join(f"{n} {r:+.2f}" for n, r in zip(STAGE2, rho)))
+    return f"stage 1's l_f std {100 * l2.l_f_std / l2.known.l_f:.3f} %; correlation with l_f at the end: " + ", ".join(
+        f"{n} {r:+.2f}" for n, r in zip(STAGE2, rho)
+    )
 
 
 def main() -> int:
@@ -71,15 +72,25 @@ def main() -> int:
     base, pipe = run(profile, frames, truth, None, args.step)
     print(f"`{args.scenario}`, seed {args.seed}, noise `{args.noise}`; stage 2 handed the true stage-1 values")
     print("(one moved by %g %%); UKF error at the end, and shift per 1 %% of the moved value\n" % (100 * args.step))
-    print("| stage-1 value handed | " + " | ".join(f"`{n}` error" for n in STAGE2) + " | "
-          + " | ".join(f"`{n}` shift per 1 %" for n in STAGE2) + " |")
+    print(
+        "| stage-1 value handed | "
+        + " | ".join(f"`{n}` error" for n in STAGE2)
+        + " | "
+        + " | ".join(f"`{n}` shift per 1 %" for n in STAGE2)
+        + " |"
+    )
     print("|---" * (1 + 2 * len(STAGE2)) + "|")
     print("| all true | " + " | ".join(f"{100 * base[n]:+.2f} %" for n in STAGE2) + " |" + " - |" * len(STAGE2))
     for moved in STAGE1:
         r, _ = run(profile, frames, truth, moved, args.step)
         shift = {n: (r[n] - base[n]) / (100 * args.step) for n in STAGE2}
-        print(f"| `{moved}` +{100 * args.step:g} % | " + " | ".join(f"{100 * r[n]:+.2f} %" for n in STAGE2) + " | "
-              + " | ".join(f"{100 * shift[n]:+.2f} %" for n in STAGE2) + " |")
+        print(
+            f"| `{moved}` +{100 * args.step:g} % | "
+            + " | ".join(f"{100 * r[n]:+.2f} %" for n in STAGE2)
+            + " | "
+            + " | ".join(f"{100 * shift[n]:+.2f} %" for n in STAGE2)
+            + " |"
+        )
     print(f"\nWith all true: {correlation(pipe)}")
     return 0
 

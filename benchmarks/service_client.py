@@ -34,12 +34,15 @@ def pct(xs: list[float], q: float) -> float | None:
 def summary(results: list[tuple[str, int | None, float, str | None]], wall: float) -> dict:
     """results: (path, status or None, latency ms, error)."""
     lat = [r[2] for r in results]
-    out = {"requests": len(results), "wall_s": wall,
-           "ok": sum(1 for r in results if r[1] == 200),
-           "failed": [f"{p}: {s} {e or ''}".strip() for p, s, _, e in results if s != 200][:20],
-           "failed_count": sum(1 for r in results if r[1] != 200),
-           "latency_ms": {q: pct(lat, float(q[1:])) for q in ("p50", "p90", "p99")} | {"max": max(lat, default=None)},
-           "per_path": {}}
+    out = {
+        "requests": len(results),
+        "wall_s": wall,
+        "ok": sum(1 for r in results if r[1] == 200),
+        "failed": [f"{p}: {s} {e or ''}".strip() for p, s, _, e in results if s != 200][:20],
+        "failed_count": sum(1 for r in results if r[1] != 200),
+        "latency_ms": {q: pct(lat, float(q[1:])) for q in ("p50", "p90", "p99")} | {"max": max(lat, default=None)},
+        "per_path": {},
+    }
     for p in PATHS:
         xs = [r[2] for r in results if r[0] == p]
         if xs:
@@ -77,8 +80,7 @@ async def burst(port: int, clients: int, requests: int) -> dict:
 
     async def one(i: int) -> None:
         # its own connection: 200 clients are 200 sockets, not one pool
-        async with httpx.AsyncClient(base_url=base, timeout=60.0,
-                                     limits=httpx.Limits(max_connections=1)) as c:
+        async with httpx.AsyncClient(base_url=base, timeout=60.0, limits=httpx.Limits(max_connections=1)) as c:
             await gate.wait()
             for k in range(requests):
                 path = PATHS[(i + k) % len(PATHS)]

@@ -80,8 +80,14 @@ def percentile(xs: list[float], q: float) -> float:
 
 
 # -- the bus -----------------------------------------------------------------------------------
-def drive_frames(seconds: float, start: float, extra_ids: int = FILLER_IDS, extra_rate: float = FILLER_RATE,
-                 scenario: str = "paper", noise: str = "realistic"):
+def drive_frames(
+    seconds: float,
+    start: float,
+    extra_ids: int = FILLER_IDS,
+    extra_rate: float = FILLER_RATE,
+    scenario: str = "paper",
+    noise: str = "realistic",
+):
     """Simulated drives back to back (new seed each), ``seconds`` of bus time from ``start``."""
     from vdp.profile import load_profile
     from vdp.sim.run import Simulation
@@ -90,8 +96,7 @@ def drive_frames(seconds: float, start: float, extra_ids: int = FILLER_IDS, extr
     end = start + seconds
     t, seed = start, 1
     while t < end:
-        sim = Simulation(profile, scenario, seed, noise, extra_ids=extra_ids, extra_rate=extra_rate,
-                         start_time=t)
+        sim = Simulation(profile, scenario, seed, noise, extra_ids=extra_ids, extra_rate=extra_rate, start_time=t)
         last = t
         for msg in sim.frames():
             if msg.timestamp >= end:
@@ -141,11 +146,9 @@ class SenderThread(threading.Thread):
     def run(self) -> None:
         import can
 
-        bus = can.Bus(interface="virtual", channel=self.channel, preserve_timestamps=True,
-                      receive_own_messages=False)
+        bus = can.Bus(interface="virtual", channel=self.channel, preserve_timestamps=True, receive_own_messages=False)
         try:
-            send_paced(bus, drive_frames(self.seconds, self.start_t, **self.kw), self.stop, self.backlog,
-                       self.count)
+            send_paced(bus, drive_frames(self.seconds, self.start_t, **self.kw), self.stop, self.backlog, self.count)
         except Exception as exc:  # reported by the benchmark
             self.error = f"{type(exc).__name__}: {exc}"
         finally:
@@ -156,14 +159,19 @@ class SenderThread(threading.Thread):
 
 def sender_process(seconds: float, start: float, group: str = GROUP, **kw) -> subprocess.Popen:
     """A separate process sending onto udp_multicast; it prints {"sent": n, "cpu": s} at the end."""
-    code = ("import json, sys, time, can; sys.path.insert(0, sys.argv[1]); import service_common as c; "
-            "bus = can.Bus(interface='udp_multicast', channel=sys.argv[2]); "
-            "t0 = time.process_time(); "
-            "n = c.send_paced(bus, c.drive_frames(float(sys.argv[3]), float(sys.argv[4]), **json.loads(sys.argv[5]))); "
-            "time.sleep(0.2); bus.shutdown(); "
-            "print(json.dumps({'sent': n, 'cpu': time.process_time() - t0}), flush=True)")
-    return subprocess.Popen([sys.executable, "-c", code, str(Path(__file__).parent), group, str(seconds),
-                             str(start), json.dumps(kw)], stdout=subprocess.PIPE, text=True)
+    code = (
+        "import json, sys, time, can; sys.path.insert(0, sys.argv[1]); import service_common as c; "
+        "bus = can.Bus(interface='udp_multicast', channel=sys.argv[2]); "
+        "t0 = time.process_time(); "
+        "n = c.send_paced(bus, c.drive_frames(float(sys.argv[3]), float(sys.argv[4]), **json.loads(sys.argv[5]))); "
+        "time.sleep(0.2); bus.shutdown(); "
+        "print(json.dumps({'sent': n, 'cpu': time.process_time() - t0}), flush=True)"
+    )
+    return subprocess.Popen(
+        [sys.executable, "-c", code, str(Path(__file__).parent), group, str(seconds), str(start), json.dumps(kw)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
 
 
 # -- private network namespace -------------------------------------------------------------------
@@ -181,13 +189,13 @@ def reexec_in_netns() -> int:
 
 # -- the service ---------------------------------------------------------------------------------
 def settings(tmp: Path, interface: str = "virtual", channel: str | None = None, **service):
-    from vdp.settings import (ApiSettings, BusSettings, RawLogSettings, ServiceSettings, Settings,
-                              StoreSettings)
+    from vdp.settings import ApiSettings, BusSettings, RawLogSettings, ServiceSettings, Settings, StoreSettings
 
     return Settings(
         profile=PROFILE,
-        bus=BusSettings(interface=interface, channel=channel or f"bench-{os.getpid()}", bitrate=None,
-                        listen_only=False),
+        bus=BusSettings(
+            interface=interface, channel=channel or f"bench-{os.getpid()}", bitrate=None, listen_only=False
+        ),
         # the in-car defaults, except smaller files so a run rotates a few times
         raw_log=RawLogSettings(dir=tmp / "raw", max_bytes=16 * 1024 * 1024, max_files=8),
         store=StoreSettings(path=tmp / "state.sqlite"),
@@ -235,18 +243,17 @@ class ApiServer:
         import uvicorn
 
         from vdp.api import create_app
-
         from vdp.cli.serve import _bind
 
         self.sock = _bind("127.0.0.1", 0)  # the very socket `vdp serve` listens on
         self.port = self.sock.getsockname()[1]
-        config = uvicorn.Config(create_app(settings, service), log_level="warning", access_log=False,
-                                lifespan="on")
+        config = uvicorn.Config(create_app(settings, service), log_level="warning", access_log=False, lifespan="on")
         self.server = uvicorn.Server(config)
-        self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]},
-                                       name="uvicorn", daemon=True)
+        self.thread = threading.Thread(
+            target=self.server.run, kwargs={"sockets": [self.sock]}, name="uvicorn", daemon=True
+        )
 
-    def start(self) -> "ApiServer":
+    def start(self) -> ApiServer:
         self.thread.start()
         end = time.monotonic() + 30
         while not self.server.started:
@@ -271,9 +278,17 @@ def client_process(mode: str, port: int, **kw) -> subprocess.Popen:
 
 def service_counts(svc) -> dict:
     st = svc.status()
-    return {"received": svc.intake.received, "dropped": svc.intake.dropped,
-            "estimated": st["estimation"]["frames"], "estimation_errors": st["estimation"]["errors"],
-            "decoded": st["decode"]["decoded"], "decode_frames": st["decode"]["frames"],
-            "raw_logged": st["raw_log"]["frames"], "raw_lost": st["raw_log"]["lost"],
-            "bus_errors": st["bus"]["errors"], "reconnects": st["bus"]["reconnects"],
-            "stage": st["estimation"]["stage"], "queue_capacity": st["queue"]["capacity"]}
+    return {
+        "received": svc.intake.received,
+        "dropped": svc.intake.dropped,
+        "estimated": st["estimation"]["frames"],
+        "estimation_errors": st["estimation"]["errors"],
+        "decoded": st["decode"]["decoded"],
+        "decode_frames": st["decode"]["frames"],
+        "raw_logged": st["raw_log"]["frames"],
+        "raw_lost": st["raw_log"]["lost"],
+        "bus_errors": st["bus"]["errors"],
+        "reconnects": st["bus"]["reconnects"],
+        "stage": st["estimation"]["stage"],
+        "queue_capacity": st["queue"]["capacity"],
+    }

@@ -26,8 +26,9 @@ import service_common as c
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="bus time")
-    ap.add_argument("--netns", action="store_true",
-                    help="sender in another process on udp_multicast, inside unshare -n")
+    ap.add_argument(
+        "--netns", action="store_true", help="sender in another process on udp_multicast, inside unshare -n"
+    )
     ap.add_argument("--clients", type=int, default=200)
     ap.add_argument("--requests", type=int, default=5, help="per client")
     ap.add_argument("--rounds", type=int, default=3)
@@ -68,21 +69,27 @@ def main() -> int:
     shutil.rmtree(tmp, ignore_errors=True)
 
     where = "a separate process (udp_multicast, unshare -n)" if a.netns else "a thread (virtual bus)"
-    print(f"bus: {a.seconds:.0f} s at {sent / a.seconds:,.0f} frames/s, sender in {where}; "
-          f"{a.rounds} rounds of {a.clients} concurrent clients x {a.requests} requests")
+    print(
+        f"bus: {a.seconds:.0f} s at {sent / a.seconds:,.0f} frames/s, sender in {where}; "
+        f"{a.rounds} rounds of {a.clients} concurrent clients x {a.requests} requests"
+    )
     failed = 0
     for k, r in enumerate(rounds, 1):
         lat = r["latency_ms"]
         failed += r["failed_count"]
-        print(f"round {k} at {r['bus_time_s']:.0f} s: {r['requests']} requests in {r['wall_s']:.2f} s "
-              f"({r['requests'] / r['wall_s']:,.0f}/s), {r['failed_count']} failed"
-              + (f" {r['failed'][:3]}" if r["failed_count"] else "")
-              + f"; latency p50 {lat['p50']:.0f} ms, p90 {lat['p90']:.0f} ms, p99 {lat['p99']:.0f} ms, "
-              f"max {lat['max']:.0f} ms; frames meanwhile {r['frames_during']:,}, dropped {r['dropped_during']}")
+        print(
+            f"round {k} at {r['bus_time_s']:.0f} s: {r['requests']} requests in {r['wall_s']:.2f} s "
+            f"({r['requests'] / r['wall_s']:,.0f}/s), {r['failed_count']} failed"
+            + (f" {r['failed'][:3]}" if r["failed_count"] else "")
+            + f"; latency p50 {lat['p50']:.0f} ms, p90 {lat['p90']:.0f} ms, p99 {lat['p99']:.0f} ms, "
+            f"max {lat['max']:.0f} ms; frames meanwhile {r['frames_during']:,}, dropped {r['dropped_during']}"
+        )
     lost = {k: counts[k] for k in ("received", "estimated", "decode_frames", "raw_logged") if counts[k] != sent}
-    print(f"frames: sent {sent:,}, received {counts['received']:,}, dropped {counts['dropped']}, "
-          f"estimated {counts['estimated']:,}, raw-logged {counts['raw_logged']:,}"
-          + ("" if not lost else f"  MISMATCH vs sent: {lost}"))
+    print(
+        f"frames: sent {sent:,}, received {counts['received']:,}, dropped {counts['dropped']}, "
+        f"estimated {counts['estimated']:,}, raw-logged {counts['raw_logged']:,}"
+        + ("" if not lost else f"  MISMATCH vs sent: {lost}")
+    )
     if a.json:
         a.json.write_text(json.dumps({"sent": sent, "rounds": rounds, **counts}, indent=1))
     return 0 if not failed and not lost and counts["dropped"] == 0 else 1

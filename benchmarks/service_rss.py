@@ -48,11 +48,28 @@ def rss_of(pid: int) -> float:
 def serve(seconds: float, every: float, tmp: Path) -> tuple[list, dict]:
     """`vdp serve --simulate --sim-speed 0 --loop` in its own process; (samples, last /status)."""
     err = tmp / "serve.err"
-    proc = subprocess.Popen([sys.executable, "-c", "import sys; from vdp.cli import main; sys.exit(main())",
-                             "serve", "--simulate", "--sim-speed", "0", "--loop", "--port", "0",
-                             "--db", str(tmp / "state.sqlite"), "--raw-dir", str(tmp / "raw")],
-                            stdout=subprocess.DEVNULL, stderr=open(err, "w"), cwd=tmp,
-                            env={**os.environ, "PYTHONPATH": str(c.ROOT / "service")})
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from vdp.cli import main; sys.exit(main())",
+            "serve",
+            "--simulate",
+            "--sim-speed",
+            "0",
+            "--loop",
+            "--port",
+            "0",
+            "--db",
+            str(tmp / "state.sqlite"),
+            "--raw-dir",
+            str(tmp / "raw"),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=open(err, "w"),
+        cwd=tmp,
+        env={**os.environ, "PYTHONPATH": str(c.ROOT / "service")},
+    )
     try:
         while not (m := re.search(r"http://127\.0\.0\.1:(\d+)/", err.read_text())):
             if proc.poll() is not None:
@@ -93,11 +110,15 @@ def report(samples: list, seconds: float, what: str) -> None:
     lo = min(r[2] for r in after) if after else float("nan")
     hi = max(r[2] for r in after) if after else float("nan")
     wall = samples[-1][1]
-    print(f"drive: {samples[-1][0] / 60:.1f} min of bus time in {wall / 60:.1f} min "
-          f"({samples[-1][0] / max(wall, 1e-9):.1f}x real time), {samples[-1][3]:,} frames; {what}")
-    print(f"RSS: start {samples[0][2]:.1f} MB, after warm-up ({warm / 60:.0f} min) {base:.1f} MB, end {end:.1f} MB, "
-          f"peak {peak:.1f} MB; growth after warm-up {100 * (end - base) / base:+.1f} % "
-          f"(range {lo:.1f}..{hi:.1f} MB)")
+    print(
+        f"drive: {samples[-1][0] / 60:.1f} min of bus time in {wall / 60:.1f} min "
+        f"({samples[-1][0] / max(wall, 1e-9):.1f}x real time), {samples[-1][3]:,} frames; {what}"
+    )
+    print(
+        f"RSS: start {samples[0][2]:.1f} MB, after warm-up ({warm / 60:.0f} min) {base:.1f} MB, end {end:.1f} MB, "
+        f"peak {peak:.1f} MB; growth after warm-up {100 * (end - base) / base:+.1f} % "
+        f"(range {lo:.1f}..{hi:.1f} MB)"
+    )
 
 
 def main() -> int:
@@ -105,9 +126,13 @@ def main() -> int:
     ap.add_argument("--minutes", type=float, default=60.0, help="bus time")
     ap.add_argument("--extra-ids", type=int, default=c.FILLER_IDS)
     ap.add_argument("--every", type=float, default=60.0, help="seconds of bus time between RSS samples")
-    ap.add_argument("--commit-interval", type=float, default=0.25,
-                    help="store commits [s]; the default gives a 3.5x-real-time run the car's one commit per "
-                         "second of drive, so the store grows as it would")
+    ap.add_argument(
+        "--commit-interval",
+        type=float,
+        default=0.25,
+        help="store commits [s]; the default gives a 3.5x-real-time run the car's one commit per "
+        "second of drive, so the store grows as it would",
+    )
     ap.add_argument("--serve", action="store_true", help="run `vdp serve --simulate --sim-speed 0 --loop`")
     ap.add_argument("--json", type=Path, help="also write the samples here")
     a = ap.parse_args()
@@ -117,16 +142,20 @@ def main() -> int:
         tmp = Path(tempfile.mkdtemp(prefix="vdp-bench-"))
         samples, st = serve(seconds, a.every, tmp)
         shutil.rmtree(tmp, ignore_errors=True)
-        report(samples, seconds, f"vdp serve --simulate --sim-speed 0 --loop: dropped {st['queue']['dropped']}, "
-                                 f"raw log files closed {st['raw_log']['closed_files']} (deleted "
-                                 f"{st['raw_log']['deleted_files']}), stage {st['estimation']['stage']}")
+        report(
+            samples,
+            seconds,
+            f"vdp serve --simulate --sim-speed 0 --loop: dropped {st['queue']['dropped']}, "
+            f"raw log files closed {st['raw_log']['closed_files']} (deleted "
+            f"{st['raw_log']['deleted_files']}), stage {st['estimation']['stage']}",
+        )
         if a.json:
             a.json.write_text(json.dumps({"samples": samples}, indent=1))
         return 0
 
-    from vdp.live import Service
-
     from dataclasses import replace
+
+    from vdp.live import Service
 
     tmp = Path(tempfile.mkdtemp(prefix="vdp-bench-"))
     s = c.settings(tmp)
@@ -138,8 +167,13 @@ def main() -> int:
     # Back-pressure as a car gives it: a real-time bus keeps the estimation queue near empty
     # (see service_saturated.py), so pause at 2048 frames queued, not at half the queue, and on
     # frames still in flight on the virtual bus (that queue has no bound).
-    sender = c.SenderThread(svc.bus_cfg.channel, seconds, start, extra_ids=a.extra_ids,
-                            backlog=lambda: max(svc.queue.qsize(), sender.sent - svc.intake.received) / 4096)
+    sender = c.SenderThread(
+        svc.bus_cfg.channel,
+        seconds,
+        start,
+        extra_ids=a.extra_ids,
+        backlog=lambda: max(svc.queue.qsize(), sender.sent - svc.intake.received) / 4096,
+    )
     w0 = time.monotonic()
     samples = [(0.0, 0.0, c.rss_mb(), 0)]
     print(f"{0:>8.0f}s {0:>6.0f}s {samples[0][2]:>7.1f} {0:>12,}", flush=True)
@@ -164,9 +198,13 @@ def main() -> int:
     svc.stop()
     shutil.rmtree(tmp, ignore_errors=True)
 
-    report(samples, seconds, f"in process, {a.extra_ids} filler IDs, {commits} store commits: dropped "
-                             f"{counts['dropped']}, raw log files "
-                             f"closed {raw['closed_files']} (deleted {raw['deleted_files']}), stage {counts['stage']}")
+    report(
+        samples,
+        seconds,
+        f"in process, {a.extra_ids} filler IDs, {commits} store commits: dropped "
+        f"{counts['dropped']}, raw log files "
+        f"closed {raw['closed_files']} (deleted {raw['deleted_files']}), stage {counts['stage']}",
+    )
     if a.json:
         a.json.write_text(json.dumps({"samples": samples, **counts}, indent=1))
     return 0

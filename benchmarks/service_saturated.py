@@ -36,8 +36,9 @@ import service_common as c
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=112.0, help="bus time (default: one paper drive, 112 s)")
-    ap.add_argument("--netns", action="store_true",
-                    help="sender in another process on udp_multicast, inside unshare -n")
+    ap.add_argument(
+        "--netns", action="store_true", help="sender in another process on udp_multicast, inside unshare -n"
+    )
     ap.add_argument("--api-rate", type=float, default=0.0, help="GET requests per second during ingest")
     ap.add_argument("--extra-ids", type=int, default=c.FILLER_IDS)
     ap.add_argument("--extra-rate", type=float, default=c.FILLER_RATE)
@@ -47,7 +48,7 @@ def main() -> int:
         return c.reexec_in_netns()
 
     svc, tmp = c.start_service(a.netns)
-    api = c.ApiServer(s, svc).start() if a.api_rate else None
+    api = c.ApiServer(svc.settings, svc).start() if a.api_rate else None
     kw = {"extra_ids": a.extra_ids, "extra_rate": a.extra_rate}
     start = float(int(time.time()) + 2)  # the first frame's wall-clock time
     if a.netns:
@@ -55,8 +56,11 @@ def main() -> int:
     else:
         sender = c.SenderThread(svc.bus_cfg.channel, a.seconds, start, **kw)
         sender.start()
-    client = (c.client_process("rate", api.port, rate=a.api_rate, count=int(a.api_rate * a.seconds),
-                               seconds=a.seconds) if api else None)
+    client = (
+        c.client_process("rate", api.port, rate=a.api_rate, count=int(a.api_rate * a.seconds), seconds=a.seconds)
+        if api
+        else None
+    )
 
     # Measure from the first frame on; the queue depth is sampled as it goes.
     while time.time() < start:
@@ -96,31 +100,58 @@ def main() -> int:
     shutil.rmtree(tmp, ignore_errors=True)
 
     service_cpu = cpu - (sender_cpu or 0.0) - per_thread.get("bench-watch", 0.0)
-    fig = {"seconds": a.seconds, "sent": sent, "frames_per_s": sent / a.seconds, "sender": sender_where,
-           "wall_s": wall, "process_cpu_s": cpu, "sender_cpu_s": sender_cpu, "service_cpu_s": service_cpu,
-           "service_core_fraction": service_cpu / wall, "max_queue_depth": depth[0],
-           "threads_cpu_s": {k: round(v, 2) for k, v in sorted(per_thread.items()) if v > 0.005},
-           "rss_mb": [rss0, rss1], **counts, "api": api_out}
+    fig = {
+        "seconds": a.seconds,
+        "sent": sent,
+        "frames_per_s": sent / a.seconds,
+        "sender": sender_where,
+        "wall_s": wall,
+        "process_cpu_s": cpu,
+        "sender_cpu_s": sender_cpu,
+        "service_cpu_s": service_cpu,
+        "service_core_fraction": service_cpu / wall,
+        "max_queue_depth": depth[0],
+        "threads_cpu_s": {k: round(v, 2) for k, v in sorted(per_thread.items()) if v > 0.005},
+        "rss_mb": [rss0, rss1],
+        **counts,
+        "api": api_out,
+    }
     lost = {k: counts[k] for k in ("received", "estimated", "decode_frames", "raw_logged") if counts[k] != sent}
-    print(f"bus: {a.seconds:.0f} s at {sent / a.seconds:,.0f} frames/s ({sent:,} frames: vdp's paper drive "
-          f"+ {a.extra_ids} filler IDs at {a.extra_rate:g} Hz); sender: {sender_where}")
-    print(f"frames: sent {sent:,}, received {counts['received']:,}, dropped {counts['dropped']}, "
-          f"estimated {counts['estimated']:,}, decoder saw {counts['decode_frames']:,}, "
-          f"raw-logged {counts['raw_logged']:,} (lost {counts['raw_lost']}), estimation errors "
-          f"{counts['estimation_errors']}, bus errors {counts['bus_errors']}"
-          + ("" if not lost else f"  MISMATCH vs sent: {lost}"))
-    print(f"CPU: process {cpu:.1f} s over {wall:.1f} s wall"
-          + (f"; sender thread {sender_cpu:.1f} s" if sender_cpu is not None else "")
-          + f"; service {service_cpu:.1f} s = {100 * service_cpu / wall:.1f} % of one core")
-    print("  per thread: " + ", ".join(f"{k} {100 * v / wall:.1f} %" for k, v in sorted(
-        per_thread.items(), key=lambda kv: -kv[1]) if v > 0.005 and k not in ("bench-watch",)))
-    print(f"max queue depth {depth[0]:,} of {counts['queue_capacity']:,}; RSS {rss0:.0f} -> {rss1:.0f} MB; "
-          f"stage at the end: {counts['stage']}")
+    print(
+        f"bus: {a.seconds:.0f} s at {sent / a.seconds:,.0f} frames/s ({sent:,} frames: vdp's paper drive "
+        f"+ {a.extra_ids} filler IDs at {a.extra_rate:g} Hz); sender: {sender_where}"
+    )
+    print(
+        f"frames: sent {sent:,}, received {counts['received']:,}, dropped {counts['dropped']}, "
+        f"estimated {counts['estimated']:,}, decoder saw {counts['decode_frames']:,}, "
+        f"raw-logged {counts['raw_logged']:,} (lost {counts['raw_lost']}), estimation errors "
+        f"{counts['estimation_errors']}, bus errors {counts['bus_errors']}"
+        + ("" if not lost else f"  MISMATCH vs sent: {lost}")
+    )
+    print(
+        f"CPU: process {cpu:.1f} s over {wall:.1f} s wall"
+        + (f"; sender thread {sender_cpu:.1f} s" if sender_cpu is not None else "")
+        + f"; service {service_cpu:.1f} s = {100 * service_cpu / wall:.1f} % of one core"
+    )
+    print(
+        "  per thread: "
+        + ", ".join(
+            f"{k} {100 * v / wall:.1f} %"
+            for k, v in sorted(per_thread.items(), key=lambda kv: -kv[1])
+            if v > 0.005 and k not in ("bench-watch",)
+        )
+    )
+    print(
+        f"max queue depth {depth[0]:,} of {counts['queue_capacity']:,}; RSS {rss0:.0f} -> {rss1:.0f} MB; "
+        f"stage at the end: {counts['stage']}"
+    )
     if api_out:
         lat = api_out["latency_ms"]
-        print(f"API at {a.api_rate:g} req/s: {api_out['requests']} requests, {api_out['failed_count']} failed; "
-              f"latency p50 {lat['p50']:.1f} ms, p90 {lat['p90']:.1f} ms, p99 {lat['p99']:.1f} ms, "
-              f"max {lat['max']:.1f} ms")
+        print(
+            f"API at {a.api_rate:g} req/s: {api_out['requests']} requests, {api_out['failed_count']} failed; "
+            f"latency p50 {lat['p50']:.1f} ms, p90 {lat['p90']:.1f} ms, p99 {lat['p99']:.1f} ms, "
+            f"max {lat['max']:.1f} ms"
+        )
         for p, v in api_out["per_path"].items():
             print(f"  {p}: p50 {v['p50']:.1f} ms, p99 {v['p99']:.1f} ms, max {v['max']:.1f} ms")
     if a.json:

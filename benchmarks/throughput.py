@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT / "service"))
 
 def build_log(path: Path, minutes: float, filler_ids: int, filler_rate: float) -> None:
     from vdp.profile import load_profile
-    from vdp.sim.run import Simulation, START_TIME
+    from vdp.sim.run import START_TIME, Simulation
 
     profile = load_profile(ROOT / "profiles" / "paper.toml")
     t_end = START_TIME + minutes * 60.0
@@ -39,8 +39,15 @@ def build_log(path: Path, minutes: float, filler_ids: int, filler_rate: float) -
     seed = 1
     with open(path, "w", encoding="ascii") as out:
         while START_TIME + offset < t_end:
-            sim = Simulation(profile, "city", seed=seed, noise="realistic", extra_ids=filler_ids,
-                             extra_rate=filler_rate, start_time=START_TIME + offset)
+            sim = Simulation(
+                profile,
+                "city",
+                seed=seed,
+                noise="realistic",
+                extra_ids=filler_ids,
+                extra_rate=filler_rate,
+                start_time=START_TIME + offset,
+            )
             last = None
             for msg in sim.frames():
                 if msg.timestamp >= t_end:
@@ -137,11 +144,12 @@ def main() -> int:
     _, t_bare2 = bare(path)
     t_bare = 0.5 * (t_bare1 + t_bare2)
     print(f"bare runs: {t_bare1:.1f} s and {t_bare2:.1f} s of CPU")
-    print(f"log: {path}, {n_bare:,} frames, {duration / 60:.1f} min of bus time, "
-          f"{n_bare / duration:,.0f} frames/s on the bus")
+    print(
+        f"log: {path}, {n_bare:,} frames, {duration / 60:.1f} min of bus time, "
+        f"{n_bare / duration:,.0f} frames/s on the bus"
+    )
     print(f"bare can.LogReader: {n_bare / t_bare:,.0f} frames/s ({t_bare:.1f} s)")
-    print(f"vdp replay pipeline: {n_ours / t_ours:,.0f} frames/s ({t_ours:.1f} s), "
-          f"{duration / t_ours:.0f}x real time")
+    print(f"vdp replay pipeline: {n_ours / t_ours:,.0f} frames/s ({t_ours:.1f} s), {duration / t_ours:.0f}x real time")
     print(f"ratio (replay / bare reader): {(n_ours / t_ours) / (n_bare / t_bare):.2f}")
     windows = result["windows"]
     busy = sum((w["end"] or duration) - w["start"] for w in windows)

@@ -36,7 +36,10 @@ export PATH="$PWD/.venv/bin:$PATH"
 if [ "$mode" = test ] && [ "$(id -u)" = 0 ]; then modprobe vcan 2>/dev/null || true; fi
 
 case "$mode" in
-    test) exec .venv/bin/python -m pytest "$@" ;;
+    test)
+        # form first: lint and format are part of the test command (pyproject's [tool.ruff])
+        .venv/bin/ruff check . && .venv/bin/ruff format --check . || exit 1
+        exec .venv/bin/python -m pytest "$@" ;;
     run)  exec .venv/bin/vdp serve --simulate --loop "$@" ;;
     simulate) exec .venv/bin/vdp simulate "$@" ;;
     *) echo "usage: bash deploy/bootstrap.sh run|test|simulate [args...]" >&2; exit 2 ;;

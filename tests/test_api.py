@@ -34,9 +34,17 @@ class FakePipeline:
         self.resets: list = []
         self.restored = None
         self.lf = 1.25
-        self.decoder = SimpleNamespace(stats=SimpleNamespace(as_dict=lambda: {
-            "frames": self.frames, "errors": {"0x123": {"dlc": 2}}, "errors_by_kind": {"dlc": 2},
-            "unknown_ids": [{"id": "0x7FF", "count": 1}], "invalid_channels": []}))
+        self.decoder = SimpleNamespace(
+            stats=SimpleNamespace(
+                as_dict=lambda: {
+                    "frames": self.frames,
+                    "errors": {"0x123": {"dlc": 2}},
+                    "errors_by_kind": {"dlc": 2},
+                    "unknown_ids": [{"id": "0x7FF", "count": 1}],
+                    "invalid_channels": [],
+                }
+            )
+        )
         self.aligner = SimpleNamespace(clock_backwards=0, clock_jumps=0)
         self.estimator = SimpleNamespace(restore=self._restore)
 
@@ -52,15 +60,32 @@ class FakePipeline:
             self.lf = 1.0 + msg.data[0] / 100.0
 
     def snapshot(self):
-        p = {n: {"value": 1.0 + i, "std": 0.1, "unit": "m", "valid": True, "stage": 1 if i < 3 else 2,
-                 "samples": self.samples, "status": "converged"} for i, n in enumerate(NAMES)}
+        p = {
+            n: {
+                "value": 1.0 + i,
+                "std": 0.1,
+                "unit": "m",
+                "valid": True,
+                "stage": 1 if i < 3 else 2,
+                "samples": self.samples,
+                "status": "converged",
+            }
+            for i, n in enumerate(NAMES)
+        }
         p["l_f"]["value"] = self.lf
         p["I_x"].update(value=math.nan, std=math.inf, status="not_identifiable")  # must come out null
-        return {"parameters": p, "baseline_ekf": {k: dict(v) for k, v in p.items()}, "stage": "stage2",
-                "supervisor": {"active_stage": 2, "reasons": {"1": "steering", "2": "open"}, "windows": 2},
-                "windows": [{"stage": 1, "start": 0.0, "end": 1.0, "samples": 5},
-                            {"stage": 2, "start": 2.0, "end": None, "samples": 7}],
-                "resets": {"ukf": 0, "ekf": 0}, "capabilities": {"1": None, "2": None}}
+        return {
+            "parameters": p,
+            "baseline_ekf": {k: dict(v) for k, v in p.items()},
+            "stage": "stage2",
+            "supervisor": {"active_stage": 2, "reasons": {"1": "steering", "2": "open"}, "windows": 2},
+            "windows": [
+                {"stage": 1, "start": 0.0, "end": 1.0, "samples": 5},
+                {"stage": 2, "start": 2.0, "end": None, "samples": 7},
+            ],
+            "resets": {"ukf": 0, "ekf": 0},
+            "capabilities": {"1": None, "2": None},
+        }
 
     def freshness(self):
         return {"yaw_rate": {"age": 0.01, "stale": False}, "speed": {"age": math.nan, "stale": False}}
@@ -105,8 +130,11 @@ def running(tmp_path):
 
 def send(tx, n: int, t0: float = 1000.0, first: int = 40):
     for k in range(n):
-        tx.send(can.Message(timestamp=t0 + 0.01 * k, arbitration_id=0x123, data=bytes([first + k % 10] * 8),
-                            is_extended_id=False))
+        tx.send(
+            can.Message(
+                timestamp=t0 + 0.01 * k, arbitration_id=0x123, data=bytes([first + k % 10] * 8), is_extended_id=False
+            )
+        )
 
 
 def wait_for(cond, what: str, limit: float = 60.0):
@@ -224,7 +252,7 @@ def test_reset_needs_the_right_token(running):
     assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer"
     assert client.post("/reset", headers={"Authorization": "Basic abc"}).status_code == 401
     for wrong in ("nope", TOKEN[:-1], TOKEN + "x", "ü" * 40):
-        header = f"Bearer {wrong}".encode("utf-8")  # non-ASCII bytes must not break compare_digest
+        header = f"Bearer {wrong}".encode()  # non-ASCII bytes must not break compare_digest
         r = client.post("/reset", json={"stage": "1"}, headers={"Authorization": header})
         assert r.status_code == 403, wrong
     svc.sync()

@@ -30,12 +30,15 @@ _n = itertools.count()
 @pytest.fixture(scope="module")
 def service(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("schema")
-    s = Settings(profile=ROOT / "profiles" / "paper.toml",
-                 bus=BusSettings(interface="virtual", channel=f"test-schema-{next(_n)}", bitrate=None,
-                                 listen_only=False),
-                 raw_log=RawLogSettings(dir=tmp / "raw", max_bytes=1 << 20, max_files=4),
-                 store=StoreSettings(path=tmp / "state.sqlite", commit_interval=0.1, synchronous="normal"),
-                 api=ApiSettings(reset_token=TOKEN), service=ServiceSettings(publish_interval=0.1), source="test")
+    s = Settings(
+        profile=ROOT / "profiles" / "paper.toml",
+        bus=BusSettings(interface="virtual", channel=f"test-schema-{next(_n)}", bitrate=None, listen_only=False),
+        raw_log=RawLogSettings(dir=tmp / "raw", max_bytes=1 << 20, max_files=4),
+        store=StoreSettings(path=tmp / "state.sqlite", commit_interval=0.1, synchronous="normal"),
+        api=ApiSettings(reset_token=TOKEN),
+        service=ServiceSettings(publish_interval=0.1),
+        source="test",
+    )
     svc = Service(s)
     svc.start()
     end = time.monotonic() + 60
@@ -67,12 +70,20 @@ def test_api_conforms_to_its_schema(api_schema):
     # strategies with hypothesis directly, one operation at a time.
     ops = [r.ok() for r in api_schema.get_all_operations()]
     assert {f"{op.method.upper()} {op.path}" for op in ops} >= {
-        "GET /health", "GET /estimates", "GET /estimates/history", "GET /status", "POST /reset", "GET /metrics"}
+        "GET /health",
+        "GET /estimates",
+        "GET /estimates/history",
+        "GET /status",
+        "POST /reset",
+        "GET /metrics",
+    }
     for op in ops:
         for mode in (GenerationMode.POSITIVE, GenerationMode.NEGATIVE):
+
             @given(case=op.as_strategy(generation_mode=mode))
-            @settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck), database=None,
-                      derandomize=True)  # the same cases every run: CI never flickers
+            @settings(
+                max_examples=25, deadline=None, suppress_health_check=list(HealthCheck), database=None, derandomize=True
+            )  # the same cases every run: CI never flickers
             def run(case):
                 _check(case, case.meta.generation.mode if case.meta else GenerationMode.POSITIVE)
 

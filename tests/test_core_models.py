@@ -10,8 +10,9 @@ from hypothesis import strategies as st
 from vdp.core import lateral, longitudinal
 
 K1 = longitudinal.Known(m=1600.0, L=2.5, r=0.3, J=0.6, g=9.8)
-K2 = lateral.Known(m=1600.0, L=2.5, r=0.3, k_phi=36000 * 180 / math.pi, c_phi=5737 * 180 / math.pi,
-                   l_f=1.4, h=0.637, C_K=10.0)
+K2 = lateral.Known(
+    m=1600.0, L=2.5, r=0.3, k_phi=36000 * 180 / math.pi, c_phi=5737 * 180 / math.pi, l_f=1.4, h=0.637, C_K=10.0
+)
 
 
 def numjac(f, x, eps):
@@ -26,8 +27,15 @@ def numjac(f, x, eps):
 
 
 @settings(max_examples=60, deadline=None)
-@given(v=st.floats(6, 35), l_f=st.floats(0.9, 1.7), h=st.floats(0.3, 0.9), c_k=st.floats(4, 20),
-       tf=st.floats(-2000, 2000), tr=st.floats(-2000, 2000), ax=st.floats(-6, 6))
+@given(
+    v=st.floats(6, 35),
+    l_f=st.floats(0.9, 1.7),
+    h=st.floats(0.3, 0.9),
+    c_k=st.floats(4, 20),
+    tf=st.floats(-2000, 2000),
+    tr=st.floats(-2000, 2000),
+    ax=st.floats(-6, 6),
+)
 def test_stage1_measurement_jacobian(v, l_f, h, c_k, tf, tr, ax):
     x = np.array([l_f, h, c_k])
     u = np.array([tf, tr, ax, v, 0.01, ax / 0.3, ax / 0.31])
@@ -37,10 +45,20 @@ def test_stage1_measurement_jacobian(v, l_f, h, c_k, tf, tr, ax):
 
 
 @settings(max_examples=60, deadline=None)
-@given(vy=st.floats(-1, 1), yaw=st.floats(-0.6, 0.6), phi=st.floats(-0.02, 0.02), phid=st.floats(-0.1, 0.1),
-       ca=st.floats(2e4, 2e5), iz=st.floats(800, 5000), ix=st.floats(800, 8000),
-       l_f=st.floats(0.9, 1.6),
-       d=st.floats(-0.15, 0.15), vx=st.floats(5, 30), wf_slip=st.floats(-0.05, 0.05), ax=st.floats(-3, 3))
+@given(
+    vy=st.floats(-1, 1),
+    yaw=st.floats(-0.6, 0.6),
+    phi=st.floats(-0.02, 0.02),
+    phid=st.floats(-0.1, 0.1),
+    ca=st.floats(2e4, 2e5),
+    iz=st.floats(800, 5000),
+    ix=st.floats(800, 8000),
+    l_f=st.floats(0.9, 1.6),
+    d=st.floats(-0.15, 0.15),
+    vx=st.floats(5, 30),
+    wf_slip=st.floats(-0.05, 0.05),
+    ax=st.floats(-3, 3),
+)
 def test_stage2_jacobians(vy, yaw, phi, phid, ca, iz, ix, l_f, d, vx, wf_slip, ax):
     x = np.array([vy, yaw, phi, phid, ca, iz, ix, l_f])
     u = np.array([d, vx, vx * (1 + wf_slip) / K2.r, ax])
@@ -115,8 +133,12 @@ def test_quasi_static_roll_balances_eq9(k_phi, c_phi):
     assert abs(lateral.deriv(x, u, k)[lateral.PHI_D]) < 1e-9
     if k_phi == 90000.0:  # a production car's roll stiffness: degrees, not the paper's hundredths
         assert math.degrees(abs(x[lateral.PHI])) > 1.0
-    assert lateral.quasi_static_roll(3.0, 0.0, lateral.Known(m=1656.0, L=2.66, r=0.35, k_phi=5000.0,
-                                                               c_phi=c_phi, l_f=1.2, h=0.62, C_K=10.0)) == 0.0
+    assert (
+        lateral.quasi_static_roll(
+            3.0, 0.0, lateral.Known(m=1656.0, L=2.66, r=0.35, k_phi=5000.0, c_phi=c_phi, l_f=1.2, h=0.62, C_K=10.0)
+        )
+        == 0.0
+    )
 
 
 def test_stage1_slip_sign_follows_torque():

@@ -17,12 +17,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import REAL
 from vdp import channels
 from vdp.errors import ProfileError
 from vdp.io.checks import vdp_checksum
 from vdp.io.decoder import DecodeListener, FrameDecoder, compile_extractor
 from vdp.profile import ChannelMap, MessageCheck, load_profile
-from conftest import REAL
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data"
@@ -45,8 +45,9 @@ def frame(db, name, t=0.0, counter=None, fix_checksum=True, channel=None, **valu
     data = bytearray(msg.encode(vals, strict=False))
     if fix_checksum and "CHECKSUM" in vals:
         data[7] = vdp_checksum(msg.frame_id, data)
-    return can.Message(timestamp=t, arbitration_id=msg.frame_id, is_extended_id=msg.is_extended_frame,
-                       data=data, channel=channel)
+    return can.Message(
+        timestamp=t, arbitration_id=msg.frame_id, is_extended_id=msg.is_extended_frame, data=data, channel=channel
+    )
 
 
 def as_dict(pairs):
@@ -59,6 +60,7 @@ def errors(dec, kind=None):
 
 
 # -- validation ---------------------------------------------------------------
+
 
 def with_channel(profile, name, **changes):
     cm = dataclasses.replace(profile.channels[name], **changes)
@@ -76,8 +78,11 @@ def test_missing_message_names_table_and_suggests():
 
 def test_missing_signal_lists_candidates():
     prof = with_channel(PAPER, "yaw_rate", signal="YAWRATE")
-    with pytest.raises(ProfileError, match=r"\[channels.yaw_rate\]: signal 'YAWRATE' is not in message "
-                                           r"'IMU_RATES' of vdp.dbc; similar: YAW_RATE"):
+    with pytest.raises(
+        ProfileError,
+        match=r"\[channels.yaw_rate\]: signal 'YAWRATE' is not in message "
+        r"'IMU_RATES' of vdp.dbc; similar: YAW_RATE",
+    ):
         FrameDecoder(prof)
 
 
@@ -88,17 +93,20 @@ def test_missing_sign_signal():
 
 
 def test_missing_alt_message():
-    alt = dataclasses.replace(EXTRA.channels["wheel_speed_fl"].alt, message="NOPE",
-                              where="x.toml [channels.wheel_speed_fl.alt]")
+    alt = dataclasses.replace(
+        EXTRA.channels["wheel_speed_fl"].alt, message="NOPE", where="x.toml [channels.wheel_speed_fl.alt]"
+    )
     prof = with_channel(EXTRA, "wheel_speed_fl", alt=alt)
     with pytest.raises(ProfileError, match=r"\[channels.wheel_speed_fl.alt\]: message 'NOPE' is not in extra.dbc"):
         FrameDecoder(prof)
 
 
 def test_missing_check_signals():
-    for chk, pattern in ((MessageCheck("IMU_RATES", counter="CNT", checksum="CHECKSUM"), "counter signal 'CNT'"),
-                         (MessageCheck("IMU_RATES", counter="COUNTER", checksum="CRC"), "checksum signal 'CRC'"),
-                         (MessageCheck("IMU_RATE", counter="COUNTER"), "message 'IMU_RATE'")):
+    for chk, pattern in (
+        (MessageCheck("IMU_RATES", counter="CNT", checksum="CHECKSUM"), "counter signal 'CNT'"),
+        (MessageCheck("IMU_RATES", counter="COUNTER", checksum="CRC"), "checksum signal 'CRC'"),
+        (MessageCheck("IMU_RATE", counter="COUNTER"), "message 'IMU_RATE'"),
+    ):
         prof = dataclasses.replace(PAPER, checks={**PAPER.checks, chk.message: chk})
         with pytest.raises(ProfileError, match=rf"\[checks.{chk.message}\]: {pattern}"):
             FrameDecoder(prof)
@@ -118,6 +126,7 @@ def test_unit_mismatch_warns(caplog):
 
 
 # -- signal extraction against cantools ---------------------------------------
+
 
 def _dbs():
     out = [VDP_DB, EXTRA_DB]
@@ -141,7 +150,7 @@ def test_compiled_extractor_matches_cantools(db, seed):
             assert msg.is_multiplexed() or any(s.is_float for s in msg.signals)
             continue
         compiled += 1
-        data = (seed * 2)[:msg.length]
+        data = (seed * 2)[: msg.length]
         try:
             want = msg.decode(data, decode_choices=False, scaling=True)
             want_raw = msg.decode(data, decode_choices=False, scaling=False)
@@ -152,11 +161,13 @@ def test_compiled_extractor_matches_cantools(db, seed):
         for i, s in enumerate(msg.signals, 1):
             assert got[i] == pytest.approx(want[s.name], rel=1e-12, abs=1e-9), (msg.name, s.name)
             assert got_raw[i] == want_raw[s.name], (msg.name, s.name)
-    assert compiled == sum(1 for m in db.messages
-                           if not m.is_multiplexed() and not any(s.is_float for s in m.signals)) > 0
+    assert (
+        compiled == sum(1 for m in db.messages if not m.is_multiplexed() and not any(s.is_float for s in m.signals)) > 0
+    )
 
 
 # -- round trip through the paper profile -------------------------------------
+
 
 def _physical(sig):
     return st.floats(min_value=sig.minimum, max_value=sig.maximum, allow_nan=False)
@@ -175,8 +186,11 @@ def paper_frames(draw):
         msg = VDP_DB.get_message_by_name(name)
         vals = {s.name: draw(_physical(s)) for s in msg.signals if s.name not in ("COUNTER", "CHECKSUM")}
         counter = draw(st.integers(0, 15))
-        f = frame(VDP_DB, name, t=0.01 * t, counter=counter, **vals) if "COUNTER" in msg.signal_tree \
+        f = (
+            frame(VDP_DB, name, t=0.01 * t, counter=counter, **vals)
+            if "COUNTER" in msg.signal_tree
             else frame(VDP_DB, name, t=0.01 * t, **vals)
+        )
         expect = {}
         for cm in maps:
             sig = msg.get_signal_by_name(cm.signal)
@@ -208,6 +222,7 @@ def test_paper_values_exact():
 
 
 # -- extra profile: sign signal, scale/offset, extended ids, floats, mux, alt ---
+
 
 def test_extended_big_endian_sign_signal_scale_offset():
     dec = FrameDecoder(EXTRA, EXTRA_DB)
@@ -252,7 +267,9 @@ def test_alt_source_when_primary_silent_or_invalid():
     assert dec.decode(frame(EXTRA_DB, "WHEELS_SLOW", t=0.0, WS_FL_ALT=5.0)) == [(fl, pytest.approx(5.0))]
     # Primary current (cycle 10 ms): alternative frames decode but give no sample.
     for k in range(5):
-        assert dec.decode(frame(EXTRA_DB, "WHEELS", t=1.0 + 0.01 * k, counter=k, WS_FL=4.0)) == [(fl, pytest.approx(4.0))]
+        assert dec.decode(frame(EXTRA_DB, "WHEELS", t=1.0 + 0.01 * k, counter=k, WS_FL=4.0)) == [
+            (fl, pytest.approx(4.0))
+        ]
     assert dec.decode(frame(EXTRA_DB, "WHEELS_SLOW", t=1.045, WS_FL_ALT=5.0)) == []
     # Primary silent for more than 5 cycles (last at 1.04): alternative again.
     assert dec.decode(frame(EXTRA_DB, "WHEELS_SLOW", t=1.10, WS_FL_ALT=5.5)) == [(fl, pytest.approx(5.5))]
@@ -260,7 +277,7 @@ def test_alt_source_when_primary_silent_or_invalid():
     assert dec.decode(frame(EXTRA_DB, "WHEELS", t=1.11, counter=5, WS_FL=4.0)) == [(fl, pytest.approx(4.0))]
     assert dec.decode(frame(EXTRA_DB, "WHEELS_SLOW", t=1.12, WS_FL_ALT=5.0)) == []
     # Primary flagged invalid by its counter: the alternative takes over at once.
-    for k, t in enumerate((1.12, 1.13, 1.14)):
+    for t in (1.12, 1.13, 1.14):
         assert dec.decode(frame(EXTRA_DB, "WHEELS", t=t, counter=9)) == []
     assert "wheel_speed_fl" not in dec.invalid_channels  # the alternative is current
     assert dec.invalid_messages == {"WHEELS"}
@@ -275,8 +292,16 @@ FINE_DB = cantools.database.load_file(str(DATA / "fine.dbc"), strict=True)
 
 def split(message="STEER_ANGLE_SENSOR", signal="STEER_ANGLE", fine="STEER_FRACTION", **keys):
     """The paper's vehicle with only the steering-wheel angle, read from fine.dbc."""
-    cm = ChannelMap("steering_angle", message, signal, "deg", steering_wheel=True, fine=fine,
-                    where="fine.toml [channels.steering_angle]", **keys)
+    cm = ChannelMap(
+        "steering_angle",
+        message,
+        signal,
+        "deg",
+        steering_wheel=True,
+        fine=fine,
+        where="fine.toml [channels.steering_angle]",
+        **keys,
+    )
     return dataclasses.replace(PAPER, dbc=DATA / "fine.dbc", channels={"steering_angle": cm}, checks={})
 
 
@@ -301,17 +326,29 @@ def test_fine_signal_on_an_offset_grid():
     assert got == {"steering_angle": pytest.approx(0.65 * DEG / PAPER.vehicle.steering_ratio)}
 
 
-@pytest.mark.parametrize("profile,pattern", [
-    (split(fine="STEER_FRACTIN"), "fine signal 'STEER_FRACTIN' is not in message 'STEER_ANGLE_SENSOR' of fine.dbc; "
-                                  "similar: STEER_FRACTION"),
-    (split(signal="STEER_FRACTION", fine="STEER_ANGLE"),
-     r"fine signal 'STEER_ANGLE' \(steps of 1.5\) is not finer than 'STEER_FRACTION' \(steps of 0.1\)"),
-    (split("FLOOR_SPLIT", "ANGLE", "SHORT_REST"),
-     r"fine signal 'SHORT_REST' carries \[0, 0.7\] in steps of 0.1, less than one step of 'ANGLE' \(1.5\): "
-     r"their sum would have gaps"),
-    (split("FLOOR_SPLIT", "ANGLE", "REST_RAD"),
-     "fine signal 'REST_RAD' is in 'rad' but 'ANGLE' is in 'deg'; the two are added, so they must share a unit"),
-], ids=["missing", "not-finer", "gaps", "other-unit"])
+@pytest.mark.parametrize(
+    "profile,pattern",
+    [
+        (
+            split(fine="STEER_FRACTIN"),
+            "fine signal 'STEER_FRACTIN' is not in message 'STEER_ANGLE_SENSOR' of fine.dbc; similar: STEER_FRACTION",
+        ),
+        (
+            split(signal="STEER_FRACTION", fine="STEER_ANGLE"),
+            r"fine signal 'STEER_ANGLE' \(steps of 1.5\) is not finer than 'STEER_FRACTION' \(steps of 0.1\)",
+        ),
+        (
+            split("FLOOR_SPLIT", "ANGLE", "SHORT_REST"),
+            r"fine signal 'SHORT_REST' carries \[0, 0.7\] in steps of 0.1, less than one step of 'ANGLE' \(1.5\): "
+            r"their sum would have gaps",
+        ),
+        (
+            split("FLOOR_SPLIT", "ANGLE", "REST_RAD"),
+            "fine signal 'REST_RAD' is in 'rad' but 'ANGLE' is in 'deg'; the two are added, so they must share a unit",
+        ),
+    ],
+    ids=["missing", "not-finer", "gaps", "other-unit"],
+)
 def test_fine_signal_errors(profile, pattern):
     with pytest.raises(ProfileError, match=rf"^fine.toml \[channels.steering_angle\]: {pattern}"):
         FrameDecoder(profile, FINE_DB)
@@ -327,12 +364,16 @@ def test_fine_signal_in_an_unknown_unit_warns(caplog):
 
 def test_fine_signal_must_be_an_integer():
     cm = dataclasses.replace(EXTRA.channels["accel_x"], fine="ACCEL_Y")
-    with pytest.raises(ProfileError, match=r"\[channels.accel_x\]: 'fine' needs integer signals, "
-                                           r"but FLOATS.ACCEL_X is a float"):
+    with pytest.raises(
+        ProfileError,
+        match=r"\[channels.accel_x\]: 'fine' needs integer signals, "
+        r"but FLOATS.ACCEL_X is a float",
+    ):
         FrameDecoder(dataclasses.replace(EXTRA, channels={**EXTRA.channels, "accel_x": cm}), EXTRA_DB)
 
 
 # -- bad frames ------------------------------------------------------------------
+
 
 def test_each_bad_kind_counted_and_no_sample():
     dec = FrameDecoder(PAPER, VDP_DB)
@@ -352,8 +393,13 @@ def test_each_bad_kind_counted_and_no_sample():
     assert dec.decode(can.Message(arbitration_id=0x7DF, is_extended_id=False, data=b"\x02\x01")) == []
     err = can.Message(arbitration_id=0xE1, is_extended_id=False, is_error_frame=True, data=good.data)
     assert dec.decode(err) == []
-    assert errors(dec) == {(0xE1, "dlc"): 2, (0xE1, "remote"): 1, (0xE1, "range"): 1,
-                           (0xE1, "checksum"): 1, (0xE1, "counter"): 1}
+    assert errors(dec) == {
+        (0xE1, "dlc"): 2,
+        (0xE1, "remote"): 1,
+        (0xE1, "range"): 1,
+        (0xE1, "checksum"): 1,
+        (0xE1, "counter"): 1,
+    }
     d = dec.stats.as_dict()
     assert d["frames"] == 9 and d["decoded"] == 1 and d["error_frames"] == 1
     assert d["unknown_ids"] == [{"id": "0x7DF", "count": 1}]
@@ -398,8 +444,10 @@ def test_invalid_after_three_bad_and_recovery(kind):
     if kind == "counter":
         assert dec.decode(good(c)) == []
         c += 1
-    assert as_dict(dec.decode(good(c))) == {"wheel_speed_fl": pytest.approx(10.0),
-                                             "wheel_speed_fr": pytest.approx(10.0)}
+    assert as_dict(dec.decode(good(c))) == {
+        "wheel_speed_fl": pytest.approx(10.0),
+        "wheel_speed_fr": pytest.approx(10.0),
+    }
     assert dec.invalid_channels == frozenset() and dec.stats.as_dict()["invalid_channels"] == []
     assert errors(dec, kind)[(0xB1, kind)] >= 4
 
@@ -432,6 +480,7 @@ def test_checks_can_be_disabled():
 
 
 # -- listener ---------------------------------------------------------------------
+
 
 def test_listener_never_raises_and_counts():
     dec = FrameDecoder(PAPER, VDP_DB)

@@ -51,8 +51,15 @@ def drive(tmp_path_factory):
     finally:
         svc.stop()
     assert est.status_code == 200 and "NaN" not in est.text
-    return {"tmp": tmp, "settings": settings, "sent": svc.sim.sent, "truth": svc.sim.truth["parameters"],
-            "live": est.json(), "status": status, "health": health}
+    return {
+        "tmp": tmp,
+        "settings": settings,
+        "sent": svc.sim.sent,
+        "truth": svc.sim.truth["parameters"],
+        "live": est.json(),
+        "status": status,
+        "health": health,
+    }
 
 
 def test_every_frame_is_estimated_logged_and_replays_to_the_same_estimates(drive):
@@ -100,6 +107,6 @@ def test_stage_2_converges_live(drive):
         assert p[name]["status"] == "converged" and p[name]["valid"], (name, p[name])
         assert p[name]["value"] == pytest.approx(truth[name], rel=rel), (name, p[name])
     ix = p["I_x"]  # not identifiable in this scenario (NOTES 5): flagged, with an honest interval
-    assert (ix["value"] == pytest.approx(truth["I_x"], rel=0.10) or
-            (ix["status"] == "not_identifiable" and not ix["valid"]
-             and abs(ix["value"] - truth["I_x"]) <= 2 * ix["std"])), ix
+    assert ix["value"] == pytest.approx(truth["I_x"], rel=0.10) or (
+        ix["status"] == "not_identifiable" and not ix["valid"] and abs(ix["value"] - truth["I_x"]) <= 2 * ix["std"]
+    ), ix

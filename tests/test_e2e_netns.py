@@ -30,8 +30,7 @@ def netns_reason() -> str | None:
     if not shutil.which("unshare") or not shutil.which("ip"):
         return "needs unshare (util-linux) and ip (iproute2)"
     try:
-        r = subprocess.run(["unshare", "-n", "bash", "-c", NETNS_SETUP], capture_output=True, text=True,
-                           timeout=20)
+        r = subprocess.run(["unshare", "-n", "bash", "-c", NETNS_SETUP], capture_output=True, text=True, timeout=20)
     except (OSError, subprocess.TimeoutExpired) as exc:
         return f"unshare -n failed: {exc}"
     if r.returncode != 0:
@@ -42,10 +41,13 @@ def netns_reason() -> str | None:
 def run_in_netns(script: str, *args: str, setup: str = NETNS_SETUP, timeout: float = 300) -> dict:
     """Run a Python script inside a fresh network namespace; it prints one JSON line last."""
     code = f'{setup} && exec "$0" "$@"'
-    r = subprocess.run(["unshare", "-n", "bash", "-c", code, sys.executable, "-c", script, *args],
-                       capture_output=True, text=True, timeout=timeout,
-                       env={"PATH": "/usr/sbin:/usr/bin:/sbin:/bin", "PYTHONPATH": str(ROOT / "service"),
-                            "HOME": "/tmp"})
+    r = subprocess.run(
+        ["unshare", "-n", "bash", "-c", code, sys.executable, "-c", script, *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={"PATH": "/usr/sbin:/usr/bin:/sbin:/bin", "PYTHONPATH": str(ROOT / "service"), "HOME": "/tmp"},
+    )
     if r.returncode != 0 or not r.stdout.strip():
         pytest.fail(f"netns script failed ({r.returncode}):\n{r.stdout[-3000:]}\n{r.stderr[-5000:]}")
     return json.loads(r.stdout.strip().splitlines()[-1])

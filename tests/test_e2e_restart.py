@@ -31,11 +31,32 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
 def start(tmp: Path, n: int, speed: str) -> tuple[subprocess.Popen, int, Path]:
     err = tmp / f"serve{n}.err"
-    cmd = [sys.executable, "-c", "import sys; from vdp.cli import main; sys.exit(main())", "serve",
-           "--simulate", "--sim-speed", speed, "--noise", "none", "--port", "0", "--host", "127.0.0.1",
-           "--db", str(tmp / "state.sqlite"), "--raw-dir", str(tmp / "raw")]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=open(err, "w"), cwd=tmp,
-                            env={**os.environ, "PYTHONPATH": str(ROOT / "service")})
+    cmd = [
+        sys.executable,
+        "-c",
+        "import sys; from vdp.cli import main; sys.exit(main())",
+        "serve",
+        "--simulate",
+        "--sim-speed",
+        speed,
+        "--noise",
+        "none",
+        "--port",
+        "0",
+        "--host",
+        "127.0.0.1",
+        "--db",
+        str(tmp / "state.sqlite"),
+        "--raw-dir",
+        str(tmp / "raw"),
+    ]
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.DEVNULL,
+        stderr=open(err, "w"),
+        cwd=tmp,
+        env={**os.environ, "PYTHONPATH": str(ROOT / "service")},
+    )
     end = time.monotonic() + 120
     while time.monotonic() < end:
         m = re.search(r"http://127\.0\.0\.1:(\d+)/estimates", err.read_text())
@@ -63,8 +84,10 @@ def get(port: int, path: str) -> dict:
 def stored(db: Path) -> dict:
     con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
     try:
-        return {r[0]: {"value": r[1], "std": r[2], "status": r[3], "t": r[4]}
-                for r in con.execute("SELECT name, value, std, status, t FROM estimates")}
+        return {
+            r[0]: {"value": r[1], "std": r[2], "status": r[3], "t": r[4]}
+            for r in con.execute("SELECT name, value, std, status, t FROM estimates")
+        }
     except sqlite3.OperationalError:
         return {}  # not created yet
     finally:
@@ -102,8 +125,12 @@ def check_after_crash(tmp: Path) -> dict:
 def test_kill_9_and_restart_carries_on_from_the_stored_estimates(tmp_path):
     db = tmp_path / "state.sqlite"
     proc, port, err = start(tmp_path, 0, speed="0")  # as fast as it goes, to converge soon
-    until(lambda: all(stored(db).get(n, {}).get("status") == "converged" for n in STAGE1),
-          "stage 1 to converge and be committed", proc, err)
+    until(
+        lambda: all(stored(db).get(n, {}).get("status") == "converged" for n in STAGE1),
+        "stage 1 to converge and be committed",
+        proc,
+        err,
+    )
     kill9(proc)
     last = check_after_crash(tmp_path)
     assert all(last[n]["status"] == "converged" for n in STAGE1)
@@ -123,7 +150,7 @@ def test_kill_9_and_restart_carries_on_from_the_stored_estimates(tmp_path):
         assert set(STAGE1) <= set(st["store"]["restored"]) and st["store"]["state"] == "ok"
         # let it commit a few more batches, then cut the power again
         t0 = last["l_f"]["t"]
-        until(lambda: stored(db).get("l_f", {}).get("t", 0) > t0 + 1.5, "new commits", proc, err)
+        until(lambda t0=t0: stored(db).get("l_f", {}).get("t", 0) > t0 + 1.5, "new commits", proc, err)
         kill9(proc)
         last = check_after_crash(tmp_path)
         assert all(last[n]["status"] == "converged" for n in STAGE1)

@@ -79,15 +79,16 @@ def test_a_diverging_filter_resets_to_its_last_good_estimate(profile):
         learner.handle(100.0, _sample_like(pipe))
     assert learner.resets == 1 and "non-finite" in learner.last_error
     snap = pipe.snapshot()
-    assert all(v is not None and math.isfinite(v) for v in
-               (snap["parameters"][n]["value"] for n in ("l_f", "h", "C_K")))
+    assert all(
+        v is not None and math.isfinite(v) for v in (snap["parameters"][n]["value"] for n in ("l_f", "h", "C_K"))
+    )
     np.testing.assert_allclose(learner.theta, good)
 
 
 def _sample_like(pipe):
     """A plausible straight-driving sample built from the newest ring row."""
-    from vdp.buffer import Sample
     from vdp import channels as ch
+    from vdp.buffer import Sample
 
     t, v = pipe.ring.latest(1)
     s = Sample(float(t[0]), v[0].copy(), np.ones(ch.N, bool), np.zeros(ch.N))

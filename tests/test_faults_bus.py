@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 
 import can
-import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -64,8 +63,9 @@ def test_bad_frames_on_the_live_bus_are_counted_and_never_half_used(service):
     corrupt = steering[len(steering) // 2]
     for k, m in enumerate(good):
         if k == corrupt:
-            bad = can.Message(timestamp=m.timestamp, arbitration_id=m.arbitration_id, is_extended_id=False,
-                              data=bytearray(m.data))
+            bad = can.Message(
+                timestamp=m.timestamp, arbitration_id=m.arbitration_id, is_extended_id=False, data=bytearray(m.data)
+            )
             bad.data[7] ^= 0xFF  # checksum wrong: the whole frame goes, not just its steering angle
             sent.append(bad)
             continue
@@ -89,8 +89,12 @@ def test_bad_frames_on_the_live_bus_are_counted_and_never_half_used(service):
     wait_frames(svc, len(sent))
     st = svc.status()
     dec = st["decode"]
-    assert dec["errors"] == {"0x0E1": {"dlc": 1}, "0x0B1": {"remote": 1}, "0x0D0": {"checksum": 1},
-                             "0x1F0": {"range": 1}}
+    assert dec["errors"] == {
+        "0x0E1": {"dlc": 1},
+        "0x0B1": {"remote": 1},
+        "0x0D0": {"checksum": 1},
+        "0x1F0": {"range": 1},
+    }
     assert {u["id"] for u in dec["unknown_ids"]} == {"0x7DF", "0x18DAF110"} and dec["error_frames"] == 1
     assert st["estimation"]["errors"] == 0 and st["estimation"]["frames"] == len(sent)
     assert st["bus"]["errors"] == 0 and st["bus"]["reconnects"] == 0 and svc.link.up
@@ -102,42 +106,65 @@ def test_bad_frames_on_the_live_bus_are_counted_and_never_half_used(service):
     live = svc.estimates()["parameters"]
     assert svc.latest.samples == ref.samples and want["l_f"]["samples"] > 150  # 20 ms samples
     for name in want:
-        assert (live[name]["value"], live[name]["std"], live[name]["samples"]) == \
-            (want[name]["value"], want[name]["std"], want[name]["samples"]), name
+        assert (live[name]["value"], live[name]["std"], live[name]["samples"]) == (
+            want[name]["value"],
+            want[name]["std"],
+            want[name]["samples"],
+        ), name
 
 
 # -- any frame ----------------------------------------------------------------------------------
 IDS = sorted({m.frame_id for m in VDP_DB.messages} | {m.frame_id for m in EXTRA_DB.messages})
-FRAMES = st.lists(st.tuples(
-    st.one_of(st.sampled_from(IDS), st.integers(0, 0x7FF), st.integers(0, 0x1FFFFFFF)),
-    st.booleans(),
-    st.one_of(st.binary(max_size=8), st.binary(min_size=9, max_size=64)),
-    st.sampled_from(["data", "data", "data", "remote", "error", "fd"]),
-    st.floats(0.0, 0.02)), min_size=1, max_size=80)
+FRAMES = st.lists(
+    st.tuples(
+        st.one_of(st.sampled_from(IDS), st.integers(0, 0x7FF), st.integers(0, 0x1FFFFFFF)),
+        st.booleans(),
+        st.one_of(st.binary(max_size=8), st.binary(min_size=9, max_size=64)),
+        st.sampled_from(["data", "data", "data", "remote", "error", "fd"]),
+        st.floats(0.0, 0.02),
+    ),
+    min_size=1,
+    max_size=80,
+)
 
 
 def _build(items) -> list[can.Message]:
     out, t = [], 1000.0
     for arb, ext, data, kind, dt in items:
         t += dt
-        ext = ext and arb in IDS and arb > 0x7FF or arb > 0x7FF
+        ext = (ext and arb in IDS and arb > 0x7FF) or arb > 0x7FF
         if kind == "remote":
-            out.append(can.Message(timestamp=t, arbitration_id=arb, is_extended_id=ext, is_remote_frame=True,
-                                   dlc=min(len(data), 8)))
+            out.append(
+                can.Message(
+                    timestamp=t, arbitration_id=arb, is_extended_id=ext, is_remote_frame=True, dlc=min(len(data), 8)
+                )
+            )
         else:
-            out.append(can.Message(timestamp=t, arbitration_id=arb, is_extended_id=ext, data=data,
-                                   is_error_frame=kind == "error", is_fd=kind == "fd" or len(data) > 8))
+            out.append(
+                can.Message(
+                    timestamp=t,
+                    arbitration_id=arb,
+                    is_extended_id=ext,
+                    data=data,
+                    is_error_frame=kind == "error",
+                    is_fd=kind == "fd" or len(data) > 8,
+                )
+            )
     return out
 
 
 def _tally(stats) -> tuple:
-    return (stats.decoded, stats.error_frames, stats.skipped_channel, sum(stats.unknown.values()),
-            sum(stats.errors.values()))
+    return (
+        stats.decoded,
+        stats.error_frames,
+        stats.skipped_channel,
+        sum(stats.unknown.values()),
+        sum(stats.errors.values()),
+    )
 
 
 @pytest.mark.parametrize("profile", [PAPER, EXTRA], ids=["paper", "extra-mux-float-ext"])
-@settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True,
-          database=None)
+@settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True, database=None)
 @given(items=FRAMES)
 def test_any_frame_is_counted_once_and_gives_all_or_nothing(profile, items):
     pipe = Pipeline(profile, EstimatorConfig(baseline=False))
@@ -187,9 +214,11 @@ def steps(monkeypatch):
     """Every dt given to a UKF or EKF predict, by filter kind."""
     got: dict[str, list[float]] = {"ukf": [], "ekf": []}
     for cls in (filters.UKF, filters.EKF):
+
         def predict(self, dt, u, _orig=cls.predict):
             got[self.kind].append(dt)
             return _orig(self, dt, u)
+
         monkeypatch.setattr(cls, "predict", predict)
     return got
 
@@ -201,8 +230,13 @@ def _with_clock_faults(frames: list[can.Message]) -> tuple[list[can.Message], li
     out, marks, shift = [], [], 0.0
 
     def copy(m, t):
-        return can.Message(timestamp=t, arbitration_id=m.arbitration_id, is_extended_id=m.is_extended_id,
-                           data=m.data, channel=m.channel)
+        return can.Message(
+            timestamp=t,
+            arbitration_id=m.arbitration_id,
+            is_extended_id=m.is_extended_id,
+            data=m.data,
+            channel=m.channel,
+        )
 
     for k, m in enumerate(frames):
         fifth = 5 * k // n
@@ -229,8 +263,9 @@ def test_clock_faults_never_give_a_filter_a_bad_step(steps, scenario):
     def run(seq):
         pipe = Pipeline(PAPER)
         if scenario == "stage2":  # stage 1 known and converged: the drive runs stage 2
-            pipe.estimator.restore({n: {"value": v, "std": 0.002 * v, "samples": 2000}
-                                    for n, v in zip(TRUTH_S1, (1.4, 0.637, 10.0))})
+            pipe.estimator.restore(
+                {n: {"value": v, "std": 0.002 * v, "samples": 2000} for n, v in zip(TRUTH_S1, (1.4, 0.637, 10.0))}
+            )
         counts = []
         for k, m in enumerate(seq):
             if k in marks:

@@ -48,12 +48,12 @@ def logs(tmp_path_factory):
         out.append(line)
         slot = k // step
         if k % step == step // 2 and 1 <= slot <= len(BAD):
-            t = float(line[1:line.index(")")])
+            t = float(line[1 : line.index(")")])
             text, reason = BAD[slot - 1]
             out.append(text.format(t=f"{t:.6f}", back=f"{t - 100:.6f}"))
             bad_at.append((len(out), reason))
         if k % step == 7:  # an error-class frame whose id bits equal a mapped message's id
-            out.append(f"({float(line[1:line.index(')')]):.6f}) can0 200000B1#0000040000000000")
+            out.append(f"({float(line[1 : line.index(')')]):.6f}) can0 200000B1#0000040000000000")
             errors += 1
     dirty = d / "dirty.log"
     dirty.write_text("\n".join(out) + "\n")
@@ -61,8 +61,9 @@ def logs(tmp_path_factory):
 
 
 def replay(path: Path, out: Path, *extra: str) -> int:
-    return main(["replay", str(path), "--profile", str(PROFILE), "--json", str(out), "--no-progress",
-                 "--no-ekf", *extra])
+    return main(
+        ["replay", str(path), "--profile", str(PROFILE), "--json", str(out), "--no-progress", "--no-ekf", *extra]
+    )
 
 
 def one_line_error(capsys) -> str:
@@ -91,8 +92,12 @@ def test_bad_lines_are_skipped_counted_and_every_valid_line_is_used(logs, capsys
     assert clean["parameters"]["l_f"]["samples"] > 250  # 20 ms samples
     for name, e in clean["parameters"].items():
         got = dirty["parameters"][name]
-        assert (got["value"], got["std"], got["samples"], got["status"]) == \
-            (e["value"], e["std"], e["samples"], e["status"]), name
+        assert (got["value"], got["std"], got["samples"], got["status"]) == (
+            e["value"],
+            e["std"],
+            e["samples"],
+            e["status"],
+        ), name
 
 
 def test_strict_stops_at_the_first_bad_line_with_its_number(logs, capsys):
@@ -121,8 +126,9 @@ def _truncated_gzip(p: Path, clean: Path) -> None:
 def _truncated_blf(p: Path, clean: Path) -> None:
     with can.Logger(str(p)) as w:
         for k in range(3000):
-            w.on_message_received(can.Message(timestamp=1e9 + k * 0.001, arbitration_id=0xB1, data=bytes(8),
-                                              is_extended_id=False))
+            w.on_message_received(
+                can.Message(timestamp=1e9 + k * 0.001, arbitration_id=0xB1, data=bytes(8), is_extended_id=False)
+            )
     data = p.read_bytes()
     p.write_bytes(data[: len(data) * 2 // 3])
 
@@ -161,8 +167,20 @@ def test_broken_files_are_one_line_errors(logs, capsys, tmp_path, name):
 def test_the_real_command_exits_non_zero_without_a_traceback(tmp_path):
     p = tmp_path / "empty.log"
     p.write_bytes(b"")
-    r = subprocess.run([sys.executable, "-c", "import sys; from vdp.cli import main; sys.exit(main())",
-                        "replay", str(p), "--profile", str(PROFILE)], capture_output=True, text=True,
-                       timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT / "service")})
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from vdp.cli import main; sys.exit(main())",
+            "replay",
+            str(p),
+            "--profile",
+            str(PROFILE),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "PYTHONPATH": str(ROOT / "service")},
+    )
     assert r.returncode == 2 and r.stdout == ""
     assert r.stderr.strip().splitlines() == [f"vdp replay: error: {p}: file is empty"], r.stderr

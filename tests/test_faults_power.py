@@ -56,9 +56,20 @@ noise = "none"
 
 def start(tmp: Path, n: int) -> tuple[subprocess.Popen, int, Path]:
     err = tmp / f"serve{n}.err"
-    proc = subprocess.Popen([sys.executable, "-c", "import sys; from vdp.cli import main; sys.exit(main())",
-                             "serve", "--config", str(tmp / "vdp.toml")], stdout=subprocess.DEVNULL,
-                            stderr=open(err, "w"), cwd=tmp, env={**os.environ, "PYTHONPATH": str(ROOT / "service")})
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from vdp.cli import main; sys.exit(main())",
+            "serve",
+            "--config",
+            str(tmp / "vdp.toml"),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=open(err, "w"),
+        cwd=tmp,
+        env={**os.environ, "PYTHONPATH": str(ROOT / "service")},
+    )
     end = time.monotonic() + 120
     while not (m := re.search(r"http://127\.0\.0\.1:(\d+)/estimates", err.read_text())):
         if proc.poll() is not None or time.monotonic() > end:
@@ -77,8 +88,10 @@ def stored(db: Path) -> dict:
     """What another reader sees committed right now."""
     con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
     try:
-        return {r[0]: {"value": r[1], "std": r[2], "t": r[3], "samples": r[4]} for r in
-                con.execute("SELECT name, value, std, t, samples FROM estimates")}
+        return {
+            r[0]: {"value": r[1], "std": r[2], "t": r[3], "samples": r[4]}
+            for r in con.execute("SELECT name, value, std, t, samples FROM estimates")
+        }
     except sqlite3.OperationalError:
         return {}
     finally:
@@ -162,7 +175,20 @@ def test_kill_9_in_a_loop_loses_nothing_committed_and_no_closed_log(tmp_path):
         drive = tmp_path / f"run{k}.log"
         drive.write_bytes(b"".join(p.read_bytes() for p in mine))
         out = tmp_path / f"run{k}.json"
-        assert vdp_main(["replay", str(drive), "--profile", str(ROOT / "profiles" / "paper.toml"),
-                         "--json", str(out), "--no-progress", "--no-ekf"]) == 0
+        assert (
+            vdp_main(
+                [
+                    "replay",
+                    str(drive),
+                    "--profile",
+                    str(ROOT / "profiles" / "paper.toml"),
+                    "--json",
+                    str(out),
+                    "--no-progress",
+                    "--no-ekf",
+                ]
+            )
+            == 0
+        )
         log = json.loads(out.read_text())["log"]
         assert log["bad_lines"] == 0 and log["frames"] > 1000 and log["decode"]["errors"] == {}, (k, log)

@@ -43,8 +43,11 @@ def listeners(port: int) -> set[str]:
 def test_every_way_to_start_the_service_defaults_to_loopback(tmp_path):
     cfg = tmp_path / "vdp.toml"
     cfg.write_text(f'profile = "{ROOT}/profiles/paper.toml"\n')
-    for argv in (["serve", "--simulate"], ["serve", "--config", str(cfg)],
-                 ["serve", "--config", str(ROOT / "deploy" / "vdp.toml")]):
+    for argv in (
+        ["serve", "--simulate"],
+        ["serve", "--config", str(cfg)],
+        ["serve", "--config", str(ROOT / "deploy" / "vdp.toml")],
+    ):
         s = _settings(build_parser().parse_args(argv))
         assert s.api.host == "127.0.0.1", argv
     sock = _bind("127.0.0.1", 0)
@@ -62,10 +65,26 @@ def test_every_way_to_start_the_service_defaults_to_loopback(tmp_path):
 def test_a_running_vdp_serve_listens_on_127_0_0_1_only(tmp_path):
     err = tmp_path / "serve.err"
     proc = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from vdp.cli import main; sys.exit(main())", "serve", "--simulate",
-         "--port", "0", "--sim-speed", "1", "--db", str(tmp_path / "db.sqlite"), "--raw-dir", str(tmp_path / "raw")],
-        stdout=subprocess.DEVNULL, stderr=open(err, "w"), cwd=tmp_path,
-        env={**os.environ, "PYTHONPATH": str(ROOT / "service")})
+        [
+            sys.executable,
+            "-c",
+            "import sys; from vdp.cli import main; sys.exit(main())",
+            "serve",
+            "--simulate",
+            "--port",
+            "0",
+            "--sim-speed",
+            "1",
+            "--db",
+            str(tmp_path / "db.sqlite"),
+            "--raw-dir",
+            str(tmp_path / "raw"),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=open(err, "w"),
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(ROOT / "service")},
+    )
     try:
         end = time.monotonic() + 120
         while not (m := re.search(r"http://([^/]+):(\d+)/estimates", err.read_text())):

@@ -134,8 +134,10 @@ def test_the_bus_socket_gets_a_large_receive_buffer():
     # its default buffer holds ~30 ms of a saturated bus, then frames are lost uncounted.
     default, allowed = _allowed_receive_buffer()
     if allowed <= default:
-        pytest.skip(f"the kernel grants no receive buffer above its default ({default} bytes) here: "
-                    "net.core.rmem_max is at the default and there is no CAP_NET_ADMIN")
+        pytest.skip(
+            f"the kernel grants no receive buffer above its default ({default} bytes) here: "
+            "net.core.rmem_max is at the default and there is no CAP_NET_ADMIN"
+        )
     cfg = BusSettings(interface="socketcan", channel="can0", bitrate=None)
     link = BusLink(cfg, [], opener=lambda c: _SocketBus())
     link.start()
@@ -151,9 +153,11 @@ def test_the_bus_socket_gets_a_large_receive_buffer():
 def test_a_silent_channel_is_stale_pauses_gating_and_no_filter_predicts_across_the_gap(monkeypatch):
     predicts = {"n": 0}
     for cls in (filters.UKF, filters.EKF):
+
         def predict(self, dt, u, _orig=cls.predict):
             predicts["n"] += 1
             return _orig(self, dt, u)
+
         monkeypatch.setattr(cls, "predict", predict)
 
     frames = drive("stage2", 14.0)
@@ -173,7 +177,7 @@ def test_a_silent_channel_is_stale_pauses_gating_and_no_filter_predicts_across_t
     for m in settle:
         pipe.feed(m)
     n0 = predicts["n"]
-    for m in during[len(settle):]:
+    for m in during[len(settle) :]:
         pipe.feed(m)
     fresh = pipe.freshness()
     assert fresh["yaw_rate"]["stale"] and fresh["roll_rate"]["stale"] and not fresh["accel_y"]["stale"]
@@ -283,8 +287,9 @@ def test_a_diverging_stage_2_resets_is_flagged_and_no_response_carries_nan(tmp_p
         assert resets["ekf"][0] == 1 and "positive definite" in resets["ekf"][1]
         h = client.get("/health").json()
         for kind in ("UKF", "EKF"):  # both said, one not hiding the other
-            assert any(f"{kind} filter diverged and was reset to its last good estimate" in r
-                       for r in h["reasons"]), h["reasons"]
+            assert any(f"{kind} filter diverged and was reset to its last good estimate" in r for r in h["reasons"]), h[
+                "reasons"
+            ]
         r = client.get("/estimates")
         assert "NaN" not in r.text and r.json()["resets"] == {"ukf": 1, "ekf": 1}
         p = r.json()["parameters"]["C_alpha"]

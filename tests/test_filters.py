@@ -38,8 +38,9 @@ def test_consider_state_is_not_updated_but_its_uncertainty_is_carried(kind):
     f.update(Z, np.array([True]), np.zeros(1))
     s = VAR_A + VAR_C + R
     np.testing.assert_allclose(f.x, [X0[0] + VAR_A / s * (Z[0] - X0.sum()), X0[1]], rtol=1e-6)
-    np.testing.assert_allclose(f.P, [[VAR_A - VAR_A ** 2 / s, -VAR_A * VAR_C / s],
-                                     [-VAR_A * VAR_C / s, VAR_C]], rtol=1e-6)
+    np.testing.assert_allclose(
+        f.P, [[VAR_A - VAR_A**2 / s, -VAR_A * VAR_C / s], [-VAR_A * VAR_C / s, VAR_C]], rtol=1e-6
+    )
 
 
 @pytest.mark.parametrize("kind", ["ukf", "ekf"])
@@ -49,7 +50,7 @@ def test_without_consider_both_states_are_estimated(kind):
     f.update(Z, np.array([True]), np.zeros(1))
     s = VAR_A + VAR_C + R
     assert f.x[1] == pytest.approx(X0[1] + VAR_C / s * (Z[0] - X0.sum()), rel=1e-6)
-    assert f.P[1, 1] == pytest.approx(VAR_C - VAR_C ** 2 / s, rel=1e-6)
+    assert f.P[1, 1] == pytest.approx(VAR_C - VAR_C**2 / s, rel=1e-6)
 
 
 def test_considering_a_bias_keeps_the_filters_std_honest():
@@ -58,21 +59,29 @@ def test_considering_a_bias_keeps_the_filters_std_honest():
     rng = np.random.default_rng(0)
 
     def run(var_c, a, c, z):
-        f = UKF(np.array([X0[0], X0[1]]), np.diag([VAR_A, var_c]), np.zeros((2, 2)), np.array([[R]]),
-                np.ones(2), fx, hx, consider=1)
+        f = UKF(
+            np.array([X0[0], X0[1]]),
+            np.diag([VAR_A, var_c]),
+            np.zeros((2, 2)),
+            np.array([[R]]),
+            np.ones(2),
+            fx,
+            hx,
+            consider=1,
+        )
         f.predict(0.01, np.zeros(1))
         f.update(np.array([z]), np.array([True]), np.zeros(1))
         return f.x[0] - a, f.P[0, 0]
 
     honest, naive = [], []
     for _ in range(2000):
-        a, c = X0[0] + rng.normal(0, VAR_A ** 0.5), X0[1] + rng.normal(0, VAR_C ** 0.5)
-        z = a + c + rng.normal(0, R ** 0.5)
+        a, c = X0[0] + rng.normal(0, VAR_A**0.5), X0[1] + rng.normal(0, VAR_C**0.5)
+        z = a + c + rng.normal(0, R**0.5)
         honest.append(run(VAR_C, a, c, z))
         naive.append(run(1e-12, a, c, z))
     for runs, ratio in ((honest, (0.9, 1.1)), (naive, (2.0, np.inf))):
         err, claimed = np.array(runs).T
-        assert ratio[0] < np.mean(err ** 2) / np.mean(claimed) < ratio[1]
+        assert ratio[0] < np.mean(err**2) / np.mean(claimed) < ratio[1]
 
 
 def test_a_new_stage2_window_keeps_the_parameters_correlation_with_l_f(repo_root):
@@ -89,7 +98,7 @@ def test_a_new_stage2_window_keeps_the_parameters_correlation_with_l_f(repo_root
     l2.cross = (np.array([0.8 * 2000.0 * 0.001, 0.5 * 50.0 * 0.001, 0.0]), 0.001)  # rho 0.8, 0.5 at sd 1 mm
     P0 = l2._initial_cov()
     c, p = lateral.L_F, lateral.PARAM_SLICE
-    assert P0[c, c] == pytest.approx(0.002 ** 2)
+    assert P0[c, c] == pytest.approx(0.002**2)
     rho = P0[p, c] / np.sqrt(np.diagonal(P0)[p] * P0[c, c])
     np.testing.assert_allclose(rho, [0.8, 0.5, 0.0])
     assert np.all(np.linalg.eigvalsh(P0) > 0)

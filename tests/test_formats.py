@@ -23,10 +23,23 @@ from vdp.sim.run import Simulation, write_log
 
 ROOT = Path(__file__).resolve().parents[1]
 PROFILE = dataclasses.replace(load_profile(ROOT / "profiles" / "paper.toml"), bus_channel="can0")
-FORMATS = [".log.gz", ".asc", ".asc.gz", ".blf", ".trc", ".trc.gz", ".csv", ".csv.gz",
-           pytest.param(".mf4", marks=pytest.mark.skipif(
-               importlib.util.find_spec("asammdf") is None,
-               reason="python-can writes and reads .mf4 only with asammdf (pip install 'vdp[mf4]')"))]
+FORMATS = [
+    ".log.gz",
+    ".asc",
+    ".asc.gz",
+    ".blf",
+    ".trc",
+    ".trc.gz",
+    ".csv",
+    ".csv.gz",
+    pytest.param(
+        ".mf4",
+        marks=pytest.mark.skipif(
+            importlib.util.find_spec("asammdf") is None,
+            reason="python-can writes and reads .mf4 only with asammdf (pip install 'vdp[mf4]')",
+        ),
+    ),
+]
 
 
 @pytest.fixture(scope="module")

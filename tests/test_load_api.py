@@ -73,8 +73,7 @@ class _Server:
 
         self.sock = _bind("127.0.0.1", 0)
         self.port = self.sock.getsockname()[1]
-        self.server = uvicorn.Server(uvicorn.Config(create_app(settings, svc), log_level="warning",
-                                                    access_log=False))
+        self.server = uvicorn.Server(uvicorn.Config(create_app(settings, svc), log_level="warning", access_log=False))
         self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True)
 
     def __enter__(self):
@@ -136,8 +135,11 @@ def test_200_concurrent_clients_while_the_bus_is_saturated(tmp_path):
     wait_up(svc)
     period = 4.0
     start = time.time() + 0.5
-    frames = list(Simulation(PAPER, "stage1", 1, "realistic", extra_ids=74, extra_rate=100.0,
-                             duration=period, start_time=start).frames())
+    frames = list(
+        Simulation(
+            PAPER, "stage1", 1, "realistic", extra_ids=74, extra_rate=100.0, duration=period, start_time=start
+        ).frames()
+    )
     assert len(frames) / period > 7500  # a saturated 1 Mbit/s bus
     stop, done, sent = threading.Event(), threading.Event(), [0]
 
@@ -152,8 +154,11 @@ def test_200_concurrent_clients_while_the_bus_is_saturated(tmp_path):
                     ahead = t - time.time()
                     if ahead > 0.002:
                         time.sleep(ahead)
-                    tx.send(can.Message(timestamp=t, arbitration_id=m.arbitration_id, data=m.data,
-                                        is_extended_id=m.is_extended_id))
+                    tx.send(
+                        can.Message(
+                            timestamp=t, arbitration_id=m.arbitration_id, data=m.data, is_extended_id=m.is_extended_id
+                        )
+                    )
                     sent[0] += 1
                 shift += period + 0.01
         finally:
@@ -191,8 +196,22 @@ def test_200_concurrent_clients_with_the_sender_in_another_process(tmp_path):
     if why:
         pytest.skip(why)
     out = tmp_path / "load.json"
-    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "service_load.py"), "--netns", "--seconds", "6",
-                        "--rounds", "1", "--json", str(out)], capture_output=True, text=True, timeout=500)
+    r = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "benchmarks" / "service_load.py"),
+            "--netns",
+            "--seconds",
+            "6",
+            "--rounds",
+            "1",
+            "--json",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=500,
+    )
     assert out.exists(), r.stdout + r.stderr[-3000:]
     res = json.loads(out.read_text())
     rnd = res["rounds"][0]

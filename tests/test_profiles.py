@@ -18,6 +18,7 @@ from pathlib import Path
 import cantools
 import pytest
 
+from conftest import REAL
 from vdp import channels
 from vdp.cli import main
 from vdp.core.estimator import EstimatorConfig
@@ -27,7 +28,6 @@ from vdp.profile import ChannelMap, Profile, load_profile
 from vdp.replay import replay
 from vdp.sim.addons import CAR_TRUTH, with_addons
 from vdp.sim.run import Simulation
-from conftest import REAL
 
 pytest.importorskip("opendbc", reason="the car profiles read their DBCs from the opendbc extra")
 
@@ -62,6 +62,7 @@ def car(name: str) -> Profile:
 
 # -- the profiles and their DBCs -------------------------------------------------------
 
+
 @pytest.mark.parametrize("name", CARS)
 def test_profile_matches_its_dbc_and_lacks_what_real_buses_lack(name):
     prof = car(name)
@@ -69,8 +70,9 @@ def test_profile_matches_its_dbc_and_lacks_what_real_buses_lack(name):
     FrameDecoder(prof)  # validates every message, signal, sign signal and check
     assert set(channels.NAMES) - set(prof.channels) == UNMAPPED
     # every mapped message is sent by the simulator, so the car's layout can be simulated
-    assert {p.name for p in Simulation(prof, "stage1", duration=0.1).encoder.plans} == \
-        {m.message for cm in prof.channels.values() for m in (cm, cm.alt) if m is not None}
+    assert {p.name for p in Simulation(prof, "stage1", duration=0.1).encoder.plans} == {
+        m.message for cm in prof.channels.values() for m in (cm, cm.alt) if m is not None
+    }
 
 
 @pytest.mark.parametrize("name", CARS)
@@ -109,6 +111,7 @@ def test_unwritable_cache_falls_back_to_the_temp_dir(monkeypatch, tmp_path):
 
 def test_hyundai_dbc_is_a_repaired_copy(cache_dir):
     import opendbc
+
     shipped = Path(opendbc.__file__).parent / "dbc" / "hyundai_kia_generic.dbc"
     with pytest.raises(Exception, match="Invalid syntax"):
         cantools.database.load_file(str(shipped), strict=False)  # why the copy exists
@@ -122,23 +125,45 @@ def test_hyundai_dbc_is_a_repaired_copy(cache_dir):
 
 def test_vw_uses_the_shipped_dbc():
     import opendbc
+
     assert car("vw_golf_mk7").dbc == Path(opendbc.__file__).parent / "dbc" / "vw_mqb.dbc"
 
 
 # -- simulating into a car's layout ----------------------------------------------------
 
+
 def mapped_ids(prof: Profile) -> set[int]:
     db = cantools.database.load_file(str(prof.dbc), strict=False)
-    return {db.get_message_by_name(m.message).frame_id
-            for cm in prof.channels.values() for m in (cm, cm.alt) if m is not None}
+    return {
+        db.get_message_by_name(m.message).frame_id
+        for cm in prof.channels.values()
+        for m in (cm, cm.alt)
+        if m is not None
+    }
 
 
 @pytest.mark.parametrize("name", CARS)
 def test_simulate_cli_writes_the_cars_layout_and_replay_explains(name, tmp_path, capsys):
     prof = car(name)
     out = tmp_path / "drive.log"
-    assert main(["simulate", "--profile", str(prof.path), "--scenario", "paper", "--duration", "3",
-                 "--seed", "1", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "--profile",
+                str(prof.path),
+                "--scenario",
+                "paper",
+                "--duration",
+                "3",
+                "--seed",
+                "1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     truth = json.loads((tmp_path / "drive.truth.json").read_text())
     # the truth vehicle is the car's, so the estimator and the simulator share its constants
     assert truth["vehicle"] == dataclasses.asdict(prof.vehicle)
@@ -169,15 +194,14 @@ def si_step(prof: Profile, db, cm: ChannelMap) -> float:
     return abs(sig.scale * cm.scale * cm.factor(prof.vehicle))
 
 
-@pytest.mark.parametrize("name", ["toyota_rav4", "vw_golf_mk7",
-                                  "hyundai_elantra_2017"])
+@pytest.mark.parametrize("name", ["toyota_rav4", "vw_golf_mk7", "hyundai_elantra_2017"])
 def test_round_trip_has_the_cars_quantisation_and_signs(name):
     """Every decoded value lies within half of the car's own DBC step of what was sent."""
     prof = car(name)
     sim = Simulation(prof, "stage2", seed=2, noise="realistic", duration=14.0)
     dec = FrameDecoder(prof)
     sent: dict[str, float] = {}
-    worst = {ch: 0.0 for ch in prof.channels}
+    worst = dict.fromkeys(prof.channels, 0.0)
     signs = {ch: set() for ch in prof.channels}
     for msg in sim.frames(tap=lambda t, name, values: sent.update(values)):
         for i, v in dec.decode(msg):
@@ -229,6 +253,7 @@ def test_hyundai_falls_back_to_the_yaw_rate_sensor_when_esp12_is_silent():
 
 # -- both stages on a car's layout, with vdp's add-on sensors --------------------------
 
+
 class Frames:
     """A simulated drive as a replay source (what open_log returns, minus the file)."""
 
@@ -273,9 +298,17 @@ def paper_run(name: str, tmp_path_factory) -> tuple[dict, dict]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name,stage", [
-    ("toyota_rav4", 1), ("toyota_rav4", 2), ("vw_golf_mk7", 1), ("vw_golf_mk7", 2),
-    ("hyundai_elantra_2017", 1), ("hyundai_elantra_2017", 2)])
+@pytest.mark.parametrize(
+    "name,stage",
+    [
+        ("toyota_rav4", 1),
+        ("toyota_rav4", 2),
+        ("vw_golf_mk7", 1),
+        ("vw_golf_mk7", 2),
+        ("hyundai_elantra_2017", 1),
+        ("hyundai_elantra_2017", 2),
+    ],
+)
 def test_paper_drive_converges_on_the_cars_layout(name, stage, tmp_path_factory):
     res, truth = paper_run(name, tmp_path_factory)
     if name == "toyota_rav4":
@@ -289,5 +322,4 @@ def test_paper_drive_converges_on_the_cars_layout(name, stage, tmp_path_factory)
         # is what "converged" asks (params.py): the RAV4, heavier and stiffer, gets a C_alpha
         # std of about 2 % of its value from this drive on any bus layout, the paper's
         # included, and so says "uncertain", as it should.
-        assert est["status"] in ("converged", "uncertain") and est["std"] < TOLERANCE[p] * truth[p], \
-            (p, est)
+        assert est["status"] in ("converged", "uncertain") and est["std"] < TOLERANCE[p] * truth[p], (p, est)

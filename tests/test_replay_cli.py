@@ -12,8 +12,7 @@ from vdp.sim.run import simulate, write_log, write_truth
 @pytest.fixture(scope="module")
 def drive(tmp_path_factory, repo_root):
     d = tmp_path_factory.mktemp("replay")
-    frames, truth = simulate(repo_root / "profiles" / "paper.toml", "stage1", seed=5, noise="realistic",
-                             duration=20.0)
+    frames, truth = simulate(repo_root / "profiles" / "paper.toml", "stage1", seed=5, noise="realistic", duration=20.0)
     log = d / "drive.log"
     write_log(frames, log)
     write_truth(truth, d / "drive.truth.json")
@@ -23,8 +22,20 @@ def drive(tmp_path_factory, repo_root):
 def test_replay_writes_the_documented_json_and_a_plot(drive, repo_root, capsys):
     d, log = drive
     out, png = d / "out.json", d / "out.png"
-    code = main(["replay", str(log), "--profile", str(repo_root / "profiles" / "paper.toml"),
-                 "--json", str(out), "--plot", str(png), "--truth", str(d / "drive.truth.json")])
+    code = main(
+        [
+            "replay",
+            str(log),
+            "--profile",
+            str(repo_root / "profiles" / "paper.toml"),
+            "--json",
+            str(out),
+            "--plot",
+            str(png),
+            "--truth",
+            str(d / "drive.truth.json"),
+        ]
+    )
     assert code == 0
     res = json.loads(out.read_text())
     for key in ("parameters", "baseline_ekf", "windows", "log"):

@@ -57,11 +57,11 @@ class FlakyBus(can.BusABC):
 def test_bus_failure_is_noticed_and_the_bus_reopened_with_backoff(tmp_path):
     log = {"raises": 0, "sent": 0, "shutdowns": 0, "opens": 0}
     # open 1 works then fails; opens 2-3 fail (adapter gone); open 4 works and keeps going
-    plan = iter([("bus", 50), ("fail",), ("fail",), ("bus", 10 ** 9)])
+    plan = iter([("bus", 50), ("fail",), ("fail",), ("bus", 10**9)])
 
     def opener(cfg):
         log["opens"] += 1
-        step = next(plan, ("bus", 10 ** 9))
+        step = next(plan, ("bus", 10**9))
         if step[0] == "fail":
             raise BusError("cannot open flaky bus: No such device")
         return FlakyBus(step[1], log)
@@ -96,8 +96,9 @@ def test_a_receive_thread_that_dies_silently_is_restarted(tmp_path):
         until(lambda: svc.link.up, "the bus to open")
         first = svc.link.notifier
         first._stopped = True  # python-can's thread ends without a word, as after an unhandled error
-        until(lambda: svc.link.notifier is not None and svc.link.notifier is not first and svc.link.up,
-              "a new notifier")
+        until(
+            lambda: svc.link.notifier is not None and svc.link.notifier is not first and svc.link.up, "a new notifier"
+        )
         assert svc.link.info.reconnects >= 1 and "receive thread" in svc.link.info.last_error
         send(tx, 25)
         wait_frames(svc, 25)
@@ -213,8 +214,11 @@ def test_raw_log_rotates_keeps_n_files_and_closed_files_replay(tmp_path):
     rl.open()
     n = 1000
     for k in range(n):
-        rl.on_message_received(can.Message(timestamp=1000.0 + 0.01 * k, arbitration_id=0x100 + k % 7,
-                                           data=bytes([k % 256]) * 8, channel="can0"))
+        rl.on_message_received(
+            can.Message(
+                timestamp=1000.0 + 0.01 * k, arbitration_id=0x100 + k % 7, data=bytes([k % 256]) * 8, channel="can0"
+            )
+        )
     closed = rl.closed_files()
     assert len(closed) == 2 and rl.deleted > 0  # max_files counts the open file
     rl.close()
@@ -233,9 +237,11 @@ def test_raw_log_rotates_keeps_n_files_and_closed_files_replay(tmp_path):
 
 def test_a_file_left_open_by_a_crash_is_cut_to_full_lines_and_closed(tmp_path):
     cur = tmp_path / "vdp-current.log"
-    cur.write_text("(1000.000000) can0 123#0102030405060708 R\n"
-                   "(1000.010000) can0 123#0102030405060708 R\n"
-                   "(1000.020000) can0 123#01020304")  # power cut mid-line
+    cur.write_text(
+        "(1000.000000) can0 123#0102030405060708 R\n"
+        "(1000.010000) can0 123#0102030405060708 R\n"
+        "(1000.020000) can0 123#01020304"
+    )  # power cut mid-line
     rl = RawLog(tmp_path, max_bytes=1 << 20, max_files=8)
     rl.open()
     closed = rl.closed_files()

@@ -29,8 +29,18 @@ def test_a_busy_port_is_refused_before_anything_starts(tmp_path, capsys):
         s.bind(("127.0.0.1", 0))
         s.listen(1)
         port = s.getsockname()[1]
-        code = vdp_main(["serve", "--simulate", "--port", str(port), "--db", str(tmp_path / "db.sqlite"),
-                         "--raw-dir", str(tmp_path / "raw")])
+        code = vdp_main(
+            [
+                "serve",
+                "--simulate",
+                "--port",
+                str(port),
+                "--db",
+                str(tmp_path / "db.sqlite"),
+                "--raw-dir",
+                str(tmp_path / "raw"),
+            ]
+        )
     assert code == 2
     assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
     assert not (tmp_path / "db.sqlite").exists() and not (tmp_path / "raw").exists()

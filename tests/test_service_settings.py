@@ -33,21 +33,24 @@ def test_defaults_and_relative_paths(tmp_path):
     assert s.api.host == "127.0.0.1" and s.bus.listen_only is True
 
 
-@pytest.mark.parametrize("text, match", [
-    ('[bus]\ninterface = "socketcan"\n', "'profile' is missing"),
-    ('profile = "p.toml"\n[bus]\nbitrat = 5\n', r"\[bus\]: unknown key\(s\) \['bitrat'\]"),
-    ('profile = "p.toml"\n[bus]\nbitrate = "fast"\n', r"\[bus\] 'bitrate': must be an integer"),
-    ('profile = "p.toml"\n[bus]\nreceive_own_messages = true\n', "'receive_own_messages': must be false"),
-    ('profile = "p.toml"\n[api]\nport = 70000\n', r"\[api\] 'port': must be within"),
-    ('profile = "p.toml"\n[api]\nreset_token = "short"\n', "'reset_token': must be at least 16"),
-    ('profile = "p.toml"\n[raw_log]\nmax_files = 1\n', "'max_files': must be at least 2"),
-    ('profile = "p.toml"\n[store]\nsynchronous = "off"\n', "'synchronous'"),
-    ('profile = "p.toml"\n[service]\nreconnect_max = 0.1\n', "'reconnect_max'"),
-    ('profile = "p.toml"\n[bus.kwargs]\nchannel = "x"\n', r"\[bus.kwargs\]"),
-    ('profile = "p.toml"\n[mystery]\n', "unknown section"),
-    ('profile = "p.toml"\nbus = 3\n', r"\[bus\]: must be a table"),
-    ("profile = \n", "not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ('[bus]\ninterface = "socketcan"\n', "'profile' is missing"),
+        ('profile = "p.toml"\n[bus]\nbitrat = 5\n', r"\[bus\]: unknown key\(s\) \['bitrat'\]"),
+        ('profile = "p.toml"\n[bus]\nbitrate = "fast"\n', r"\[bus\] 'bitrate': must be an integer"),
+        ('profile = "p.toml"\n[bus]\nreceive_own_messages = true\n', "'receive_own_messages': must be false"),
+        ('profile = "p.toml"\n[api]\nport = 70000\n', r"\[api\] 'port': must be within"),
+        ('profile = "p.toml"\n[api]\nreset_token = "short"\n', "'reset_token': must be at least 16"),
+        ('profile = "p.toml"\n[raw_log]\nmax_files = 1\n', "'max_files': must be at least 2"),
+        ('profile = "p.toml"\n[store]\nsynchronous = "off"\n', "'synchronous'"),
+        ('profile = "p.toml"\n[service]\nreconnect_max = 0.1\n', "'reconnect_max'"),
+        ('profile = "p.toml"\n[bus.kwargs]\nchannel = "x"\n', r"\[bus.kwargs\]"),
+        ('profile = "p.toml"\n[mystery]\n', "unknown section"),
+        ('profile = "p.toml"\nbus = 3\n', r"\[bus\]: must be a table"),
+        ("profile = \n", "not valid TOML"),
+    ],
+)
 def test_mistakes_name_the_key(tmp_path, text, match):
     with pytest.raises(ConfigError, match=match):
         load_settings(write(tmp_path, text))

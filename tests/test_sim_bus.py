@@ -23,8 +23,17 @@ from vdp.io.checks import vdp_checksum
 from vdp.io.decoder import FrameDecoder
 from vdp.profile import ChannelMap, load_profile
 from vdp.sim.encode import Encoder, signal_range
-from vdp.sim.run import (START_TIME, Simulation, open_bus, resolve_profile, send_live, simulate,
-                         trace, truth_path, write_log)
+from vdp.sim.run import (
+    START_TIME,
+    Simulation,
+    open_bus,
+    resolve_profile,
+    send_live,
+    simulate,
+    trace,
+    truth_path,
+    write_log,
+)
 from vdp.sim.scenario import Plan, sine_steer
 from vdp.sim.truth import TRUTH
 
@@ -114,12 +123,11 @@ def test_channels_carry_the_truth():
     by = defaultdict(list)
     for t, name, values in taps:
         by[name].append((t, values))
-    for t, v in by["WHEEL_SPEEDS_FRONT"]:
+    for _t, v in by["WHEEL_SPEEDS_FRONT"]:
         assert v["wheel_speed_fl"] == v["wheel_speed_fr"] == pytest.approx(10.0 / 0.3, rel=0.01)
     steer = [v["steering_angle"] for t, v in by["STEERING"]]
     assert min(steer) < -4.5 * math.pi / 180  # the sawtooth in road-wheel radians
-    raw = [DB.decode_message(m.arbitration_id, m.data)["STEER_WHEEL_ANGLE"]
-           for m in frames if m.arbitration_id == 0xD0]
+    raw = [DB.decode_message(m.arbitration_id, m.data)["STEER_WHEEL_ANGLE"] for m in frames if m.arbitration_id == 0xD0]
     assert min(raw) == pytest.approx(math.degrees(min(steer)) * 15.0, abs=0.06)  # handwheel, ratio 15
     ay = [v["accel_y"] for t, v in by["IMU_ACCEL"] if t > 5.0]
     yaw = [v["yaw_rate"] for t, v in by["IMU_RATES"] if t > 5.0]
@@ -132,14 +140,21 @@ def test_channels_equal_the_physics_at_sample_time():
     sim, frames, taps = run_tapped(noise="none", scenario=sc, duration=3.0)
     tr = trace(sc, every=1)
     expect = {
-        "wheel_speed_fl": tr["omega_f"], "wheel_speed_fr": tr["omega_f"],
-        "wheel_speed_rl": tr["omega_r"], "wheel_speed_rr": tr["omega_r"],
-        "wheel_torque_front": tr["T_f"], "wheel_torque_rear": tr["T_r"], "steering_angle": tr["delta"],
-        "accel_x": tr["a_x"], "accel_y": tr["a_y"], "yaw_rate": tr["yaw_rate"], "roll_rate": tr["roll_rate"],
+        "wheel_speed_fl": tr["omega_f"],
+        "wheel_speed_fr": tr["omega_f"],
+        "wheel_speed_rl": tr["omega_r"],
+        "wheel_speed_rr": tr["omega_r"],
+        "wheel_torque_front": tr["T_f"],
+        "wheel_torque_rear": tr["T_r"],
+        "steering_angle": tr["delta"],
+        "accel_x": tr["a_x"],
+        "accel_y": tr["a_y"],
+        "yaw_rate": tr["yaw_rate"],
+        "roll_rate": tr["roll_rate"],
         "speed": np.hypot(tr["v_x"], tr["v_y"]),  # GNSS: ground speed of the CG
     }
     seen = set()
-    for t, name, values in taps:
+    for t, _name, values in taps:
         i = int(round(t / 0.001))
         assert tr["t"][i] == pytest.approx(t)
         for ch, v in values.items():
@@ -161,7 +176,7 @@ def test_every_shipped_profile_can_be_simulated(path):
     sim, frames, taps = run_tapped(path, "paper", duration=1.0, noise="none")
     assert len(frames) == len(taps) > 0
     counters: dict[int, int] = {}
-    for msg, (t, name, values) in zip(frames, taps):
+    for msg, (_t, name, values) in zip(frames, taps):
         si = decode_si(prof, db, msg)
         assert set(si) == set(values)
         for ch, v in values.items():
@@ -183,7 +198,7 @@ def test_encoding_inverts_the_profile_mapping(ch, u):
     f = PROFILE.channels[ch].factor(PROFILE.vehicle)
     lo_si, hi_si = sorted((sp.lo * f, sp.hi * f))
     si = lo_si + (hi_si - lo_si) * (u + 1.0) / 2.0  # up to 10 % outside the range on both sides
-    values = {c: 0.0 for c in plan.channels}
+    values = dict.fromkeys(plan.channels, 0.0)
     values[ch] = si
     data = enc.encode(plan, values)
     got = decode_si(PROFILE, DB, can.Message(arbitration_id=plan.frame_id, data=data, is_extended_id=False))
@@ -201,10 +216,19 @@ SPLITS = {  # message: (coarse, fine)
 
 def split_profile(message: str, coarse: str, fine: str, **keys):
     """The paper's vehicle with only the steering-wheel angle, read from fine.dbc."""
-    cm = ChannelMap("steering_angle", message, coarse, "deg", steering_wheel=True, fine=fine,
-                    where="fine.toml [channels.steering_angle]", **keys)
-    return dataclasses.replace(PROFILE, dbc=ROOT / "tests" / "data" / "fine.dbc",
-                               channels={"steering_angle": cm}, checks={})
+    cm = ChannelMap(
+        "steering_angle",
+        message,
+        coarse,
+        "deg",
+        steering_wheel=True,
+        fine=fine,
+        where="fine.toml [channels.steering_angle]",
+        **keys,
+    )
+    return dataclasses.replace(
+        PROFILE, dbc=ROOT / "tests" / "data" / "fine.dbc", channels={"steering_angle": cm}, checks={}
+    )
 
 
 @settings(max_examples=200, deadline=None)
@@ -216,8 +240,7 @@ def test_coarse_and_fine_signals_round_trip(message, deg, sign):
     enc = Encoder(prof, FINE_DB)
     plan = enc.plans[0]
     si = math.radians(deg) / prof.vehicle.steering_ratio
-    msg = can.Message(arbitration_id=plan.frame_id, data=enc.encode(plan, {"steering_angle": si}),
-                      is_extended_id=False)
+    msg = can.Message(arbitration_id=plan.frame_id, data=enc.encode(plan, {"steering_angle": si}), is_extended_id=False)
     raw = FINE_DB.decode_message(msg.arbitration_id, msg.data, decode_choices=False)
     sig = FINE_DB.get_message_by_name(message).get_signal_by_name(fine)
     assert sig.minimum - 1e-9 <= raw[fine] <= sig.maximum + 1e-9  # never a fraction the car would not send
@@ -230,18 +253,25 @@ def test_coarse_and_fine_signals_round_trip(message, deg, sign):
 
 
 def test_encoder_checks_the_fine_signal():
-    with pytest.raises(ProfileError, match=r"\[channels.steering_angle\]: fine signal 'NOPE' is not in message "
-                                           r"'FLOOR_SPLIT'"):
+    with pytest.raises(
+        ProfileError,
+        match=r"\[channels.steering_angle\]: fine signal 'NOPE' is not in message "
+        r"'FLOOR_SPLIT'",
+    ):
         Encoder(split_profile("FLOOR_SPLIT", "ANGLE", "NOPE"), FINE_DB)
-    with pytest.raises(ProfileError, match=r"fine signal 'SHORT_REST' carries \[0, 0.7\] in steps of 0.1, "
-                                           r"less than one step of 'ANGLE' \(1.5\)"):
+    with pytest.raises(
+        ProfileError,
+        match=r"fine signal 'SHORT_REST' carries \[0, 0.7\] in steps of 0.1, "
+        r"less than one step of 'ANGLE' \(1.5\)",
+    ):
         Encoder(split_profile("FLOOR_SPLIT", "ANGLE", "SHORT_REST"), FINE_DB)
 
 
 # -- determinism -------------------------------------------------------------------------
 def _bytes(tmp_path: Path, seed: int, name: str) -> bytes:
-    frames, truth = simulate(PAPER, "stage1", seed=seed, noise="realistic", duration=3.0,
-                             drop_rate=0.05, extra_ids=3, extra_rate=50.0)
+    frames, truth = simulate(
+        PAPER, "stage1", seed=seed, noise="realistic", duration=3.0, drop_rate=0.05, extra_ids=3, extra_rate=50.0
+    )
     out = tmp_path / name
     write_log(frames, out)
     return out.read_bytes()
@@ -440,7 +470,7 @@ def test_encodes_into_another_cars_dbc(other_profile, tmp_path):
     back = list(can.LogReader(str(out)))
     assert len(back) == len(taps)
     neg_torque = 0
-    for msg, (t, name, values) in zip(back, taps):
+    for msg, (_t, name, values) in zip(back, taps):
         assert msg.channel == "can1"
         dbm = db.get_message_by_frame_id(msg.arbitration_id)
         assert dbm.name == name
@@ -502,8 +532,23 @@ def test_live_virtual_bus_receives_every_frame():
 # -- CLI ---------------------------------------------------------------------------------
 def test_cli_writes_log_and_truth_json(tmp_path, capsys):
     out = tmp_path / "drive.log"
-    rc = main(["simulate", "--scenario", "stage1", "--seed", "3", "--noise", "realistic",
-               "--duration", "4", "--out", str(out), "--param", "h=0.7"])
+    rc = main(
+        [
+            "simulate",
+            "--scenario",
+            "stage1",
+            "--seed",
+            "3",
+            "--noise",
+            "realistic",
+            "--duration",
+            "4",
+            "--out",
+            str(out),
+            "--param",
+            "h=0.7",
+        ]
+    )
     assert rc == 0
     printed = capsys.readouterr().out
     assert "frames" in printed and "drive.truth.json" in printed
@@ -515,16 +560,17 @@ def test_cli_writes_log_and_truth_json(tmp_path, capsys):
     assert truth["vehicle"]["roll_stiffness"] == pytest.approx(36000.0 * 180 / math.pi)
     assert (truth["scenario"], truth["seed"], truth["start_time"]) == ("stage1", 3, START_TIME)
     assert truth["noise"]["model"] == "realistic" and truth["noise"]["sigma"]["accel_x"] == 0.05
-    assert truth["segments"] == [{"name": "settle", "kind": "other", "start": 0.0, "end": 2.0},
-                                 {"name": "stage1", "kind": "stage1", "start": 2.0, "end": 4.0}]
+    assert truth["segments"] == [
+        {"name": "settle", "kind": "other", "start": 0.0, "end": 2.0},
+        {"name": "stage1", "kind": "stage1", "start": 2.0, "end": 4.0},
+    ]
     assert truth["duration"] == 4.0
     back = list(can.LogReader(str(out)))
     assert back[-1].timestamp < START_TIME + 4.0 and len(back) == 4 * 600 + 40
 
 
 def test_cli_errors_are_one_line(tmp_path, capsys):
-    assert main(["simulate", "--scenario", "stage1", "--out", str(tmp_path / "x.log"),
-                 "--param", "m=3"]) == 2
+    assert main(["simulate", "--scenario", "stage1", "--out", str(tmp_path / "x.log"), "--param", "m=3"]) == 2
     assert "unknown parameter 'm'" in capsys.readouterr().err
     assert main(["simulate", "--scenario", "stage1"]) == 2
     assert "--out" in capsys.readouterr().err

@@ -65,7 +65,8 @@ state = st.tuples(
     st.floats(0.5, 35.0),  # v_x
     st.floats(-1.0, 1.0),  # v_y
     st.floats(-0.6, 0.6),  # yaw rate
-    st.floats(0.9, 1.1), st.floats(0.9, 1.1),  # omega r / v_x per axle: slip ~ +-10 %
+    st.floats(0.9, 1.1),
+    st.floats(0.9, 1.1),  # omega r / v_x per axle: slip ~ +-10 %
     st.floats(-0.15, 0.15),  # delta
 )
 
@@ -162,12 +163,13 @@ def _integrate(step, dt: float, T: float = 2.0, v0: float = 2.0) -> np.ndarray:
 def _euler(model: Model):
     def step(x, tf, tr, d, dt):
         return [u + dt * v for u, v in zip(x, model.derivatives(x, tf, tr, d))]
+
     return step
 
 
 def test_wheels_are_stable_and_accurate_beyond_their_time_constant():
     # At 2 m/s the wheel-slip time constant is well below the 1 ms step (NOTES 10).
-    tau = P.J * 2.0 / (P.r ** 2 * P.C_K * MODEL.zf0)
+    tau = P.J * 2.0 / (P.r**2 * P.C_K * MODEL.zf0)
     assert tau < 0.3e-3
     a = _integrate(MODEL.step, 1e-3)
     ref = _integrate(MODEL.step, 1e-4)
@@ -196,8 +198,14 @@ def test_naive_explicit_euler_at_logging_rate_diverges():
 
 
 @settings(max_examples=30, deadline=None, phases=NO_SHRINK)
-@given(v0=st.floats(0.0, 30.0), wf=st.floats(0.0, 120.0), wr=st.floats(0.0, 120.0),
-       tf=st.floats(-3000, 3000), tr=st.floats(-3000, 3000), d=st.floats(-0.3, 0.3))
+@given(
+    v0=st.floats(0.0, 30.0),
+    wf=st.floats(0.0, 120.0),
+    wr=st.floats(0.0, 120.0),
+    tf=st.floats(-3000, 3000),
+    tr=st.floats(-3000, 3000),
+    d=st.floats(-0.3, 0.3),
+)
 def test_step_never_blows_up(v0, wf, wr, tf, tr, d):
     x = [v0, 0.0, 0.0, 0.0, 0.0, wf, wr]
     for _ in range(300):

@@ -23,9 +23,18 @@ NAMES = ("l_f", "h", "C_K", "C_alpha", "I_z", "I_x")
 
 
 def params(v: float = 1.0, status: str = "converged") -> dict:
-    return {n: {"value": v * (i + 1), "std": 0.01 * v, "unit": "m", "valid": status == "converged",
-                "stage": 1 if i < 3 else 2, "status": status, "samples": int(100 * v)}
-            for i, n in enumerate(NAMES)}
+    return {
+        n: {
+            "value": v * (i + 1),
+            "std": 0.01 * v,
+            "unit": "m",
+            "valid": status == "converged",
+            "stage": 1 if i < 3 else 2,
+            "status": status,
+            "samples": int(100 * v),
+        }
+        for i, n in enumerate(NAMES)
+    }
 
 
 @pytest.fixture
@@ -151,7 +160,8 @@ def test_schema_change_and_foreign_files_are_refused(tmp_path, fp):
     assert junk.read_bytes() == b"this is not sqlite at all" * 100
 
 
-WRITER = textwrap.dedent("""
+WRITER = textwrap.dedent(
+    f"""
     import sys
     from vdp.store import Store
     db, fp = sys.argv[1], sys.argv[2]
@@ -160,10 +170,11 @@ WRITER = textwrap.dedent("""
     n = int(got["l_f"]["samples"]) if got else 0
     while True:
         n += 1
-        st.save({name: {"value": n + i / 10, "std": 0.1, "unit": "m", "valid": True, "stage": 1,
-                        "status": "converged", "samples": n} for i, name in enumerate(%r)}, t=float(n))
+        st.save({{name: {{"value": n + i / 10, "std": 0.1, "unit": "m", "valid": True, "stage": 1,
+                        "status": "converged", "samples": n}} for i, name in enumerate({NAMES!r})}}, t=float(n))
         print(n, flush=True)
-""" % (NAMES,))
+"""
+)
 
 
 @pytest.mark.slow
@@ -171,8 +182,12 @@ def test_kill_9_while_writing_keeps_the_store_intact(tmp_path, fp):
     db = tmp_path / "s.sqlite"
     last = 0
     for round_ in range(5):
-        proc = subprocess.Popen([sys.executable, "-c", WRITER, str(db), fp], stdout=subprocess.PIPE,
-                                text=True, env={**os.environ, "PYTHONPATH": str(ROOT / "service")})
+        proc = subprocess.Popen(
+            [sys.executable, "-c", WRITER, str(db), fp],
+            stdout=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "PYTHONPATH": str(ROOT / "service")},
+        )
         want = last + 20 + 7 * round_
         seen = last
         for line in proc.stdout:

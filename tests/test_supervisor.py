@@ -33,8 +33,9 @@ def accel(t):
 
 
 def weave(t):
-    return sample(t, delta=math.radians(3) * math.sin(2 * math.pi * t / 4), yaw=0.1 * math.sin(2 * math.pi * t / 4),
-                  speed=10.0)
+    return sample(
+        t, delta=math.radians(3) * math.sin(2 * math.pi * t / 4), yaw=0.1 * math.sin(2 * math.pi * t / 4), speed=10.0
+    )
 
 
 def test_straight_acceleration_opens_stage_1_only():
@@ -81,6 +82,6 @@ def test_hysteresis_does_not_flicker_on_brief_dips():
     n_before = sup.window_count
     # a_x spread dips for 0.2 s (shorter than t_off): the window stays open
     for k in range(20):
-        sup._ax_sq = sup._ax_m ** 2  # no spread
+        sup._ax_sq = sup._ax_m**2  # no spread
         assert sup.update(10.0 + k * 0.01, sample(10.0 + k * 0.01, ax=0.0), False) == 1
     assert sup.window_count == n_before

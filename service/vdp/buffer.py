@@ -55,13 +55,13 @@ class Sample:
 
 
 class Aligner:
-    def __init__(self, stale_after: np.ndarray | None = None, tick: float = 0.01,
-                 delay: float = 0.012, max_gap: float = 1.0):
+    def __init__(
+        self, stale_after: np.ndarray | None = None, tick: float = 0.01, delay: float = 0.012, max_gap: float = 1.0
+    ):
         self.tick = tick
         self.delay = delay
         self.max_gap = max_gap
-        self.stale_after = (np.full(channels.N, 0.1) if stale_after is None
-                            else np.asarray(stale_after, dtype=float))
+        self.stale_after = np.full(channels.N, 0.1) if stale_after is None else np.asarray(stale_after, dtype=float)
         self._stale = [float(x) for x in self.stale_after]
         self.reset()
 
@@ -96,8 +96,11 @@ class Aligner:
                 return out
             # Not a stray frame: the clock stepped back, or the newest time was one frame's
             # glitch.  Waiting for the clock to catch up would stop estimation until then.
-            log.info("bus time went %.3f s back for %d frames in a row; restarting the sample grid",
-                     self.last_time - t, self._behind)
+            log.info(
+                "bus time went %.3f s back for %d frames in a row; restarting the sample grid",
+                self.last_time - t,
+                self._behind,
+            )
             self.last_time = t
         self._behind = 0
         if back or self.next_tick is None or t - self.last_time > self.max_gap:
@@ -119,8 +122,7 @@ class Aligner:
                 out.append(self._sample(self.next_tick))
                 self._n += 1
                 self.next_tick = self._n * self.tick
-        if t > self.last_time:
-            self.last_time = t
+        self.last_time = max(self.last_time, t)
         for ch, value in pairs:
             th, vh = self._t[ch], self._v[ch]
             del th[0], vh[0]

@@ -31,17 +31,31 @@ WS_FL, WS_FR, WS_RL, WS_RR, T_F, T_R, DELTA, AX, AY, YAW, ROLL, SPEED = range(N)
 
 # What a missing channel means, in the words of a car's sensor set.
 DESCRIPTIONS: dict[str, str] = {
-    "wheel_speed_fl": "wheel speeds", "wheel_speed_fr": "wheel speeds",
-    "wheel_speed_rl": "wheel speeds", "wheel_speed_rr": "wheel speeds",
-    "wheel_torque_front": "per-axle wheel torque", "wheel_torque_rear": "per-axle wheel torque",
-    "steering_angle": "steering angle", "accel_x": "longitudinal acceleration",
-    "accel_y": "lateral acceleration", "yaw_rate": "yaw-rate gyro", "roll_rate": "roll-rate gyro",
+    "wheel_speed_fl": "wheel speeds",
+    "wheel_speed_fr": "wheel speeds",
+    "wheel_speed_rl": "wheel speeds",
+    "wheel_speed_rr": "wheel speeds",
+    "wheel_torque_front": "per-axle wheel torque",
+    "wheel_torque_rear": "per-axle wheel torque",
+    "steering_angle": "steering angle",
+    "accel_x": "longitudinal acceleration",
+    "accel_y": "lateral acceleration",
+    "yaw_rate": "yaw-rate gyro",
+    "roll_rate": "roll-rate gyro",
     "speed": "GNSS ground speed",
 }
 
 # Which channels each stage needs; a profile lacking one disables the stage.
-STAGE1_NEEDS = ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr",
-                "wheel_torque_front", "wheel_torque_rear", "accel_x", "speed",
-                "steering_angle", "yaw_rate")
-STAGE2_NEEDS = ("wheel_speed_fl", "wheel_speed_fr", "steering_angle", "accel_y",
-                "yaw_rate", "roll_rate", "speed")
+STAGE1_NEEDS = (
+    "wheel_speed_fl",
+    "wheel_speed_fr",
+    "wheel_speed_rl",
+    "wheel_speed_rr",
+    "wheel_torque_front",
+    "wheel_torque_rear",
+    "accel_x",
+    "speed",
+    "steering_angle",
+    "yaw_rate",
+)
+STAGE2_NEEDS = ("wheel_speed_fl", "wheel_speed_fr", "steering_angle", "accel_y", "yaw_rate", "roll_rate", "speed")

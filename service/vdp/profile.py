@@ -133,7 +133,7 @@ class ChannelMap:
     sign_signal: str | None = None
     steering_wheel: bool = False  # the signal is the steering-wheel angle
     fine: str | None = None  # a finer signal of the same message, added to ``signal``
-    alt: "ChannelMap | None" = None
+    alt: ChannelMap | None = None
     where: str = ""  # "profile.toml [channels.x]" for error messages
 
     def factor(self, vehicle: Vehicle) -> float:
@@ -177,9 +177,16 @@ class Profile:
 
 
 _VEHICLE_KEYS = {
-    "name": str, "mass": float, "wheelbase": float, "wheel_radius": float,
-    "wheel_inertia": float, "roll_stiffness": float, "roll_damping": float,
-    "steering_ratio": float, "track": float, "g": float,
+    "name": str,
+    "mass": float,
+    "wheelbase": float,
+    "wheel_radius": float,
+    "wheel_inertia": float,
+    "roll_stiffness": float,
+    "roll_damping": float,
+    "steering_ratio": float,
+    "track": float,
+    "g": float,
 }
 
 
@@ -191,8 +198,10 @@ def _num(where: str, key: str, value: Any) -> float:
 
 def _vehicle(where: str, raw: dict[str, Any]) -> Vehicle:
     if not isinstance(raw, dict):
-        raise ProfileError(f"{where} [vehicle]: missing table; add a [vehicle] section with "
-                           f"{', '.join(k for k in _VEHICLE_KEYS if k != 'g')}")
+        raise ProfileError(
+            f"{where} [vehicle]: missing table; add a [vehicle] section with "
+            f"{', '.join(k for k in _VEHICLE_KEYS if k != 'g')}"
+        )
     unknown = set(raw) - set(_VEHICLE_KEYS) - {"roll_stiffness_per_deg", "roll_damping_per_deg"}
     if unknown:
         raise ProfileError(f"{where} [vehicle]: unknown key(s) {sorted(unknown)}; allowed: {sorted(_VEHICLE_KEYS)}")
@@ -244,8 +253,7 @@ def _priors(where: str, raw: Any) -> dict[str, Prior]:
     return out
 
 
-_MAP_KEYS = {"message", "signal", "unit", "scale", "offset", "sign", "sign_signal", "steering_wheel", "fine",
-             "alt"}
+_MAP_KEYS = {"message", "signal", "unit", "scale", "offset", "sign", "sign_signal", "steering_wheel", "fine", "alt"}
 
 
 def _channel(where: str, name: str, raw: Any, nested: bool = False) -> ChannelMap:
@@ -263,8 +271,7 @@ def _channel(where: str, name: str, raw: Any, nested: bool = False) -> ChannelMa
         raise ProfileError(f"{w}: unit '{unit}' is not known; use one of {_UNIT_LIST}")
     kind = UNIT_FACTORS[unit][1]
     if kind not in CHANNEL_KINDS[name]:
-        raise ProfileError(f"{w}: unit '{unit}' ({kind}) cannot be converted to {name}'s "
-                           f"{channels.UNITS[name]}")
+        raise ProfileError(f"{w}: unit '{unit}' ({kind}) cannot be converted to {name}'s {channels.UNITS[name]}")
     sign = _num(w, "sign", raw.get("sign", 1.0))
     if sign not in (1.0, -1.0):
         raise ProfileError(f"{w}: 'sign' must be 1 or -1, got {sign}")
@@ -284,16 +291,29 @@ def _channel(where: str, name: str, raw: Any, nested: bool = False) -> ChannelMa
         if not isinstance(fine, str) or not fine:
             raise ProfileError(f"{w}: 'fine' must be a signal name, got {fine!r}")
         if fine in (raw["signal"], ss):
-            raise ProfileError(f"{w}: 'fine' must be another signal than "
-                               f"{'signal' if fine == raw['signal'] else 'sign_signal'} '{fine}'")
+            raise ProfileError(
+                f"{w}: 'fine' must be another signal than "
+                f"{'signal' if fine == raw['signal'] else 'sign_signal'} '{fine}'"
+            )
     alt = None
     if "alt" in raw:
         if nested:
             raise ProfileError(f"{w}: an alternative source cannot have its own 'alt'")
         alt = _channel(where, name, raw["alt"], nested=True)
-    return ChannelMap(channel=name, message=raw["message"], signal=raw["signal"], unit=unit,
-                      scale=scale, offset=_num(w, "offset", raw.get("offset", 0.0)), sign=sign,
-                      sign_signal=ss, steering_wheel=sw, fine=fine, alt=alt, where=w)
+    return ChannelMap(
+        channel=name,
+        message=raw["message"],
+        signal=raw["signal"],
+        unit=unit,
+        scale=scale,
+        offset=_num(w, "offset", raw.get("offset", 0.0)),
+        sign=sign,
+        sign_signal=ss,
+        steering_wheel=sw,
+        fine=fine,
+        alt=alt,
+        where=w,
+    )
 
 
 def _checks(where: str, raw: Any) -> dict[str, MessageCheck]:
@@ -318,8 +338,9 @@ def _checks(where: str, raw: Any) -> dict[str, MessageCheck]:
         for key in ("counter", "checksum"):
             if key in entry and (not isinstance(entry[key], str) or not entry[key]):
                 raise ProfileError(f"{w}: '{key}' must be a signal name, got {entry[key]!r}")
-        out[msg] = MessageCheck(message=msg, counter=entry.get("counter"), checksum=entry.get("checksum"),
-                                checksum_kind=kind, check=check)
+        out[msg] = MessageCheck(
+            message=msg, counter=entry.get("counter"), checksum=entry.get("checksum"), checksum_kind=kind, check=check
+        )
     return out
 
 
@@ -335,23 +356,25 @@ def load_profile(path: str | Path) -> Profile:
         raise ProfileError(f"{where}: not valid TOML: {exc}") from None
     unknown = set(raw) - {"vehicle", "priors", "can", "channels", "checks"}
     if unknown:
-        raise ProfileError(f"{where}: unknown section(s) {sorted(unknown)}; "
-                           f"known: vehicle, priors, can, channels, checks")
+        raise ProfileError(
+            f"{where}: unknown section(s) {sorted(unknown)}; known: vehicle, priors, can, channels, checks"
+        )
     vehicle = _vehicle(where, raw.get("vehicle"))
     priors = _priors(where, raw.get("priors"))
     can = raw.get("can")
     dbc_raw = can.get("dbc") if isinstance(can, dict) else None
     names = [dbc_raw] if isinstance(dbc_raw, str) else dbc_raw
     if not isinstance(names, list) or not names or not all(isinstance(n, str) and n for n in names):
-        raise ProfileError(f"{where} [can]: missing 'dbc' (a path relative to the profile, or opendbc:NAME, "
-                           f"or a list of them)")
+        raise ProfileError(
+            f"{where} [can]: missing 'dbc' (a path relative to the profile, or opendbc:NAME, or a list of them)"
+        )
     unknown = set(can) - {"dbc", "channel"}
     if unknown:
         raise ProfileError(f"{where} [can]: unknown key(s) {sorted(unknown)}; allowed: channel, dbc")
     dbcs = []
     for dbc_s in names:
         if dbc_s.startswith("opendbc:"):
-            dbc = _opendbc_path(where, dbc_s[len("opendbc:"):])
+            dbc = _opendbc_path(where, dbc_s[len("opendbc:") :])
         else:
             dbc = (path.parent / dbc_s).resolve()
         if not dbc.is_file():
@@ -369,8 +392,16 @@ def load_profile(path: str | Path) -> Profile:
     if bad:
         raise ProfileError(f"{where} [channels]: unknown channel(s) {sorted(bad)}; known: {', '.join(channels.NAMES)}")
     maps = {name: _channel(where, name, entry) for name, entry in chans_raw.items()}
-    return Profile(path=path, vehicle=vehicle, priors=priors, dbc=dbcs[0], bus_channel=bus_channel,
-                   channels=maps, checks=_checks(where, raw.get("checks")), extra_dbcs=tuple(dbcs[1:]))
+    return Profile(
+        path=path,
+        vehicle=vehicle,
+        priors=priors,
+        dbc=dbcs[0],
+        bus_channel=bus_channel,
+        channels=maps,
+        checks=_checks(where, raw.get("checks")),
+        extra_dbcs=tuple(dbcs[1:]),
+    )
 
 
 def cache_dir() -> Path:
@@ -392,8 +423,10 @@ def _opendbc_path(where: str, name: str) -> Path:
     try:
         import opendbc  # optional extra: pip install vdp[opendbc]
     except ImportError:
-        raise ProfileError(f"{where} [can]: dbc 'opendbc:{name}' needs the opendbc package; "
-                           f"install it with: pip install 'vdp[opendbc]'") from None
+        raise ProfileError(
+            f"{where} [can]: dbc 'opendbc:{name}' needs the opendbc package; "
+            f"install it with: pip install 'vdp[opendbc]'"
+        ) from None
     stem = name[:-4] if name.endswith(".dbc") else name
     base = Path(opendbc.__file__).parent / "dbc"
     shipped = base / (stem + ".dbc")
@@ -410,8 +443,9 @@ def _opendbc_path(where: str, name: str) -> Path:
     names = sorted({p.stem for p in base.glob("*.dbc")} | set(generated))
     close = difflib.get_close_matches(stem, names, n=5, cutoff=0.5)
     hint = f"similar: {', '.join(close)}" if close else f"it has {len(names)}, e.g. {', '.join(names[:8])}"
-    raise ProfileError(f"{where} [can]: opendbc has no DBC named '{stem}' (neither in {base} nor "
-                       f"generated by its generator); {hint}")
+    raise ProfileError(
+        f"{where} [can]: opendbc has no DBC named '{stem}' (neither in {base} nor generated by its generator); {hint}"
+    )
 
 
 @functools.lru_cache(maxsize=1)
@@ -428,6 +462,7 @@ def _cached(where: str, stem: str, text: str) -> Path:
     """``text`` as ``<cache>/opendbc-<version>/<stem>.dbc``, rewritten only when it differs."""
     try:
         from importlib.metadata import version
+
         ver = version("opendbc")
     except Exception:  # metadata missing in odd installs; the content check below still holds
         ver = "unknown"
@@ -452,5 +487,7 @@ def _cached(where: str, stem: str, text: str) -> Path:
             return path
         except OSError as exc:
             errors.append(f"{d}: {exc.strerror or exc}")
-    raise ProfileError(f"{where} [can]: cannot write the opendbc DBC '{stem}' to a cache directory "
-                       f"({'; '.join(errors)}); set VDP_CACHE_DIR to a writable directory")
+    raise ProfileError(
+        f"{where} [can]: cannot write the opendbc DBC '{stem}' to a cache directory "
+        f"({'; '.join(errors)}); set VDP_CACHE_DIR to a writable directory"
+    )

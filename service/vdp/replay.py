@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from . import report
 
 PROGRESS_EVERY = 4096  # frames between progress callbacks
 
 
-def replay(source, pipeline, truth: dict | None = None,
-           progress: Callable[[int, int], None] | None = None) -> dict:
+def replay(source, pipeline, truth: dict | None = None, progress: Callable[[int, int], None] | None = None) -> dict:
     """Feed every frame of ``source`` to ``pipeline``; return the result document."""
     t0 = time.monotonic()
     first = last = None
@@ -36,9 +35,14 @@ def replay(source, pipeline, truth: dict | None = None,
     wall = time.monotonic() - t0
     result = pipeline.snapshot()
     duration = (last - first) if n and last is not None else 0.0
-    log_info = {"path": str(getattr(source, "path", "")), "frames": n, "wall_s": wall,
-                "duration_s": duration, "realtime_factor": duration / wall if wall > 0 else 0.0,
-                "start_time": first}
+    log_info = {
+        "path": str(getattr(source, "path", "")),
+        "frames": n,
+        "wall_s": wall,
+        "duration_s": duration,
+        "realtime_factor": duration / wall if wall > 0 else 0.0,
+        "start_time": first,
+    }
     log_info.update(source.stats.as_dict())
     log_info["decode"] = pipeline.decoder.stats.as_dict()
     log_info["clock"] = {"backwards": pipeline.aligner.clock_backwards, "jumps": pipeline.aligner.clock_jumps}
@@ -50,7 +54,8 @@ def replay(source, pipeline, truth: dict | None = None,
             if w["end"] is not None:
                 w["end"] -= first
         pipeline.estimator.trace = type(pipeline.estimator.trace)(
-            (r[0] - first,) + tuple(r[1:]) for r in pipeline.estimator.trace)
+            (r[0] - first,) + tuple(r[1:]) for r in pipeline.estimator.trace
+        )
     if truth is not None:
         result["truth"] = truth["parameters"]
         result["truth_comparison"] = report.compare(result["parameters"], truth)

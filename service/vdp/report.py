@@ -34,8 +34,7 @@ def compare(params: dict, truth: dict) -> dict:
         if t is None or v is None:
             out[name] = {"truth": t, "rel_error": None, "within_2std": None}
             continue
-        out[name] = {"truth": t, "rel_error": (v - t) / t,
-                     "within_2std": bool(sd is not None and abs(v - t) <= 2 * sd)}
+        out[name] = {"truth": t, "rel_error": (v - t) / t, "within_2std": bool(sd is not None and abs(v - t) <= 2 * sd)}
     return out
 
 
@@ -58,8 +57,10 @@ def stage_lines(result: dict) -> list[str]:
             blocker = e.get("main_blocker")
             if e["seconds"] > 0 and not why:
                 blocker = result["supervisor"]["reasons"].get(stage, blocker)
-            lines.append(f"stage {stage}: the drive had {e['seconds']:.1f} of {e['of']:.1f} s of "
-                         f"{_DRIVE_WORDS[int(stage)]}" + (f"; mostly: {blocker}" if blocker else ""))
+            lines.append(
+                f"stage {stage}: the drive had {e['seconds']:.1f} of {e['of']:.1f} s of "
+                f"{_DRIVE_WORDS[int(stage)]}" + (f"; mostly: {blocker}" if blocker else "")
+            )
     return lines
 
 
@@ -83,8 +84,10 @@ def table(report: dict) -> str:
     for name in NAMES:
         p = params[name]
         e = ekf.get(name, {})
-        row = (f"{name:8} {_fmt(p['value']):>10} {_fmt(p['std'], 2):>10} {p['unit']:7} "
-               f"{p['status']:17} {_fmt(e.get('value')):>10}")
+        row = (
+            f"{name:8} {_fmt(p['value']):>10} {_fmt(p['std'], 2):>10} {p['unit']:7} "
+            f"{p['status']:17} {_fmt(e.get('value')):>10}"
+        )
         if cmp_:
             c, ce = cmp_[name], cmp_ekf.get(name, {})
             err = "-" if c["rel_error"] is None else f"{100 * c['rel_error']:+.2f}%"
@@ -109,8 +112,9 @@ def write_json(report: dict, path: str | Path) -> None:
     Path(path).write_text(json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n", encoding="utf-8")
 
 
-def plot(trace, windows, path: str | Path, truth: dict | None = None, title: str = "",
-         params: dict | None = None) -> None:
+def plot(
+    trace, windows, path: str | Path, truth: dict | None = None, title: str = "", params: dict | None = None
+) -> None:
     """Each parameter over time with its +-2 sigma band, UKF and EKF, truth if known.
 
     ``params`` (the result's UKF parameters) labels each panel with its final status.
@@ -135,22 +139,22 @@ def plot(trace, windows, path: str | Path, truth: dict | None = None, title: str
                 ax.plot(t, val, color=color, lw=1.2, label=label)
                 if label == "UKF":
                     ukf_val = val
-                    ax.fill_between(t, val - 2 * sd, val + 2 * sd, color=color, alpha=0.18, lw=0,
-                                    label="UKF ±2σ")
+                    ax.fill_between(t, val - 2 * sd, val + 2 * sd, color=color, alpha=0.18, lw=0, label="UKF ±2σ")
             if truth and truth.get("parameters", {}).get(name) is not None:
                 ax.axhline(truth["parameters"][name], color="k", ls="--", lw=1, label="truth")
             for w in windows:
                 end = w["end"] if w["end"] is not None else t[-1]
-                ax.axvspan(w["start"], end, color="tab:green" if w["stage"] == 1 else "tab:orange",
-                           alpha=0.07, lw=0)
+                ax.axvspan(w["start"], end, color="tab:green" if w["stage"] == 1 else "tab:orange", alpha=0.07, lw=0)
             spec = BY_NAME[name]
             status = (params or {}).get(name, {}).get("status")
-            ax.set_title(f"{name} [{spec.unit}] (stage {spec.stage})" + (f": {status.replace('_', ' ')}"
-                                                                         if status else ""), fontsize=10)
+            ax.set_title(
+                f"{name} [{spec.unit}] (stage {spec.stage})" + (f": {status.replace('_', ' ')}" if status else ""),
+                fontsize=10,
+            )
             # keep the axis on the estimate, not on a wide early band
             finite = ukf_val[np.isfinite(ukf_val)]
             ref = [truth["parameters"][name]] if truth and truth.get("parameters", {}).get(name) else []
-            pool = np.concatenate([finite[len(finite) // 3:], ref]) if len(finite) else np.array(ref)
+            pool = np.concatenate([finite[len(finite) // 3 :], ref]) if len(finite) else np.array(ref)
             if len(pool):
                 lo, hi = float(np.min(pool)), float(np.max(pool))
                 pad = max(0.15 * (hi - lo), 0.05 * abs(hi) + 1e-9)

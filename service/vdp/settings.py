@@ -169,8 +169,10 @@ def validate(s: Settings) -> Settings:
     if s.bus.bitrate is not None:
         _positive(src, "bus", "bitrate", s.bus.bitrate)
     if s.bus.receive_own_messages:
-        raise ConfigError(f"{_where(src, 'bus', 'receive_own_messages')}: must be false; vdp never "
-                          "transmits, so there is nothing of its own to receive")
+        raise ConfigError(
+            f"{_where(src, 'bus', 'receive_own_messages')}: must be false; vdp never "
+            "transmits, so there is nothing of its own to receive"
+        )
     reserved = {"interface", "channel", "bitrate", "receive_own_messages"} & set(s.bus.kwargs)
     if reserved:
         raise ConfigError(f"{_where(src, 'bus.kwargs')}: {sorted(reserved)} belong in [bus] itself")
@@ -178,22 +180,27 @@ def validate(s: Settings) -> Settings:
     if s.raw_log.max_bytes < 4096:
         raise ConfigError(f"{_where(src, 'raw_log', 'max_bytes')}: must be at least 4096, got {s.raw_log.max_bytes}")
     if s.raw_log.max_files < 2:
-        raise ConfigError(f"{_where(src, 'raw_log', 'max_files')}: must be at least 2 (the open file "
-                          f"and one closed one), got {s.raw_log.max_files}")
+        raise ConfigError(
+            f"{_where(src, 'raw_log', 'max_files')}: must be at least 2 (the open file "
+            f"and one closed one), got {s.raw_log.max_files}"
+        )
     if not s.raw_log.prefix or any(c in s.raw_log.prefix for c in "/\\ -"):
         raise ConfigError(f"{_where(src, 'raw_log', 'prefix')}: must be a plain word without '/', ' ' or '-'")
     _positive(src, "store", "commit_interval", s.store.commit_interval)
     _positive(src, "store", "history_max_rows", s.store.history_max_rows)
     if s.store.synchronous not in ("full", "normal"):
-        raise ConfigError(f"{_where(src, 'store', 'synchronous')}: must be 'full' or 'normal', "
-                          f"got {s.store.synchronous!r}")
+        raise ConfigError(
+            f"{_where(src, 'store', 'synchronous')}: must be 'full' or 'normal', got {s.store.synchronous!r}"
+        )
     if not 0 <= s.api.port <= 65535:
         raise ConfigError(f"{_where(src, 'api', 'port')}: must be within 0..65535, got {s.api.port}")
     if not s.api.host:
         raise ConfigError(f"{_where(src, 'api', 'host')}: must not be empty")
     if s.api.reset_token is not None and len(s.api.reset_token) < 16:
-        raise ConfigError(f"{_where(src, 'api', 'reset_token')}: must be at least 16 characters "
-                          "(generate one with: openssl rand -hex 24), or leave it out to disable POST /reset")
+        raise ConfigError(
+            f"{_where(src, 'api', 'reset_token')}: must be at least 16 characters "
+            "(generate one with: openssl rand -hex 24), or leave it out to disable POST /reset"
+        )
     _positive(src, "simulate", "speed", s.simulate.speed, allow_zero=True)
     sv = s.service
     _positive(src, "service", "queue_size", sv.queue_size)
@@ -206,8 +213,14 @@ def validate(s: Settings) -> Settings:
     return s
 
 
-_SECTIONS = {"bus": BusSettings, "raw_log": RawLogSettings, "store": StoreSettings, "api": ApiSettings,
-             "simulate": SimulateSettings, "service": ServiceSettings}
+_SECTIONS = {
+    "bus": BusSettings,
+    "raw_log": RawLogSettings,
+    "store": StoreSettings,
+    "api": ApiSettings,
+    "simulate": SimulateSettings,
+    "service": ServiceSettings,
+}
 _PATHS = {"raw_log": ("dir",), "store": ("path",)}
 
 
@@ -215,16 +228,16 @@ def parse(raw: dict[str, Any], source: str, base: Path) -> Settings:
     """Settings from an already-parsed TOML document."""
     unknown = sorted(set(raw) - set(_SECTIONS) - {"profile"})
     if unknown:
-        raise ConfigError(f"{source}: unknown section(s) or key(s) {unknown}; "
-                          f"allowed: profile, {', '.join(_SECTIONS)}")
+        raise ConfigError(f"{source}: unknown section(s) or key(s) {unknown}; allowed: profile, {', '.join(_SECTIONS)}")
     prof = raw.get("profile")
     if not isinstance(prof, str) or not prof:
         raise ConfigError(f"{source}: 'profile' is missing; set profile = \"path/to/vehicle.toml\" at the top")
     profile = Path(prof)
     if not profile.is_absolute():
         profile = (base / profile).resolve()
-    parts = {name: _table(source, name, cls, raw.get(name), base, _PATHS.get(name, ()))
-             for name, cls in _SECTIONS.items()}
+    parts = {
+        name: _table(source, name, cls, raw.get(name), base, _PATHS.get(name, ())) for name, cls in _SECTIONS.items()
+    }
     return validate(Settings(profile=profile, source=source, **parts))
 
 
@@ -240,10 +253,20 @@ def load_settings(path: str | Path) -> Settings:
     return parse(raw, str(p), p.resolve().parent)
 
 
-def simulate_settings(profile: Path, workdir: Path, scenario: str = "paper", speed: float = 20.0,
-                      db: Path | None = None, host: str = "127.0.0.1", port: int = 8000,
-                      noise: str | None = None, seed: int = 1, loop: bool = False,
-                      reset_token: str | None = None, raw_dir: Path | None = None) -> Settings:
+def simulate_settings(
+    profile: Path,
+    workdir: Path,
+    scenario: str = "paper",
+    speed: float = 20.0,
+    db: Path | None = None,
+    host: str = "127.0.0.1",
+    port: int = 8000,
+    noise: str | None = None,
+    seed: int = 1,
+    loop: bool = False,
+    reset_token: str | None = None,
+    raw_dir: Path | None = None,
+) -> Settings:
     """Settings of ``vdp serve --simulate``: an in-process virtual bus, files under ``workdir``."""
     s = Settings(
         profile=profile,

@@ -55,6 +55,7 @@ def profile_fingerprint(profile) -> str:
 
     Taken from the parsed profile, so comments and key order in the file don't matter.
     """
+
     def chan(cm) -> dict:
         d = asdict(cm)
         for m in (d, d.get("alt")):
@@ -84,8 +85,14 @@ def _num(v: Any) -> float | None:
 class Store:
     """One SQLite file.  ``save`` from one writer thread; ``history``/``load`` from any thread."""
 
-    def __init__(self, path: str | Path, fingerprint: str, profile_name: str = "",
-                 synchronous: str = "full", history_max_rows: int = 2_000_000):
+    def __init__(
+        self,
+        path: str | Path,
+        fingerprint: str,
+        profile_name: str = "",
+        synchronous: str = "full",
+        history_max_rows: int = 2_000_000,
+    ):
         self.path = Path(path)
         self.fingerprint = fingerprint
         self.profile_name = profile_name
@@ -121,8 +128,9 @@ class Store:
             mode = con.execute("PRAGMA journal_mode=WAL").fetchone()[0]
         except sqlite3.DatabaseError as exc:
             con.close()
-            raise StoreError(f"{self.path}: not a vdp store ({exc}); move it away or set [store] path "
-                             "to a new file") from None
+            raise StoreError(
+                f"{self.path}: not a vdp store ({exc}); move it away or set [store] path to a new file"
+            ) from None
         if str(mode).lower() != "wal":
             con.close()
             raise StoreError(f"{self.path}: cannot use WAL mode (got {mode}); is it on a network file system?")
@@ -137,8 +145,12 @@ class Store:
             try:
                 for stmt in filter(None, (s.strip() for s in _SCHEMA.split(";"))):
                     con.execute(stmt)
-                meta = {"schema_version": str(SCHEMA_VERSION), "profile_fingerprint": self.fingerprint,
-                        "profile_name": self.profile_name, "created": f"{time.time():.3f}"}
+                meta = {
+                    "schema_version": str(SCHEMA_VERSION),
+                    "profile_fingerprint": self.fingerprint,
+                    "profile_name": self.profile_name,
+                    "created": f"{time.time():.3f}",
+                }
                 con.executemany("INSERT INTO meta VALUES (?, ?)", meta.items())
                 con.execute(f"PRAGMA application_id={_APP_ID}")
                 con.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
@@ -149,29 +161,48 @@ class Store:
             log.info("created estimate store %s for profile %s", self.path, self.profile_name or "?")
             return
         if app_id != _APP_ID or "meta" not in tables:
-            raise StoreError(f"{self.path}: is an SQLite file but not a vdp estimate store; "
-                             "move it away or set [store] path to a new file")
+            raise StoreError(
+                f"{self.path}: is an SQLite file but not a vdp estimate store; "
+                "move it away or set [store] path to a new file"
+            )
         meta = dict(con.execute("SELECT key, value FROM meta").fetchall())
         version = meta.get("schema_version")
         if version != str(SCHEMA_VERSION):
-            raise StoreError(f"{self.path}: written with store schema {version}, this vdp uses "
-                             f"{SCHEMA_VERSION}; the stored estimates are not loaded. Move the file away "
-                             "(keep it if you want its history) or set [store] path to a new file")
+            raise StoreError(
+                f"{self.path}: written with store schema {version}, this vdp uses "
+                f"{SCHEMA_VERSION}; the stored estimates are not loaded. Move the file away "
+                "(keep it if you want its history) or set [store] path to a new file"
+            )
         fp = meta.get("profile_fingerprint")
         if fp != self.fingerprint:
-            raise StoreError(f"{self.path}: holds estimates of another vehicle profile "
-                             f"('{meta.get('profile_name', '?')}', fingerprint {str(fp)[:12]}; this profile "
-                             f"'{self.profile_name}' is {self.fingerprint[:12]}); they are not loaded. Move "
-                             "the file away or set [store] path to a new file for this profile")
+            raise StoreError(
+                f"{self.path}: holds estimates of another vehicle profile "
+                f"('{meta.get('profile_name', '?')}', fingerprint {str(fp)[:12]}; this profile "
+                f"'{self.profile_name}' is {self.fingerprint[:12]}); they are not loaded. Move "
+                "the file away or set [store] path to a new file for this profile"
+            )
 
     # -- use ------------------------------------------------------------------------------
     def load(self) -> dict[str, dict]:
         """The last committed estimates: name -> {value, std, unit, valid, stage, status, samples, t}."""
         with self._rlock:
-            rows = self._r.execute("SELECT name, value, std, unit, valid, stage, status, samples, t, bus_t "
-                                   "FROM estimates").fetchall()
-        return {r[0]: {"value": r[1], "std": r[2], "unit": r[3], "valid": bool(r[4]), "stage": r[5],
-                       "status": r[6], "samples": r[7], "t": r[8], "bus_t": r[9]} for r in rows}
+            rows = self._r.execute(
+                "SELECT name, value, std, unit, valid, stage, status, samples, t, bus_t FROM estimates"
+            ).fetchall()
+        return {
+            r[0]: {
+                "value": r[1],
+                "std": r[2],
+                "unit": r[3],
+                "valid": bool(r[4]),
+                "stage": r[5],
+                "status": r[6],
+                "samples": r[7],
+                "t": r[8],
+                "bus_t": r[9],
+            }
+            for r in rows
+        }
 
     def save(self, parameters: dict[str, dict], t: float | None = None, bus_t: float | None = None) -> int:
         """Commit one batch: the current rows, and history rows for what changed.  Returns those."""
@@ -181,8 +212,18 @@ class Store:
             value, std = _num(p.get("value")), _num(p.get("std"))
             valid = 1 if p.get("valid") and value is not None else 0
             status = str(p.get("status", ""))
-            row = (name, value, std, str(p.get("unit", "")), valid, int(p.get("stage") or 0), status,
-                   int(p.get("samples") or 0), t, _num(bus_t))
+            row = (
+                name,
+                value,
+                std,
+                str(p.get("unit", "")),
+                valid,
+                int(p.get("stage") or 0),
+                status,
+                int(p.get("samples") or 0),
+                t,
+                _num(bus_t),
+            )
             cur.append(row)
             key = (value, std, valid, status)
             seen[name] = key
@@ -194,8 +235,11 @@ class Store:
                 con.execute("BEGIN IMMEDIATE")
                 con.executemany("INSERT OR REPLACE INTO estimates VALUES (?,?,?,?,?,?,?,?,?,?)", cur)
                 if hist:
-                    con.executemany("INSERT INTO history (t, bus_t, name, value, std, valid, stage, status, "
-                                    "samples) VALUES (?,?,?,?,?,?,?,?,?)", hist)
+                    con.executemany(
+                        "INSERT INTO history (t, bus_t, name, value, std, valid, stage, status, "
+                        "samples) VALUES (?,?,?,?,?,?,?,?,?)",
+                        hist,
+                    )
                 self._saves += 1
                 if self._saves % 600 == 0:
                     self._prune()
@@ -218,8 +262,14 @@ class Store:
             if n:
                 log.info("pruned %d old history rows from %s", n, self.path)
 
-    def history(self, parameter: str | None = None, since: float | None = None, until: float | None = None,
-                limit: int = 100, offset: int = 0) -> tuple[list[dict], int]:
+    def history(
+        self,
+        parameter: str | None = None,
+        since: float | None = None,
+        until: float | None = None,
+        limit: int = 100,
+        offset: int = 0,
+    ) -> tuple[list[dict], int]:
         """Rows oldest first, and how many match in all (for paging)."""
         where, args = [], []
         if parameter is not None:
@@ -234,11 +284,26 @@ class Store:
         cond = (" WHERE " + " AND ".join(where)) if where else ""
         with self._rlock:
             total = self._r.execute(f"SELECT count(*) FROM history{cond}", args).fetchone()[0]
-            rows = self._r.execute(f"SELECT id, t, bus_t, name, value, std, valid, stage, status, samples "
-                                   f"FROM history{cond} ORDER BY id LIMIT ? OFFSET ?",
-                                   [*args, limit, offset]).fetchall()
-        items = [{"id": r[0], "t": r[1], "bus_t": r[2], "parameter": r[3], "value": r[4], "std": r[5],
-                  "valid": bool(r[6]), "stage": r[7], "status": r[8], "samples": r[9]} for r in rows]
+            rows = self._r.execute(
+                f"SELECT id, t, bus_t, name, value, std, valid, stage, status, samples "
+                f"FROM history{cond} ORDER BY id LIMIT ? OFFSET ?",
+                [*args, limit, offset],
+            ).fetchall()
+        items = [
+            {
+                "id": r[0],
+                "t": r[1],
+                "bus_t": r[2],
+                "parameter": r[3],
+                "value": r[4],
+                "std": r[5],
+                "valid": bool(r[6]),
+                "stage": r[7],
+                "status": r[8],
+                "samples": r[9],
+            }
+            for r in rows
+        ]
         return items, total
 
     def integrity(self) -> str:

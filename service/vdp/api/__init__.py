@@ -2,4 +2,4 @@
 
 from .app import check_host, create_app
 
-__all__ = ["create_app", "check_host"]
+__all__ = ["check_host", "create_app"]

@@ -35,8 +35,11 @@ Parameter = Literal[NAMES]  # type: ignore[valid-type]
 def check_host(host: str) -> None:
     """Serving beyond this machine is allowed, but only on purpose."""
     if host not in LOOPBACK:
-        log.warning("the API listens on %s, not only on this machine: anyone who can reach it can read "
-                    "the estimates. Keep [api] reset_token secret, and firewall the port.", host)
+        log.warning(
+            "the API listens on %s, not only on this machine: anyone who can reach it can read "
+            "the estimates. Keep [api] reset_token secret, and firewall the port.",
+            host,
+        )
 
 
 def _service(request: Request):
@@ -49,8 +52,7 @@ def _service(request: Request):
 _bearer = HTTPBearer(auto_error=False, description="the [api] reset_token of the config")
 
 
-def _authorize(request: Request,
-               cred: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]) -> None:
+def _authorize(request: Request, cred: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)]) -> None:
     token = request.app.state.settings.api.reset_token
     if not token:
         raise HTTPException(403, "POST /reset is disabled: no [api] reset_token is configured")
@@ -131,6 +133,9 @@ class _Metrics:
         yield valid
 
 
+Svc = Annotated[Any, Depends(_service)]
+
+
 def create_app(settings: Settings, service=None) -> FastAPI:
     """The API.  Without ``service`` the app makes one from ``settings`` and runs it in its lifespan."""
     owned = service is None
@@ -150,9 +155,13 @@ def create_app(settings: Settings, service=None) -> FastAPI:
                 app.state.service.stop()
                 app.state.service = None
 
-    app = FastAPI(title="vdp", version=__version__, lifespan=lifespan,
-                  description="Vehicle dynamic parameters estimated live from the CAN bus "
-                              "(two-stage UKF, Li et al. 2021). Unknown numbers are null with valid false.")
+    app = FastAPI(
+        title="vdp",
+        version=__version__,
+        lifespan=lifespan,
+        description="Vehicle dynamic parameters estimated live from the CAN bus "
+        "(two-stage UKF, Li et al. 2021). Unknown numbers are null with valid false.",
+    )
     app.state.settings = settings
     app.state.service = service
     registry = CollectorRegistry(auto_describe=False)  # per app: two apps in one process never clash
@@ -169,40 +178,54 @@ def create_app(settings: Settings, service=None) -> FastAPI:
         return JSONResponse({"detail": str(exc)}, status_code=code)
 
     @app.get("/health", response_model=models.Health, summary="ok, or degraded with the reasons")
-    def health(svc=Depends(_service)) -> Any:
+    def health(svc: Svc) -> Any:
         return svc.health()
 
     @app.get("/estimates", response_model=models.Estimates, summary="current estimates (UKF and EKF baseline)")
-    def estimates(svc=Depends(_service)) -> Any:
+    def estimates(svc: Svc) -> Any:
         return svc.estimates()
 
-    @app.get("/estimates/history", response_model=models.History, responses={400: err, 503: err},
-             summary="committed estimates over time, oldest first, paged")
-    def history(svc=Depends(_service),
-                parameter: Annotated[Parameter | None, Query(description="one parameter, or all")] = None,
-                since: Annotated[float | None, Query(description="unix time [s], inclusive",
-                                                     allow_inf_nan=False)] = None,
-                until: Annotated[float | None, Query(description="unix time [s], exclusive",
-                                                     allow_inf_nan=False)] = None,
-                limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-                offset: Annotated[int, Query(ge=0, le=2 ** 53)] = 0) -> Any:
+    @app.get(
+        "/estimates/history",
+        response_model=models.History,
+        responses={400: err, 503: err},
+        summary="committed estimates over time, oldest first, paged",
+    )
+    def history(
+        svc: Svc,
+        parameter: Annotated[Parameter | None, Query(description="one parameter, or all")] = None,
+        since: Annotated[float | None, Query(description="unix time [s], inclusive", allow_inf_nan=False)] = None,
+        until: Annotated[float | None, Query(description="unix time [s], exclusive", allow_inf_nan=False)] = None,
+        limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+        offset: Annotated[int, Query(ge=0, le=2**53)] = 0,
+    ) -> Any:
         return svc.history(parameter, since, until, limit, offset)
 
     @app.get("/status", response_model=models.Status, summary="bus, decoding, channels, gating, logs, store")
-    def status(svc=Depends(_service)) -> Any:
+    def status(svc: Svc) -> Any:
         return svc.status()
 
-    @app.post("/reset", response_model=models.ResetResult, dependencies=[Depends(_authorize)],
-              responses={400: err, 401: err, 403: err, 503: err},
-              summary="clear stage 1, 2 or all (bearer token; disabled without one)")
-    def reset(svc=Depends(_service),
-              stage: Annotated[Literal["1", "2", "all"] | None, Query(description="1, 2 or all")] = None,
-              body: Annotated[models.ResetBody | None, Body()] = None) -> Any:
+    @app.post(
+        "/reset",
+        response_model=models.ResetResult,
+        dependencies=[Depends(_authorize)],
+        responses={400: err, 401: err, 403: err, 503: err},
+        summary="clear stage 1, 2 or all (bearer token; disabled without one)",
+    )
+    def reset(
+        svc: Svc,
+        stage: Annotated[Literal["1", "2", "all"] | None, Query(description="1, 2 or all")] = None,
+        body: Annotated[models.ResetBody | None, Body()] = None,
+    ) -> Any:
         which = stage if stage is not None else (str(body.stage) if body is not None else "all")
         return svc.reset(None if which == "all" else int(which))
 
-    @app.get("/metrics", response_class=PlainTextResponse, summary="Prometheus text format",
-             responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}})
+    @app.get(
+        "/metrics",
+        response_class=PlainTextResponse,
+        summary="Prometheus text format",
+        responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}},
+    )
     def metrics() -> PlainTextResponse:
         return PlainTextResponse(generate_latest(registry), media_type=CONTENT_TYPE_LATEST)
 

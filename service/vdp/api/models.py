@@ -39,8 +39,9 @@ class Estimates(_Model):
     baseline_ekf: dict[str, Estimate] | None = Field(None, description="the EKF baseline, same shape")
     stage: str = Field(description="stage1, stage2 or done")
     supervisor: Supervisor
-    capabilities: dict[str, str | None] = Field(default_factory=dict,
-                                                description="per stage: null if it can run, else why not")
+    capabilities: dict[str, str | None] = Field(
+        default_factory=dict, description="per stage: null if it can run, else why not"
+    )
     resets: dict[str, int] = Field(default_factory=dict, description="divergence resets per filter kind")
     restored: bool = Field(False, description="the estimator started from the stored estimates")
     bus_time: float | None = Field(None, description="timestamp of the newest frame estimated [s]")
@@ -98,7 +99,7 @@ class ResetBody(BaseModel):
     @classmethod
     def _not_bool(cls, v: Any) -> Any:
         if isinstance(v, bool):  # JSON true is not stage 1 (pydantic would take it as 1)
-            raise ValueError("stage must be 1, 2 or \"all\", not a boolean")
+            raise ValueError('stage must be 1, 2 or "all", not a boolean')
         return v
 
 

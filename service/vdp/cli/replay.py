@@ -1,6 +1,6 @@
 """vdp replay: a drive's CAN log in, the six parameters with their uncertainty out.
 
-    vdp replay drive.log --profile profiles/paper.toml --json out.json --plot out.png [--truth drive.truth.json]
+vdp replay drive.log --profile profiles/paper.toml --json out.json --plot out.png [--truth drive.truth.json]
 """
 
 from __future__ import annotations
@@ -13,12 +13,14 @@ from ..errors import ConfigError
 
 
 def add_parser(sub):
-    p = sub.add_parser("replay", help="estimate the parameters from a recorded CAN log",
-                       description="Replay a CAN log (.log candump, .asc, .blf, .trc, .csv, .mf4; "
-                                   "gzipped or not) through the estimation pipeline.")
+    p = sub.add_parser(
+        "replay",
+        help="estimate the parameters from a recorded CAN log",
+        description="Replay a CAN log (.log candump, .asc, .blf, .trc, .csv, .mf4; "
+        "gzipped or not) through the estimation pipeline.",
+    )
     p.add_argument("log", help="the CAN log file")
-    p.add_argument("--profile", default=None,
-                   help="vehicle profile TOML (default: profiles/paper.toml)")
+    p.add_argument("--profile", default=None, help="vehicle profile TOML (default: profiles/paper.toml)")
     p.add_argument("--json", dest="json_out", metavar="PATH", help="write the full result as JSON")
     p.add_argument("--plot", metavar="PATH", help="write a PNG of each parameter over time")
     p.add_argument("--truth", metavar="PATH", help="a .truth.json from vdp simulate, to compare against")
@@ -82,8 +84,10 @@ def run(args) -> int:
     result = replay(source, pipeline, truth=truth, progress=progress.update)
     progress.close()
 
-    print(f"{args.log}: {result['log']['frames']} frames, {result['log'].get('duration_s', 0):.1f} s of bus time, "
-          f"replayed in {result['log']['wall_s']:.1f} s ({result['log']['realtime_factor']:.0f}x real time)")
+    print(
+        f"{args.log}: {result['log']['frames']} frames, {result['log'].get('duration_s', 0):.1f} s of bus time, "
+        f"replayed in {result['log']['wall_s']:.1f} s ({result['log']['realtime_factor']:.0f}x real time)"
+    )
     for line in report.stage_lines(result):
         print(line)
     print(report.table(result))
@@ -94,7 +98,13 @@ def run(args) -> int:
         report.write_json(result, args.json_out)
         print(f"wrote {args.json_out}")
     if args.plot:
-        report.plot(pipeline.estimator.trace, result["windows"], args.plot, truth,
-                    title=f"{Path(args.log).name}: {profile.vehicle.name}", params=result["parameters"])
+        report.plot(
+            pipeline.estimator.trace,
+            result["windows"],
+            args.plot,
+            truth,
+            title=f"{Path(args.log).name}: {profile.vehicle.name}",
+            params=result["parameters"],
+        )
         print(f"wrote {args.plot}")
     return 0

@@ -1,7 +1,7 @@
 """vdp serve: the live service (bus -> raw logs, estimates, SQLite, REST API).
 
-    vdp serve --config deploy/vdp.toml                       # in the car
-    vdp serve --simulate [--scenario paper] [--sim-speed 20] # no hardware: simulator on a virtual bus
+vdp serve --config deploy/vdp.toml                       # in the car
+vdp serve --simulate [--scenario paper] [--sim-speed 20] # no hardware: simulator on a virtual bus
 """
 
 from __future__ import annotations
@@ -21,15 +21,22 @@ SIM_DIR = Path("out/serve")  # --simulate keeps its database and raw logs here b
 
 
 def add_parser(sub):
-    p = sub.add_parser("serve", help="run the live service: read the bus, log, estimate, serve HTTP",
-                       description="Read a CAN bus (or, with --simulate, the simulator on an in-process "
-                                   "virtual bus), keep the raw frames on disk, estimate the parameters as "
-                                   "the car drives, save them to SQLite and answer over HTTP.")
+    p = sub.add_parser(
+        "serve",
+        help="run the live service: read the bus, log, estimate, serve HTTP",
+        description="Read a CAN bus (or, with --simulate, the simulator on an in-process "
+        "virtual bus), keep the raw frames on disk, estimate the parameters as "
+        "the car drives, save them to SQLite and answer over HTTP.",
+    )
     p.add_argument("--config", type=Path, help="service config TOML (example: deploy/vdp.toml)")
     p.add_argument("--simulate", action="store_true", help="no hardware: run the simulator onto a virtual bus")
     p.add_argument("--scenario", default="paper", help="--simulate: the scenario (default: paper)")
-    p.add_argument("--sim-speed", type=float, default=20.0,
-                   help="--simulate: multiple of real time; 0 = as fast as estimation keeps up (default 20)")
+    p.add_argument(
+        "--sim-speed",
+        type=float,
+        default=20.0,
+        help="--simulate: multiple of real time; 0 = as fast as estimation keeps up (default 20)",
+    )
     p.add_argument("--noise", help="--simulate: sensor noise model (default: the simulator's)")
     p.add_argument("--seed", type=int, default=1, help="--simulate: random seed (default 1)")
     p.add_argument("--loop", action="store_true", help="--simulate: drive the scenario again and again")
@@ -51,10 +58,19 @@ def _settings(args):
 
         token = os.environ.get("VDP_RESET_TOKEN") or None
         return st.simulate_settings(
-            profile=resolve_profile(args.profile).resolve(), workdir=SIM_DIR, scenario=args.scenario,
-            speed=args.sim_speed, db=args.db, host=args.host or "127.0.0.1",
-            port=8000 if args.port is None else args.port, noise=args.noise, seed=args.seed, loop=args.loop,
-            reset_token=token, raw_dir=args.raw_dir)
+            profile=resolve_profile(args.profile).resolve(),
+            workdir=SIM_DIR,
+            scenario=args.scenario,
+            speed=args.sim_speed,
+            db=args.db,
+            host=args.host or "127.0.0.1",
+            port=8000 if args.port is None else args.port,
+            noise=args.noise,
+            seed=args.seed,
+            loop=args.loop,
+            reset_token=token,
+            raw_dir=args.raw_dir,
+        )
     for flag in ("profile", "raw_dir", "noise"):
         if getattr(args, flag):
             raise ConfigError(f"--{flag.replace('_', '-')} is for --simulate; with --config set it in the file")
@@ -119,18 +135,34 @@ def run(args) -> int:
     try:
         service.start()
         verbose = logging.getLogger().level <= logging.INFO
-        config = uvicorn.Config(create_app(settings, service), log_level="info" if verbose else "warning",
-                                access_log=verbose, lifespan="on", timeout_graceful_shutdown=5)
+        config = uvicorn.Config(
+            create_app(settings, service),
+            log_level="info" if verbose else "warning",
+            access_log=verbose,
+            lifespan="on",
+            timeout_graceful_shutdown=5,
+        )
         terminate.server = server = uvicorn.Server(config)
         host, port = sock.getsockname()[:2]
         url = f"http://{'[' + host + ']' if ':' in host else host}:{port}"
-        what = (f"simulating '{settings.simulate.scenario}' at {settings.simulate.speed:g}x on a virtual bus"
-                if settings.simulate.enabled else f"reading {settings.bus.interface} '{settings.bus.channel}'")
-        print(f"vdp serve: {what}; estimates at {url}/estimates, health {url}/health, "
-              f"status {url}/status, API docs {url}/docs", file=sys.stderr, flush=True)
+        what = (
+            f"simulating '{settings.simulate.scenario}' at {settings.simulate.speed:g}x on a virtual bus"
+            if settings.simulate.enabled
+            else f"reading {settings.bus.interface} '{settings.bus.channel}'"
+        )
+        print(
+            f"vdp serve: {what}; estimates at {url}/estimates, health {url}/health, "
+            f"status {url}/status, API docs {url}/docs",
+            file=sys.stderr,
+            flush=True,
+        )
         if service.restored:
-            print(f"vdp serve: carried on from the estimates saved in {settings.store.path} "
-                  f"(delete it, or pass --db NEW, to start from the priors)", file=sys.stderr, flush=True)
+            print(
+                f"vdp serve: carried on from the estimates saved in {settings.store.path} "
+                f"(delete it, or pass --db NEW, to start from the priors)",
+                file=sys.stderr,
+                flush=True,
+            )
         if service.store_state == "refused":
             print(f"vdp serve: not using the stored estimates: {service.store_error}", file=sys.stderr, flush=True)
         if settings.raw_log.enabled:

@@ -26,27 +26,44 @@ def _param(text: str) -> tuple[str, float]:
 def add_parser(sub) -> argparse.ArgumentParser:
     from ..sim.scenario import SCENARIOS
     from ..sim.sensors import NOISE_MODELS
-    p = sub.add_parser("simulate", help="simulate a drive and write a CAN log or feed a bus",
-                       description="Simulate the paper's vehicle (truth: Table 6) driving a scenario; "
-                                   "write a CAN log and <name>.truth.json beside it, or send live onto a bus.")
+
+    p = sub.add_parser(
+        "simulate",
+        help="simulate a drive and write a CAN log or feed a bus",
+        description="Simulate the paper's vehicle (truth: Table 6) driving a scenario; "
+        "write a CAN log and <name>.truth.json beside it, or send live onto a bus.",
+    )
     p.add_argument("--scenario", choices=sorted(SCENARIOS), default="paper", help="manoeuvre (default: paper)")
     p.add_argument("--seed", type=int, default=0, help="random seed; the same seed gives the same bytes")
     p.add_argument("--noise", choices=NOISE_MODELS, default="realistic", help="sensor noise model")
-    p.add_argument("--out", type=Path, help="log file; the suffix picks the format "
-                   "(.log candump, .log.gz, .asc, .blf, .trc, .csv, ...)")
+    p.add_argument(
+        "--out",
+        type=Path,
+        help="log file; the suffix picks the format (.log candump, .log.gz, .asc, .blf, .trc, .csv, ...)",
+    )
     p.add_argument("--truth", type=Path, help="truth JSON path (default: <out stem>.truth.json)")
     p.add_argument("--profile", help="vehicle profile TOML (default: profiles/paper.toml)")
     p.add_argument("--dbc", help="use this DBC instead of the profile's")
-    p.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE",
-                   help="override a true parameter (l_f, h, C_K, C_alpha, I_z, I_x); repeatable")
+    p.add_argument(
+        "--param",
+        type=_param,
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="override a true parameter (l_f, h, C_K, C_alpha, I_z, I_x); repeatable",
+    )
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--drop-rate", type=float, default=0.0, help="drop each frame with this probability")
     p.add_argument("--extra-ids", type=int, default=0, help="number of unrelated filler IDs (benchmarks)")
     p.add_argument("--extra-rate", type=float, default=100.0, help="frames per second of each filler ID")
     p.add_argument("--bus-interface", help="send live with python-can: virtual, udp_multicast, socketcan, ...")
     p.add_argument("--bus-channel", help="bus channel (default depends on the interface)")
-    p.add_argument("--sim-speed", type=float, default=1.0,
-                   help="live speed as a multiple of real time; 0 = as fast as possible (default 1)")
+    p.add_argument(
+        "--sim-speed",
+        type=float,
+        default=1.0,
+        help="live speed as a multiple of real time; 0 = as fast as possible (default 1)",
+    )
     return p
 
 
@@ -61,19 +78,30 @@ def _progress():
             last[0] = now
             end = "\n" if t >= total else ""
             print(f"\rsimulated {t:6.1f} / {total:.1f} s", end=end, file=sys.stderr, flush=True)
+
     return show
 
 
 def run(args: argparse.Namespace) -> int:
     from ..sim import run as simrun
+
     if args.out is None and args.bus_interface is None:
         raise ConfigError("give --out FILE and/or --bus-interface NAME")
     if args.sim_speed < 0:
         raise ConfigError("--sim-speed must be >= 0")
     params = dict(args.param)
-    sim = simrun.Simulation(args.profile, args.scenario, args.seed, args.noise, params=params or None,
-                            dbc=args.dbc, drop_rate=args.drop_rate, extra_ids=args.extra_ids,
-                            extra_rate=args.extra_rate, duration=args.duration)
+    sim = simrun.Simulation(
+        args.profile,
+        args.scenario,
+        args.seed,
+        args.noise,
+        params=params or None,
+        dbc=args.dbc,
+        drop_rate=args.drop_rate,
+        extra_ids=args.extra_ids,
+        extra_rate=args.extra_rate,
+        duration=args.duration,
+    )
     t0 = time.perf_counter()
     frames = sim.frames(progress=_progress())
     bus = None
@@ -102,4 +130,3 @@ def run(args: argparse.Namespace) -> int:
     live = f" (sent on {args.bus_interface})" if bus is not None else ""
     print(f"simulated {sim.scenario.name}: {sim.duration:.1f} s, {count} frames in {wall:.1f} s{live}{where}")
     return 0
-

@@ -9,16 +9,14 @@ takes stage 1's l_f, h, C_K of the same filter kind as known constants.
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 from dataclasses import dataclass, field, replace
-
-import math
 
 import numpy as np
 
 from .. import channels as ch
 from .learner import LearnerConfig, Stage1, Stage2
-from .params import NAMES
 from .speed import SpeedConfig, SpeedFilter
 from .supervisor import GateConfig, Supervisor
 
@@ -55,8 +53,13 @@ class GyroBias:
     def update(self, s, gate: GateConfig) -> None:
         y = s.vals if s.vals is not None else s.values.tolist()
         d, yaw, roll = y[ch.DELTA], y[ch.YAW], y[ch.ROLL]
-        if (math.isfinite(d) and math.isfinite(yaw) and math.isfinite(roll)
-                and abs(d) < gate.delta_max_1 and abs(yaw) < gate.yaw_max_1):
+        if (
+            math.isfinite(d)
+            and math.isfinite(yaw)
+            and math.isfinite(roll)
+            and abs(d) < gate.delta_max_1
+            and abs(yaw) < gate.yaw_max_1
+        ):
             # plain mean for the first samples, then an exponential one
             dt = 0.01 if self.t is None else min(max(s.t - self.t, 0.0), 0.1)
             k = max(dt / self.tau, 1.0 / (self.n + 1))

@@ -19,11 +19,10 @@ P - K Pxz^T - Pxz K^T + K S K^T (with an optimal gain it reduces to P - K S K^T)
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
-from filterpy.kalman import unscented_transform
+from filterpy.kalman import ExtendedKalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
 from scipy.linalg import LinAlgError
 
 from ..errors import FilterError
@@ -46,7 +45,7 @@ class _PaperPoints(MerweScaledSigmaPoints):
 
     def sigma_points(self, x, P):
         n = self.n
-        U = self.sqrt((self.alpha ** 2 * (n + self.kappa)) * P)  # lambda + n = alpha^2 (n + kappa)
+        U = self.sqrt((self.alpha**2 * (n + self.kappa)) * P)  # lambda + n = alpha^2 (n + kappa)
         return np.concatenate((x[None, :], x + U, x - U))
 
 

@@ -136,8 +136,17 @@ def _unpack(x):
     if np.ndim(x) == 1:
         v_y, yaw, phi, phi_d, c_a, i_z, i_x, l_f = np.asarray(x, dtype=float).tolist()
         return v_y, yaw, phi, phi_d, max(c_a, _FLOOR[0]), max(i_z, _FLOOR[1]), max(i_x, _FLOOR[2]), l_f, max
-    return (x[..., V_Y], x[..., YAW], x[..., PHI], x[..., PHI_D], np.maximum(x[..., C_A], _FLOOR[0]),
-            np.maximum(x[..., I_Z], _FLOOR[1]), np.maximum(x[..., I_X], _FLOOR[2]), x[..., L_F], np.maximum)
+    return (
+        x[..., V_Y],
+        x[..., YAW],
+        x[..., PHI],
+        x[..., PHI_D],
+        np.maximum(x[..., C_A], _FLOOR[0]),
+        np.maximum(x[..., I_Z], _FLOOR[1]),
+        np.maximum(x[..., I_X], _FLOOR[2]),
+        x[..., L_F],
+        np.maximum,
+    )
 
 
 def quasi_static_roll(a_y: float, phi_dot: float, k: Known) -> float:
@@ -225,8 +234,7 @@ def _roll_map(i_x, h: float, k: Known):
     # T = S^n by squaring (n a power of two)
     t11, t12, t21, t22 = s11, s12, s21, s22
     for _ in range(n.bit_length() - 1):
-        t11, t12, t21, t22 = (t11 * t11 + t12 * t21, t12 * (t11 + t22),
-                              t21 * (t11 + t22), t21 * t12 + t22 * t22)
+        t11, t12, t21, t22 = (t11 * t11 + t12 * t21, t12 * (t11 + t22), t21 * (t11 + t22), t21 * t12 + t22 * t22)
     return (t11, t12, t21, t22), (p1, p2), (q1, q2)
 
 
@@ -250,15 +258,15 @@ def fx(x, dt, u, k: Known, substeps: int | None = None):
     start = _rates(v_y, yaw, c_a, i_z, pres[0], geo, k, clamp)
     for i in range(substeps):
         vy_d, yaw_d, a0 = start[0], start[1], start[2]
-        vy_d1, yaw_d1, _, _, _ = _rates(v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_a, i_z, pres[2 * i + 1], geo,
-                                        k, clamp)
+        vy_d1, yaw_d1, _, _, _ = _rates(
+            v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_a, i_z, pres[2 * i + 1], geo, k, clamp
+        )
         v_y = v_y + h * vy_d1
         yaw = yaw + h * yaw_d1
         start = _rates(v_y, yaw, c_a, i_z, pres[2 * i + 2], geo, k, clamp)
         a1 = start[2]
         # the roll does not act back on v_y and yaw (a_y has no phi term), so it follows
-        phi, phi_d = (t11 * phi + t12 * phi_d + p1 * a0 + q1 * a1,
-                      t21 * phi + t22 * phi_d + p2 * a0 + q2 * a1)
+        phi, phi_d = (t11 * phi + t12 * phi_d + p1 * a0 + q1 * a1, t21 * phi + t22 * phi_d + p2 * a0 + q2 * a1)
     x[..., V_Y], x[..., YAW], x[..., PHI], x[..., PHI_D] = v_y, yaw, phi, phi_d
     return x
 

@@ -94,8 +94,15 @@ class Estimate:
     status: str  # not_run | uncertain | converged | not_identifiable | invalid
 
     def as_dict(self) -> dict:
-        return {"value": self.value, "std": self.std, "unit": self.unit, "valid": self.valid,
-                "stage": self.stage, "samples": self.samples, "status": self.status}
+        return {
+            "value": self.value,
+            "std": self.std,
+            "unit": self.unit,
+            "valid": self.valid,
+            "stage": self.stage,
+            "samples": self.samples,
+            "status": self.status,
+        }
 
 
 def _finite(v) -> float | None:
@@ -178,8 +185,9 @@ class StageLearner:
                 status = "not_identifiable"
             else:
                 status = "uncertain"
-            out[name] = Estimate(name, _finite(value), _finite(std), spec.unit, status == "converged",
-                                 self.stage, self.samples, status)
+            out[name] = Estimate(
+                name, _finite(value), _finite(std), spec.unit, status == "converged", self.stage, self.samples, status
+            )
         return out
 
     def values(self) -> tuple:
@@ -343,15 +351,24 @@ class Stage2(StageLearner):
         """Stage 1's results.  ``l_f_std`` is considered (lateral.CONSIDER): stage 2 is
         sensitive to l_f, and its stds would otherwise take stage 1's l_f as exact."""
         v = self.vehicle
-        self.known = lateral.Known(m=v.mass, L=v.wheelbase, r=v.wheel_radius, k_phi=v.roll_stiffness,
-                                   c_phi=v.roll_damping, l_f=l_f, h=h, C_K=c_k, g=v.g)
+        self.known = lateral.Known(
+            m=v.mass,
+            L=v.wheelbase,
+            r=v.wheel_radius,
+            k_phi=v.roll_stiffness,
+            c_phi=v.roll_damping,
+            l_f=l_f,
+            h=h,
+            C_K=c_k,
+            g=v.g,
+        )
         ok = l_f_std is not None and math.isfinite(l_f_std) and l_f_std > 0
         self.l_f_std = max(l_f_std, L_F_STD_MIN) if ok else self.priors["l_f"].std
 
     def _initial_cov(self) -> np.ndarray:
         """Dynamic states, the parameters as kept, l_f as stage 1 gives it, and their correlation."""
         P0 = np.zeros((self._n, self._n))
-        P0[:4, :4] = np.diag([0.5 ** 2, 0.02 ** 2, 0.01 ** 2, 0.02 ** 2])
+        P0[:4, :4] = np.diag([0.5**2, 0.02**2, 0.01**2, 0.02**2])
         P0[self._p, self._p] = self.theta_P
         sd, c = self.l_f_std, lateral.L_F
         P0[c, c] = sd * sd

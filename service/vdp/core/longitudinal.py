@@ -77,8 +77,7 @@ def tyre_forces(u, k: Known):
     samples); front and rear differ while their slips change, and stage 1 reads
     l_f and h from that front/rear difference, so a_x / r is not close enough.
     """
-    return ((u[..., U_TF] - k.J * u[..., U_WDF]) / k.r,
-            (u[..., U_TR] - k.J * u[..., U_WDR]) / k.r)
+    return ((u[..., U_TF] - k.J * u[..., U_WDF]) / k.r, (u[..., U_TR] - k.J * u[..., U_WDR]) / k.r)
 
 
 def slips(x, u, k: Known):

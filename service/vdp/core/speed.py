@@ -25,7 +25,7 @@ class SpeedFilter:
     def __init__(self, cfg: SpeedConfig | None = None):
         self.cfg = cfg or SpeedConfig()
         self.bias = 0.0
-        self.p_bb = 0.05 ** 2
+        self.p_bb = 0.05**2
         self.reset()
 
     def reset(self) -> None:
@@ -58,16 +58,16 @@ class SpeedFilter:
             p_vv = self.p_vv - 2 * dt * self.p_vb + dt * dt * self.p_bb + (c.accel_noise * dt) ** 2
             p_vb = self.p_vb - dt * self.p_bb
             self.p_vv, self.p_vb = p_vv, p_vb
-            self.p_bb += c.bias_walk ** 2 * dt
+            self.p_bb += c.bias_walk**2 * dt
             self.t = t
         self.a_prev = a_x
         if gnss is None or not math.isfinite(gnss):
             return
         if not self.ready:
-            self.v, self.p_vv, self.p_vb = gnss, c.gnss_noise ** 2, 0.0
+            self.v, self.p_vv, self.p_vb = gnss, c.gnss_noise**2, 0.0
             self.t = t
             return
-        s = self.p_vv + c.gnss_noise ** 2
+        s = self.p_vv + c.gnss_noise**2
         k_v, k_b = self.p_vv / s, self.p_vb / s
         e = gnss - self.v
         self.v += k_v * e

@@ -21,10 +21,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from .. import channels as ch
-
 
 MAX_WINDOWS = 500  # windows kept for reports and the API
 
@@ -118,8 +115,7 @@ class Supervisor:
                 b = self.blockers[stage]
                 b[d] = b.get(d, 0.0) + dt
         r1 = self._missing(y, self.stage1_needs) or d1
-        r2 = ("waiting for stage 1 to converge" if not stage1_done
-              else self._missing(y, self.stage2_needs) or d2)
+        r2 = "waiting for stage 1 to converge" if not stage1_done else self._missing(y, self.stage2_needs) or d2
         self.reason = {1: r1 or "open", 2: r2 or "open"}
         hard1 = r1 is not None and not r1.startswith("little")
         hard2 = r2 is not None and not r2.startswith("little")
@@ -150,14 +146,14 @@ class Supervisor:
         if abs(y[ch.YAW]) >= c.yaw_max_1:
             return "yawing (|yaw rate| >= 1 deg/s)"
         # the spread of a_x, not its RMS: a constant offset (grade, bias) excites nothing
-        if math.sqrt(max(self._ax_sq - self._ax_m ** 2, 0.0)) < c.ax_std_min:
+        if math.sqrt(max(self._ax_sq - self._ax_m**2, 0.0)) < c.ax_std_min:
             return "little longitudinal excitation (a_x varies too little)"
         return None
 
     def _drive2(self, y, speed, c) -> str | None:
         """Why the driving does not suit stage 2 (None: it does)."""
         # steering first: it is what defines this stage, so it is the blocker worth naming
-        d_std = math.sqrt(max(self._d_sq - self._d_m ** 2, 0.0))
+        d_std = math.sqrt(max(self._d_sq - self._d_m**2, 0.0))
         if d_std < c.delta_std_min_2 and math.sqrt(max(self._yaw_sq, 0.0)) < c.yaw_rms_min_2:
             return "little steering excitation"
         if not speed > c.v_min:
@@ -171,8 +167,11 @@ class Supervisor:
         out = {}
         for stage in (1, 2):
             b = self.blockers[stage]
-            out[str(stage)] = {"seconds": round(self.excited[stage], 2), "of": round(self.observed, 2),
-                               "main_blocker": max(b, key=b.get) if b else None}
+            out[str(stage)] = {
+                "seconds": round(self.excited[stage], 2),
+                "of": round(self.observed, 2),
+                "main_blocker": max(b, key=b.get) if b else None,
+            }
         return out
 
     def _hyst(self, stage: int, t: float, ok: bool, hard: bool) -> bool:
@@ -190,5 +189,9 @@ class Supervisor:
         return g.open
 
     def state(self) -> dict:
-        return {"active_stage": self.active, "reasons": {str(k): v for k, v in self.reason.items()},
-                "windows": self.window_count, "excitation": self.excitation()}
+        return {
+            "active_stage": self.active,
+            "reasons": {str(k): v for k, v in self.reason.items()},
+            "windows": self.window_count,
+            "excitation": self.excitation(),
+        }

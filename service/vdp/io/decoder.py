@@ -31,12 +31,12 @@ from .. import channels
 from ..errors import ProfileError
 from ..profile import UNIT_FACTORS, ChannelMap, Profile
 from .checks import counter_ok, vdp_checksum
-from .logs import EXT_KEY as _EXT, channel_keys
+from .logs import EXT_KEY as _EXT
+from .logs import channel_keys
 
 log = logging.getLogger(__name__)
 
-KINDS = ("unknown_id", "dlc", "remote", "error_frame", "range", "nonfinite", "mux",
-         "counter", "checksum", "decode")
+KINDS = ("unknown_id", "dlc", "remote", "error_frame", "range", "nonfinite", "mux", "counter", "checksum", "decode")
 BAD_RUN_INVALID = 3  # consecutive counter/checksum failures that flag a message invalid
 ALT_AFTER_CYCLES = 5.0  # primary silent this many cycle times: use the alternative source
 DEFAULT_CYCLE = 0.1  # [s] until a message without GenMsgCycleTime has shown its period
@@ -95,8 +95,9 @@ class DecodeStats:
             "decoded": self.decoded,
             "skipped_channel": self.skipped_channel,
             "error_frames": self.error_frames,
-            "unknown_ids": [{"id": _hex(k), "count": n}
-                            for k, n in sorted(unknown.items(), key=lambda kv: -kv[1])[:top]],
+            "unknown_ids": [
+                {"id": _hex(k), "count": n} for k, n in sorted(unknown.items(), key=lambda kv: -kv[1])[:top]
+            ],
             "unknown_distinct": len(unknown),
             "errors": by_id,
             "errors_by_kind": {k: v for k, v in by_kind.items() if v},
@@ -113,9 +114,28 @@ def _hex(key: int) -> str:
 class _Plan:
     """Everything needed to decode one arbitration id, plus its live state."""
 
-    __slots__ = ("key", "name", "frame_id", "length", "extract", "outputs", "cnt_pos", "cnt_mod",
-                 "cs_pos", "prev_count", "bad_run", "invalid", "last_good", "last_seen", "period",
-                 "fixed_period", "channels", "checked", "plain", "good")
+    __slots__ = (
+        "bad_run",
+        "channels",
+        "checked",
+        "cnt_mod",
+        "cnt_pos",
+        "cs_pos",
+        "extract",
+        "fixed_period",
+        "frame_id",
+        "good",
+        "invalid",
+        "key",
+        "last_good",
+        "last_seen",
+        "length",
+        "name",
+        "outputs",
+        "period",
+        "plain",
+        "prev_count",
+    )
 
     def __init__(self, key: int, name: str, frame_id: int, length: int, cycle_ms: float | None):
         self.key, self.name, self.frame_id, self.length = key, name, frame_id, length
@@ -158,8 +178,9 @@ class FrameDecoder:
         self._validate()
         self._plans: dict[int, _Plan] = {}
         self._build()
-        self.stats = DecodeStats({k: p.name for k, p in self._plans.items()},
-                                 [p for p in self._plans.values() if p.plain is not None])
+        self.stats = DecodeStats(
+            {k: p.name for k, p in self._plans.items()}, [p for p in self._plans.values() if p.plain is not None]
+        )
         self._lock = threading.Lock()  # only for the rare valid <-> invalid transitions
 
     # -- construction ------------------------------------------------------
@@ -168,10 +189,15 @@ class FrameDecoder:
             return self.db.get_message_by_name(name)
         except KeyError:
             names = [m.name for m in self.db.messages]
-            close = difflib.get_close_matches(name, names, n=5, cutoff=0.5) or \
-                [n for n in names if name.lower() in n.lower() or n.lower() in name.lower()][:5]
-            hint = f"messages with similar names: {', '.join(close)}" if close else \
-                f"it has {len(names)} messages, none with a similar name"
+            close = (
+                difflib.get_close_matches(name, names, n=5, cutoff=0.5)
+                or [n for n in names if name.lower() in n.lower() or n.lower() in name.lower()][:5]
+            )
+            hint = (
+                f"messages with similar names: {', '.join(close)}"
+                if close
+                else f"it has {len(names)} messages, none with a similar name"
+            )
             raise ProfileError(f"{where}: message '{name}' is not in {self._dbc_name}; {hint}") from None
 
     def _signal(self, where: str, msg: Any, name: str, role: str = "signal") -> Any:
@@ -181,8 +207,9 @@ class FrameDecoder:
             names = [s.name for s in msg.signals]
             close = difflib.get_close_matches(name, names, n=5, cutoff=0.5)
             hint = f"similar: {', '.join(close)}" if close else f"its signals: {', '.join(names[:30])}"
-            raise ProfileError(f"{where}: {role} '{name}' is not in message '{msg.name}' of "
-                               f"{self._dbc_name}; {hint}") from None
+            raise ProfileError(
+                f"{where}: {role} '{name}' is not in message '{msg.name}' of {self._dbc_name}; {hint}"
+            ) from None
 
     def _validate(self) -> None:
         prof = self.profile
@@ -196,13 +223,25 @@ class FrameDecoder:
                     self._signal(m.where, msg, m.sign_signal, "sign_signal")
                 if m.fine:
                     check_fine(m.where, msg, sig, self._signal(m.where, msg, m.fine, "fine signal"))
-                if (sig.unit in UNIT_FACTORS and UNIT_FACTORS[sig.unit] != UNIT_FACTORS[m.unit]
-                        and m.scale == 1.0 and m.offset == 0.0):
-                    log.warning("%s: DBC gives %s.%s in '%s' but the profile says '%s'",
-                                m.where, m.message, m.signal, sig.unit, m.unit)
+                if (
+                    sig.unit in UNIT_FACTORS
+                    and UNIT_FACTORS[sig.unit] != UNIT_FACTORS[m.unit]
+                    and m.scale == 1.0
+                    and m.offset == 0.0
+                ):
+                    log.warning(
+                        "%s: DBC gives %s.%s in '%s' but the profile says '%s'",
+                        m.where,
+                        m.message,
+                        m.signal,
+                        sig.unit,
+                        m.unit,
+                    )
             if cmap.alt is not None and cmap.alt.message == cmap.message:
-                raise ProfileError(f"{cmap.alt.where}: the alternative source must be another message "
-                                   f"than the primary '{cmap.message}'")
+                raise ProfileError(
+                    f"{cmap.alt.where}: the alternative source must be another message "
+                    f"than the primary '{cmap.message}'"
+                )
         for name, chk in prof.checks.items():
             where = f"{prof.path} [checks.{name}]"
             msg = self._message(where, name)
@@ -239,8 +278,8 @@ class FrameDecoder:
                     _need(need, m.fine, raw=False, check=True)
                 f = m.factor(prof.vehicle)
                 outs.setdefault(plan.key, []).append(
-                    (channels.INDEX[cmap.channel], m.signal, f * m.scale, f * m.offset, m.sign_signal, primary,
-                     m.fine))
+                    (channels.INDEX[cmap.channel], m.signal, f * m.scale, f * m.offset, m.sign_signal, primary, m.fine)
+                )
                 if primary is None:
                     plan.channels.append(cmap.channel)
         for key, msg in msgs.items():
@@ -261,8 +300,9 @@ class FrameDecoder:
             plan.extract = compile_extractor(msg, need) or _cantools_extractor(msg, need)
             for idx, sig, mul, add, sign_sig, primary, fine in outs[key]:
                 prim_plan = self._plan(self.db.get_message_by_name(primary.message)) if primary else None
-                plan.outputs.append((idx, pos[sig], mul, add, pos[sign_sig] if sign_sig else -1, prim_plan,
-                                     pos[fine] if fine else -1))
+                plan.outputs.append(
+                    (idx, pos[sig], mul, add, pos[sign_sig] if sign_sig else -1, prim_plan, pos[fine] if fine else -1)
+                )
             if not msg.is_multiplexed() and all(o[4] < 0 and o[5] is None and o[6] < 0 for o in plan.outputs):
                 plan.plain = [o[:4] for o in plan.outputs]
 
@@ -314,7 +354,7 @@ class FrameDecoder:
             return []
         kind = vals[0]
         if plan.checked:
-            if kind == "mux" or kind == "decode":
+            if kind in {"mux", "decode"}:
                 pass
             elif plan.cs_pos >= 0 and vals[plan.cs_pos] != vdp_checksum(plan.frame_id, data):
                 kind = "checksum"
@@ -325,7 +365,7 @@ class FrameDecoder:
                 prev, plan.prev_count = plan.prev_count, count
                 if not counter_ok(prev, count, plan.cnt_mod):
                     kind = "counter"
-            if kind == "checksum" or kind == "counter":
+            if kind in {"checksum", "counter"}:
                 plan.bad_run += 1
                 if plan.bad_run == BAD_RUN_INVALID:
                     self._flag(plan, True)
@@ -364,11 +404,20 @@ class FrameDecoder:
             plan.invalid = invalid
             self.stats.invalid = tuple(sorted(self.invalid_channels))
         if invalid:
-            log.warning("%s (%s): %d bad counter/checksum frames in a row; channels %s invalid",
-                        plan.name, _hex(plan.key), plan.bad_run, ", ".join(plan.channels) or "-")
+            log.warning(
+                "%s (%s): %d bad counter/checksum frames in a row; channels %s invalid",
+                plan.name,
+                _hex(plan.key),
+                plan.bad_run,
+                ", ".join(plan.channels) or "-",
+            )
         else:
-            log.info("%s (%s): good frames again; channels %s valid", plan.name, _hex(plan.key),
-                     ", ".join(plan.channels) or "-")
+            log.info(
+                "%s (%s): good frames again; channels %s valid",
+                plan.name,
+                _hex(plan.key),
+                ", ".join(plan.channels) or "-",
+            )
 
     @property
     def invalid_messages(self) -> frozenset[str]:
@@ -423,8 +472,10 @@ def load_dbc(profile: Profile) -> cantools.database.Database:
                 continue  # an earlier DBC's message of the same name wins
             clash = ids.get((m.frame_id, m.is_extended_frame))
             if clash is not None:
-                raise ProfileError(f"{profile.path} [can]: message {m.name} of {extra.name} has id "
-                                   f"0x{m.frame_id:X}, which {clash} of an earlier DBC already uses")
+                raise ProfileError(
+                    f"{profile.path} [can]: message {m.name} of {extra.name} has id "
+                    f"0x{m.frame_id:X}, which {clash} of an earlier DBC already uses"
+                )
             db.messages.append(m)
         db.refresh()
     return db
@@ -443,6 +494,7 @@ def _load_one(profile: Profile, path: Path) -> cantools.database.Database:
 
 # -- signal extraction -----------------------------------------------------
 
+
 def limits(msg: Any, sig: Any) -> tuple[float, float]:
     """The [minimum, maximum] a decoded value is checked against (±inf where the DBC has none).
 
@@ -458,8 +510,16 @@ def limits(msg: Any, sig: Any) -> tuple[float, float]:
     tol = abs(sig.conversion.scale) * 1e-3
     reach_lo, reach_hi = _reach(sig)
     if lo < reach_lo - tol or hi > reach_hi + tol:
-        log.info("%s.%s: ignoring DBC range [%g|%g]: its %d bits carry only [%g, %g]",
-                 msg.name, sig.name, lo, hi, sig.length, reach_lo, reach_hi)
+        log.info(
+            "%s.%s: ignoring DBC range [%g|%g]: its %d bits carry only [%g, %g]",
+            msg.name,
+            sig.name,
+            lo,
+            hi,
+            sig.length,
+            reach_lo,
+            reach_hi,
+        )
         return -math.inf, math.inf
     return lo - tol, hi + tol
 
@@ -467,8 +527,9 @@ def limits(msg: Any, sig: Any) -> tuple[float, float]:
 def _reach(sig: Any) -> tuple[float, float]:
     """The physical values an integer signal's bits can carry."""
     scale, offset = sig.conversion.scale, sig.conversion.offset
-    raw_lo, raw_hi = (-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.is_signed \
-        else (0, (1 << sig.length) - 1)
+    raw_lo, raw_hi = (
+        (-(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1) if sig.is_signed else (0, (1 << sig.length) - 1)
+    )
     lo, hi = sorted((raw_lo * scale + offset, raw_hi * scale + offset))
     return lo, hi
 
@@ -484,23 +545,36 @@ def check_fine(where: str, msg: Any, coarse: Any, fine: Any) -> None:
             raise ProfileError(f"{where}: 'fine' needs integer signals, but {msg.name}.{sig.name} is a float")
     cu, fu = coarse.unit or "", fine.unit or ""
     if cu in UNIT_FACTORS and fu in UNIT_FACTORS and UNIT_FACTORS[cu] != UNIT_FACTORS[fu]:
-        raise ProfileError(f"{where}: fine signal '{fine.name}' is in '{fu}' but '{coarse.name}' is in '{cu}'; "
-                           f"the two are added, so they must share a unit")
+        raise ProfileError(
+            f"{where}: fine signal '{fine.name}' is in '{fu}' but '{coarse.name}' is in '{cu}'; "
+            f"the two are added, so they must share a unit"
+        )
     if cu and fu and cu != fu:  # units vdp does not know: maybe the same, maybe not
-        log.warning("%s: DBC gives %s.%s in '%s' and its fine signal %s in '%s'; they are added as they are",
-                    where, msg.name, coarse.name, cu, fine.name, fu)
+        log.warning(
+            "%s: DBC gives %s.%s in '%s' and its fine signal %s in '%s'; they are added as they are",
+            where,
+            msg.name,
+            coarse.name,
+            cu,
+            fine.name,
+            fu,
+        )
     step, fine_step = abs(coarse.conversion.scale), abs(fine.conversion.scale)
     if fine_step >= step:
-        raise ProfileError(f"{where}: fine signal '{fine.name}' (steps of {fine_step:g}) is not finer than "
-                           f"'{coarse.name}' (steps of {step:g})")
+        raise ProfileError(
+            f"{where}: fine signal '{fine.name}' (steps of {fine_step:g}) is not finer than "
+            f"'{coarse.name}' (steps of {step:g})"
+        )
     # what the decoder accepts (limits() pads by a sliver) within what the bits carry
     lo, hi = limits(msg, fine)
     tol = fine_step * 1e-3
     reach_lo, reach_hi = _reach(fine)
     lo, hi = max(lo + tol, reach_lo), min(hi - tol, reach_hi)
     if hi - lo + fine_step < step * (1 - 1e-6):
-        raise ProfileError(f"{where}: fine signal '{fine.name}' carries [{lo:g}, {hi:g}] in steps of {fine_step:g}, "
-                           f"less than one step of '{coarse.name}' ({step:g}): their sum would have gaps")
+        raise ProfileError(
+            f"{where}: fine signal '{fine.name}' carries [{lo:g}, {hi:g}] in steps of {fine_step:g}, "
+            f"less than one step of '{coarse.name}' ({step:g}): their sum would have gaps"
+        )
 
 
 def compile_extractor(msg: Any, need: Sequence[tuple[str, bool, bool]]) -> Callable[[Any], tuple] | None:
@@ -552,7 +626,7 @@ def compile_extractor(msg: Any, need: Sequence[tuple[str, bool, bool]]) -> Calla
     else:
         lines.append(f"    return (None{values})")
     scope: dict[str, Any] = {"from_bytes": int.from_bytes}
-    exec(compile("\n".join(lines), f"<vdp extractor {msg.name}>", "exec"), scope)  # noqa: S102 - numbers only
+    exec(compile("\n".join(lines), f"<vdp extractor {msg.name}>", "exec"), scope)
     return scope["extract"]
 
 

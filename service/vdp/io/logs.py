@@ -94,16 +94,20 @@ class LogStats:
     def as_dict(self) -> dict[str, Any]:
         return {
             # frames in the log: handed out plus passed over
-            "lines": self.lines, "frames": self.frames + sum(self.passed_over.values()),
-            "error_frames": self.error_frames, "passed_over": sum(self.passed_over.values()),
-            "skipped_other_channels": self.skipped, "bad_lines": self.bad, "resyncs": self.resyncs,
-            "bad_reasons": dict(self.reasons), "channels": sorted(self.channels),
-            "bad_examples": [{self.unit: b.line, "reason": b.reason, "text": b.text}
-                             for b in self.examples],
+            "lines": self.lines,
+            "frames": self.frames + sum(self.passed_over.values()),
+            "error_frames": self.error_frames,
+            "passed_over": sum(self.passed_over.values()),
+            "skipped_other_channels": self.skipped,
+            "bad_lines": self.bad,
+            "resyncs": self.resyncs,
+            "bad_reasons": dict(self.reasons),
+            "channels": sorted(self.channels),
+            "bad_examples": [{self.unit: b.line, "reason": b.reason, "text": b.text} for b in self.examples],
         }
 
 
-def open_log(path: str | Path, strict: bool = False, channel: str | None = None) -> "LogSource":
+def open_log(path: str | Path, strict: bool = False, channel: str | None = None) -> LogSource:
     """Open a CAN log for streaming.
 
     ``strict``: the first bad line raises LogFormatError instead of being skipped.
@@ -133,13 +137,15 @@ class LogSource:
         named_gz = bool(suffixes) and suffixes[-1] == ".gz"
         fmt = suffixes[-2] if named_gz and len(suffixes) >= 2 else (suffixes[-1] if suffixes else "")
         if fmt not in FORMATS:
-            raise LogFormatError(f"{path}: unknown log format '{''.join(path.suffixes) or name}'; "
-                                 f"supported: {', '.join(FORMATS)} (each optionally .gz)")
+            raise LogFormatError(
+                f"{path}: unknown log format '{''.join(path.suffixes) or name}'; "
+                f"supported: {', '.join(FORMATS)} (each optionally .gz)"
+            )
         self.format = fmt
         self.stats = LogStats(unit="line" if fmt == ".log" else "frame")
         try:
             self.size = path.stat().st_size
-            self._raw: BinaryIO = open(path, "rb")  # noqa: SIM115 - closed by close()/iteration
+            self._raw: BinaryIO = open(path, "rb")
         except FileNotFoundError:
             raise LogFormatError(f"{path}: no such file") from None
         except IsADirectoryError:
@@ -242,7 +248,7 @@ class LogSource:
                 except Exception:  # closing a half-read gzip/zlib stream may complain; nothing to save
                     pass
 
-    def __enter__(self) -> "LogSource":
+    def __enter__(self) -> LogSource:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -257,8 +263,10 @@ class LogSource:
         self.stats.add_bad(n, reason, text)
         if self._first_good is None and self.stats.bad >= _WRONG_FORMAT_AFTER and self.format == ".log":
             first = self.stats.examples[0]
-            raise LogFormatError(f"{self.path}: not a candump -L log: the first {self.stats.bad} lines are "
-                                 f"unreadable (line {first.line}: {first.reason})")
+            raise LogFormatError(
+                f"{self.path}: not a candump -L log: the first {self.stats.bad} lines are "
+                f"unreadable (line {first.line}: {first.reason})"
+            )
 
     def _finish(self) -> None:
         st = self.stats
@@ -267,18 +275,26 @@ class LogSource:
             first = f"; {st.unit} {st.examples[0].line}: {st.examples[0].reason}" if st.examples else ""
             raise LogFormatError(f"{self.path}: no CAN frames in {where}{first}")
         if st.frames == 0:
-            log.warning("%s: no frames on channel %s; channels in the log: %s",
-                        self.path, self.channel, ", ".join(sorted(st.channels)) or "none")
+            log.warning(
+                "%s: no frames on channel %s; channels in the log: %s",
+                self.path,
+                self.channel,
+                ", ".join(sorted(st.channels)) or "none",
+            )
         if st.bad:
-            log.warning("%s: skipped %d bad %ss (%s)", self.path, st.bad, st.unit,
-                        ", ".join(f"{k}: {v}" for k, v in st.reasons.items()))
+            log.warning(
+                "%s: skipped %d bad %ss (%s)",
+                self.path,
+                st.bad,
+                st.unit,
+                ", ".join(f"{k}: {v}" for k, v in st.reasons.items()),
+            )
 
     def _corrupt(self, n: int, exc: BaseException) -> LogFormatError:
         if not self.stats.frames and not self.stats.skipped and not (self.compressed and _gzip_error(exc)):
             return LogFormatError(f"{self.path}: not a valid {self.format} file: {_msg(exc)}")
         what = "truncated or corrupt" + (" gzip" if self.compressed else "")
-        return LogFormatError(f"{self.path}: {what} {self.format} file after "
-                              f"{self.stats.unit} {n}: {_msg(exc)}")
+        return LogFormatError(f"{self.path}: {what} {self.format} file after {self.stats.unit} {n}: {_msg(exc)}")
 
     def _frames(self) -> Iterator[can.Message]:
         """python-can's reader for the format, with the same checks as our candump parser."""
@@ -362,7 +378,7 @@ class LogSource:
                     self._bad(lineno, "bad timestamp", line)
                     continue
                 if not last <= ts < _INF:
-                    if ts != ts or ts == _INF or ts < 0:
+                    if math.isnan(ts) or ts == _INF or ts < 0:
                         self._bad(lineno, _time_reason(ts), line)
                         continue
                     # Behind the clock: skip, unless a run of in-order lines says the clock jumped.
@@ -371,8 +387,7 @@ class LogSource:
                     if back_run < _RESYNC_AFTER:
                         self._bad(lineno, "timestamp goes backwards", line)
                         continue
-                    log.warning("%s: line %d: clock jumped back %.6f s; following it",
-                                self.path, lineno, last - ts)
+                    log.warning("%s: line %d: clock jumped back %.6f s; following it", self.path, lineno, last - ts)
                     st.resyncs += 1
                 back_run = 0
                 try:
@@ -413,8 +428,18 @@ class LogSource:
         value: Any = int(name) if name.isdigit() else name
         return value, self._want is None or value in self._want
 
-    def _odd(self, n: int, line: bytes, ts: float, chan: Any, rx: bool, id_b: bytes, sep: bytes,
-             data: bytes, ids: dict[bytes, tuple[int, bool, bool, int]]) -> can.Message | None:
+    def _odd(
+        self,
+        n: int,
+        line: bytes,
+        ts: float,
+        chan: Any,
+        rx: bool,
+        id_b: bytes,
+        sep: bytes,
+        data: bytes,
+        ids: dict[bytes, tuple[int, bool, bool, int]],
+    ) -> can.Message | None:
         """Everything but a plain known-id classic frame: new ids, remote, FD, error frames, bad lines."""
         if not sep:
             self._bad(n, "no '#' between id and data", line)
@@ -475,15 +500,24 @@ class LogSource:
         elif len(payload) > 8:
             self._bad(n, f"{len(payload)} data bytes in a classic frame (max 8)", line)
             return None
-        return can.Message(timestamp=ts, arbitration_id=aid & _EFF_MASK, is_extended_id=ext,
-                           is_remote_frame=remote, is_error_frame=err, channel=chan,
-                           dlc=len(payload) if dlc is None else dlc, data=payload, is_fd=fd,
-                           bitrate_switch=bool(flags & 1), error_state_indicator=bool(flags & 2),
-                           is_rx=rx)
+        return can.Message(
+            timestamp=ts,
+            arbitration_id=aid & _EFF_MASK,
+            is_extended_id=ext,
+            is_remote_frame=remote,
+            is_error_frame=err,
+            channel=chan,
+            dlc=len(payload) if dlc is None else dlc,
+            data=payload,
+            is_fd=fd,
+            bitrate_switch=bool(flags & 1),
+            error_state_indicator=bool(flags & 2),
+            is_rx=rx,
+        )
 
 
 def _time_reason(ts: float) -> str:
-    if ts != ts or ts in (_INF, -_INF):
+    if math.isnan(ts) or ts in (_INF, -_INF):
         return "non-finite timestamp"
     if ts < 0:
         return "negative timestamp"

@@ -2,4 +2,4 @@
 
 from .service import Published, Service, Unavailable
 
-__all__ = ["Service", "Published", "Unavailable"]
+__all__ = ["Published", "Service", "Unavailable"]

@@ -27,8 +27,8 @@ import logging
 import socket
 import threading
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Callable, Iterable
 
 import can
 
@@ -123,9 +123,14 @@ class LinkState:
 class BusLink:
     """Keeps one bus open and its Notifier feeding ``listeners``.  Thread-safe to query."""
 
-    def __init__(self, cfg: BusSettings, listeners: Iterable[can.Listener],
-                 reconnect_min: float = 0.5, reconnect_max: float = 30.0,
-                 opener: Callable[[BusSettings], can.BusABC] = open_bus):
+    def __init__(
+        self,
+        cfg: BusSettings,
+        listeners: Iterable[can.Listener],
+        reconnect_min: float = 0.5,
+        reconnect_max: float = 30.0,
+        opener: Callable[[BusSettings], can.BusABC] = open_bus,
+    ):
         self.cfg = cfg
         self.listeners = list(listeners) + [_ErrorHook(self)]
         self.reconnect_min = reconnect_min
@@ -134,18 +139,23 @@ class BusLink:
         self.bus: can.BusABC | None = None
         self.notifier: can.Notifier | None = None
         self.info = LinkState(since=time.time())
-        self.info.listen_only = True if cfg.interface in LISTEN_ONLY and cfg.listen_only else (
-            False if cfg.interface in LISTEN_ONLY else None)
+        self.info.listen_only = (
+            True
+            if cfg.interface in LISTEN_ONLY and cfg.listen_only
+            else (False if cfg.interface in LISTEN_ONLY else None)
+        )
         self._failed = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
         self._warned_buffer = False
-        if cfg.listen_only and cfg.interface not in LISTEN_ONLY and cfg.interface not in ("virtual",
-                                                                                              "udp_multicast"):
-            log.info("python-can's %s interface has no listen-only mode; vdp never transmits, and for "
-                     "socketcan the netdev can be made silent: ip link set %s type can listen-only on",
-                     cfg.interface, cfg.channel)
+        if cfg.listen_only and cfg.interface not in LISTEN_ONLY and cfg.interface not in ("virtual", "udp_multicast"):
+            log.info(
+                "python-can's %s interface has no listen-only mode; vdp never transmits, and for "
+                "socketcan the netdev can be made silent: ip link set %s type can listen-only on",
+                cfg.interface,
+                cfg.channel,
+            )
 
     # -- control ------------------------------------------------------------------------------
     def start(self) -> None:
@@ -166,9 +176,18 @@ class BusLink:
 
     def status(self) -> dict:
         i = self.info
-        return {"interface": self.cfg.interface, "channel": self.cfg.channel, "state": i.state,
-                "since": i.since, "reconnects": i.reconnects, "errors": i.errors, "last_error": i.last_error,
-                "retry_in": i.retry_in, "listen_only": i.listen_only, "receive_buffer": i.receive_buffer}
+        return {
+            "interface": self.cfg.interface,
+            "channel": self.cfg.channel,
+            "state": i.state,
+            "since": i.since,
+            "reconnects": i.reconnects,
+            "errors": i.errors,
+            "last_error": i.last_error,
+            "retry_in": i.retry_in,
+            "listen_only": i.listen_only,
+            "receive_buffer": i.receive_buffer,
+        }
 
     # -- called from the receive thread -----------------------------------------------------------
     def failed(self, exc: BaseException) -> None:
@@ -208,8 +227,13 @@ class BusLink:
                 if self._stop.is_set():
                     break
                 self._set("down")
-                log.error("bus %s '%s' failed (%s); reconnecting in %.1f s", self.cfg.interface,
-                          self.cfg.channel, self.info.last_error, delay)
+                log.error(
+                    "bus %s '%s' failed (%s); reconnecting in %.1f s",
+                    self.cfg.interface,
+                    self.cfg.channel,
+                    self.info.last_error,
+                    delay,
+                )
                 self._close()
                 if time.monotonic() - opened > STABLE:
                     delay = self.reconnect_min  # it ran well for a while: start the backoff over
@@ -239,10 +263,15 @@ class BusLink:
         self.info.receive_buffer = got
         if got is not None and got < RECEIVE_BUFFER and not self._warned_buffer:
             self._warned_buffer = True
-            log.warning("the kernel gave the %s bus a receive buffer of %d KiB, not %d: a pause of the "
-                        "receive thread may lose frames on a busy bus. Raise the limit (sysctl -w "
-                        "net.core.rmem_max=%d) or run vdp with CAP_NET_ADMIN", self.cfg.interface,
-                        got >> 10, RECEIVE_BUFFER >> 10, RECEIVE_BUFFER)
+            log.warning(
+                "the kernel gave the %s bus a receive buffer of %d KiB, not %d: a pause of the "
+                "receive thread may lose frames on a busy bus. Raise the limit (sysctl -w "
+                "net.core.rmem_max=%d) or run vdp with CAP_NET_ADMIN",
+                self.cfg.interface,
+                got >> 10,
+                RECEIVE_BUFFER >> 10,
+                RECEIVE_BUFFER,
+            )
 
     def _watch(self) -> None:
         """Return when the bus failed or we are stopping; check the receive thread every POLL."""
@@ -253,8 +282,7 @@ class BusLink:
             readers = getattr(n, "_readers", [])
             alive = any(getattr(r, "is_alive", lambda: True)() for r in readers) if readers else True
             if not alive or (n is not None and n.exception is not None and not self._failed.is_set()):
-                exc = n.exception if n is not None and n.exception is not None else RuntimeError(
-                    "receive thread ended")
+                exc = n.exception if n is not None and n.exception is not None else RuntimeError("receive thread ended")
                 self.info.errors += 1
                 self.info.last_error = f"receive thread died: {type(exc).__name__}: {exc}"
                 return

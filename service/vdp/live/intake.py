@@ -32,8 +32,9 @@ class Intake(can.Listener):
         except queue.Full:
             self.dropped += 1
             if self.dropped == 1 or self.dropped % 10_000 == 0:
-                log.error("estimation is behind: %d frame(s) dropped so far (queue of %d full)",
-                          self.dropped, self.q.maxsize)
+                log.error(
+                    "estimation is behind: %d frame(s) dropped so far (queue of %d full)", self.dropped, self.q.maxsize
+                )
         except Exception:  # the Notifier thread must survive anything
             self.failures += 1
             if self.failures == 1:

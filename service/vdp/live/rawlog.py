@@ -108,8 +108,7 @@ class RawLog(can.Listener):
         self._logger = logger
         self.error, self.disk_full, self._failed_at = None, False, None
         self._prune()
-        log.info("raw CAN log: %s (rotating at %d bytes, keeping %d files)", self.dir, self.max_bytes,
-                 self.max_files)
+        log.info("raw CAN log: %s (rotating at %d bytes, keeping %d files)", self.dir, self.max_bytes, self.max_files)
 
     def close(self) -> None:
         """Flush and close the open file, and name it like the other closed files."""
@@ -198,8 +197,12 @@ class RawLog(can.Listener):
                 except Exception:
                     pass
         if first:
-            log.error("raw CAN logging stopped (%s) in %s; estimation and the API carry on. "
-                      "It resumes by itself once there is room.", why, self.dir)
+            log.error(
+                "raw CAN logging stopped (%s) in %s; estimation and the API carry on. "
+                "It resumes by itself once there is room.",
+                why,
+                self.dir,
+            )
 
     def _next_name(self) -> Path:
         stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(self._opened_at))
@@ -256,7 +259,7 @@ class RawLog(can.Listener):
     def _prune(self) -> None:
         closed = self.closed_files()
         extra = len(closed) - (self.max_files - 1)  # the open file is one of max_files
-        for p in closed[:max(extra, 0)]:
+        for p in closed[: max(extra, 0)]:
             try:
                 p.unlink()
                 self.deleted += 1
@@ -276,8 +279,19 @@ class RawLog(can.Listener):
             free = shutil.disk_usage(self.dir).free
         except OSError:
             free = None
-        return {"enabled": True, "active": self._logger is not None, "dir": str(self.dir),
-                "current": str(self.current) if self._logger is not None else None,
-                "closed_files": len(files), "bytes": sum(sizes), "disk_free": free, "frames": self.frames,
-                "lost": self.lost, "deleted_files": self.deleted, "error": self.error,
-                "disk_full": self.disk_full, "max_bytes": self.max_bytes, "max_files": self.max_files}
+        return {
+            "enabled": True,
+            "active": self._logger is not None,
+            "dir": str(self.dir),
+            "current": str(self.current) if self._logger is not None else None,
+            "closed_files": len(files),
+            "bytes": sum(sizes),
+            "disk_free": free,
+            "frames": self.frames,
+            "lost": self.lost,
+            "deleted_files": self.deleted,
+            "error": self.error,
+            "disk_full": self.disk_full,
+            "max_bytes": self.max_bytes,
+            "max_files": self.max_files,
+        }

@@ -28,10 +28,11 @@ import queue
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable
+from typing import Any
 
 from .. import channels
 from ..core.params import NAMES
@@ -121,15 +122,21 @@ class Service:
         self.pipeline = pipeline if pipeline is not None else Pipeline(self.profile, EstimatorConfig(trace_len=600))
         self.queue: queue.Queue = queue.Queue(maxsize=sv.queue_size)
         self.intake = Intake(self.queue)
-        self.rawlog = (RawLog(settings.raw_log.dir, settings.raw_log.max_bytes, settings.raw_log.max_files,
-                              settings.raw_log.prefix) if settings.raw_log.enabled else None)
+        self.rawlog = (
+            RawLog(
+                settings.raw_log.dir, settings.raw_log.max_bytes, settings.raw_log.max_files, settings.raw_log.prefix
+            )
+            if settings.raw_log.enabled
+            else None
+        )
         bus_cfg = settings.bus
         self.sim = None
         listeners: list = []
         if settings.simulate.enabled:
             # A virtual channel of our own: two services in one process never share frames.
-            bus_cfg = replace(bus_cfg, interface="virtual", channel=f"vdp-sim-{os.getpid()}-{next(_sim_ids)}",
-                              kwargs={})
+            bus_cfg = replace(
+                bus_cfg, interface="virtual", channel=f"vdp-sim-{os.getpid()}-{next(_sim_ids)}", kwargs={}
+            )
             listeners.append(Rename(self.profile.bus_channel or "can0"))
         listeners.append(self.intake)
         if self.rawlog is not None:
@@ -138,6 +145,7 @@ class Service:
         self.link = BusLink(bus_cfg, listeners, sv.reconnect_min, sv.reconnect_max, opener or open_bus)
         if settings.simulate.enabled:
             from .simfeed import SimFeed
+
             self.sim = SimFeed(self.profile, settings.simulate, bus_cfg.channel, self.backlog)
         self.fingerprint = profile_fingerprint(self.profile)
         self.store: Store | None = None
@@ -209,8 +217,9 @@ class Service:
     def _open_store(self) -> None:
         cfg = self.settings.store
         try:
-            self.store = Store(cfg.path, self.fingerprint, self.profile.vehicle.name, cfg.synchronous,
-                               cfg.history_max_rows)
+            self.store = Store(
+                cfg.path, self.fingerprint, self.profile.vehicle.name, cfg.synchronous, cfg.history_max_rows
+            )
         except StoreError as exc:
             self.store, self.store_state, self.store_error = None, "refused", str(exc)
             log.error("estimate store refused, starting from the priors and not saving: %s", exc)
@@ -222,17 +231,22 @@ class Service:
         self.pipeline.estimator.restore(stored)
         # Check the estimator really took them: claiming "restored" over the priors would be a lie.
         now = self.pipeline.snapshot().get("parameters") or {}
-        off = [k for k, v in stored.items()
-               if not _close((now.get(k) or {}).get("value"), v["value"])]
+        off = [k for k, v in stored.items() if not _close((now.get(k) or {}).get("value"), v["value"])]
         if off:
-            self.restore_error = (f"the estimator did not take the stored estimates of {', '.join(sorted(off))} "
-                                  f"from {cfg.path}; starting from the priors")
+            self.restore_error = (
+                f"the estimator did not take the stored estimates of {', '.join(sorted(off))} "
+                f"from {cfg.path}; starting from the priors"
+            )
             log.error("%s", self.restore_error)
             return
         self.restored = stored
         when = max(v["t"] for v in stored.values())
-        log.info("restored %d estimates from %s (saved %s)", len(stored), cfg.path,
-                 time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(when)))
+        log.info(
+            "restored %d estimates from %s (saved %s)",
+            len(stored),
+            cfg.path,
+            time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(when)),
+        )
 
     # -- worker thread -------------------------------------------------------------------------
     def _work(self) -> None:
@@ -287,10 +301,17 @@ class Service:
             snap["parameters"] = _params(snap.get("parameters"))
             snap["baseline_ekf"] = _params(snap.get("baseline_ekf"))
             pub = Published(
-                seq=next(self._seq), wall=time.time(), bus_time=pipe.last_bus_time, snapshot=snap,
-                freshness=clean(pipe.freshness()), decode=clean(pipe.decoder.stats.as_dict()),
+                seq=next(self._seq),
+                wall=time.time(),
+                bus_time=pipe.last_bus_time,
+                snapshot=snap,
+                freshness=clean(pipe.freshness()),
+                decode=clean(pipe.decoder.stats.as_dict()),
                 clock=clean({"backwards": pipe.aligner.clock_backwards, "jumps": pipe.aligner.clock_jumps}),
-                fed=self._fed, samples=pipe.samples, restored=self.restored is not None)
+                fed=self._fed,
+                samples=pipe.samples,
+                restored=self.restored is not None,
+            )
         except Exception:
             self._errors += 1
             log.exception("taking a snapshot failed")
@@ -302,8 +323,11 @@ class Service:
     def _note_resets(self, resets: dict) -> None:
         for kind, n in resets.items():
             if isinstance(n, int) and n > self._resets_seen.get(kind, 0):
-                self._diverged[kind] = (time.monotonic(), f"the {kind.upper()} filter diverged and was reset to its "
-                                  f"last good estimate ({n} time{'s' if n > 1 else ''} so far)")
+                self._diverged[kind] = (
+                    time.monotonic(),
+                    f"the {kind.upper()} filter diverged and was reset to its "
+                    f"last good estimate ({n} time{'s' if n > 1 else ''} so far)",
+                )
             self._resets_seen[kind] = n
 
     def _call(self, fn: Callable[[Any], Any], timeout: float = COMMAND_TIMEOUT) -> Any:
@@ -438,8 +462,12 @@ class Service:
             reasons.append(f"simulation failed: {self.sim.error}")
         elif self.sim is not None and self.sim.done and silent is not None and silent > self.settings.service.silence:
             reasons.append("the simulated drive has ended (run with --loop to repeat it)")
-        return {"status": "degraded" if reasons else "ok", "reasons": reasons,
-                "stage": pub.snapshot.get("stage", "stage1"), "uptime_s": self.uptime()}
+        return {
+            "status": "degraded" if reasons else "ok",
+            "reasons": reasons,
+            "stage": pub.snapshot.get("stage", "stage1"),
+            "uptime_s": self.uptime(),
+        }
 
     def silent_for(self) -> float | None:
         last = self.intake.last_rx
@@ -454,49 +482,83 @@ class Service:
         windows = s.get("windows") or []
         current = windows[-1] if windows and windows[-1].get("end") is None else None
         silent = self.silent_for()
-        store: dict[str, Any] = {"path": str(self.settings.store.path), "state": self.store_state,
-                                 "error": self.store_error, "last_commit": self.store_last_commit,
-                                 "restored": sorted(self.restored) if self.restored else [],
-                                 "restore_error": self.restore_error}
+        store: dict[str, Any] = {
+            "path": str(self.settings.store.path),
+            "state": self.store_state,
+            "error": self.store_error,
+            "last_commit": self.store_last_commit,
+            "restored": sorted(self.restored) if self.restored else [],
+            "restore_error": self.restore_error,
+        }
         if self.store is not None:
             store["commits"] = self.store.commits
             try:
                 store["bytes"] = self.store.size()
             except OSError:
                 store["bytes"] = None
-        return clean({
-            "uptime_s": self.uptime(),
-            "started": self._started_wall,
-            "profile": {"name": self.profile.vehicle.name, "path": str(self.profile.path),
-                        "fingerprint": self.fingerprint},
-            "bus": {**self.link.status(), "frames": self.intake.received, "frames_per_s": self.frames_per_s,
-                    "last_frame_age_s": silent},
-            "queue": {"depth": self.queue.qsize(), "capacity": self.queue.maxsize,
-                      "dropped": self.intake.dropped},
-            "estimation": {"frames": pub.fed, "samples": pub.samples, "errors": self._errors,
-                           "stage": s.get("stage", "stage1"), "bus_time": pub.bus_time,
-                           "worker_restarts": self.worker_restarts, "clock": pub.clock,
-                           "resets": s.get("resets") or {}, "capabilities": s.get("capabilities") or {}},
-            "decode": pub.decode,
-            "channels": pub.freshness,
-            "gating": {**(s.get("supervisor") or {}), "window": current, "windows_total": len(windows)},
-            "raw_log": self.rawlog.stats() if self.rawlog is not None else {"enabled": False},
-            "store": store,
-            "simulation": self.sim.status() if self.sim is not None else None,
-        })
+        return clean(
+            {
+                "uptime_s": self.uptime(),
+                "started": self._started_wall,
+                "profile": {
+                    "name": self.profile.vehicle.name,
+                    "path": str(self.profile.path),
+                    "fingerprint": self.fingerprint,
+                },
+                "bus": {
+                    **self.link.status(),
+                    "frames": self.intake.received,
+                    "frames_per_s": self.frames_per_s,
+                    "last_frame_age_s": silent,
+                },
+                "queue": {"depth": self.queue.qsize(), "capacity": self.queue.maxsize, "dropped": self.intake.dropped},
+                "estimation": {
+                    "frames": pub.fed,
+                    "samples": pub.samples,
+                    "errors": self._errors,
+                    "stage": s.get("stage", "stage1"),
+                    "bus_time": pub.bus_time,
+                    "worker_restarts": self.worker_restarts,
+                    "clock": pub.clock,
+                    "resets": s.get("resets") or {},
+                    "capabilities": s.get("capabilities") or {},
+                },
+                "decode": pub.decode,
+                "channels": pub.freshness,
+                "gating": {**(s.get("supervisor") or {}), "window": current, "windows_total": len(windows)},
+                "raw_log": self.rawlog.stats() if self.rawlog is not None else {"enabled": False},
+                "store": store,
+                "simulation": self.sim.status() if self.sim is not None else None,
+            }
+        )
 
-    def history(self, parameter: str | None = None, since: float | None = None, until: float | None = None,
-                limit: int = 100, offset: int = 0) -> dict:
+    def history(
+        self,
+        parameter: str | None = None,
+        since: float | None = None,
+        until: float | None = None,
+        limit: int = 100,
+        offset: int = 0,
+    ) -> dict:
         if parameter is not None and parameter not in NAMES:
             raise VdpError(f"unknown parameter '{parameter}'; known: {', '.join(NAMES)}")
         store = self.store
         if store is None:
-            raise Unavailable(f"no estimate history: the store is {self.store_state}"
-                              + (f" ({self.store_error})" if self.store_error else ""))
+            raise Unavailable(
+                f"no estimate history: the store is {self.store_state}"
+                + (f" ({self.store_error})" if self.store_error else "")
+            )
         items, total = store.history(parameter, since, until, limit, offset)
         nxt = offset + len(items)
-        return clean({"items": items, "total": total, "limit": limit, "offset": offset,
-                      "next_offset": nxt if nxt < total else None})
+        return clean(
+            {
+                "items": items,
+                "total": total,
+                "limit": limit,
+                "offset": offset,
+                "next_offset": nxt if nxt < total else None,
+            }
+        )
 
     def reset(self, stage: int | None) -> dict:
         """Clear stage 1, 2 or (None) both, on the worker, in order with the frames."""
@@ -512,17 +574,29 @@ class Service:
         pub = self._pub
         rl = self.rawlog
         return {
-            "frames": self.intake.received, "dropped": self.intake.dropped, "fed": pub.fed,
-            "samples": pub.samples, "queue_depth": self.queue.qsize(), "queue_capacity": self.queue.maxsize,
-            "frames_per_s": self.frames_per_s, "bus_up": self.link.up, "reconnects": self.link.info.reconnects,
-            "bus_errors": self.link.info.errors, "errors": self._errors, "decode": pub.decode,
-            "parameters": pub.snapshot.get("parameters") or {}, "stage": pub.snapshot.get("stage"),
+            "frames": self.intake.received,
+            "dropped": self.intake.dropped,
+            "fed": pub.fed,
+            "samples": pub.samples,
+            "queue_depth": self.queue.qsize(),
+            "queue_capacity": self.queue.maxsize,
+            "frames_per_s": self.frames_per_s,
+            "bus_up": self.link.up,
+            "reconnects": self.link.info.reconnects,
+            "bus_errors": self.link.info.errors,
+            "errors": self._errors,
+            "decode": pub.decode,
+            "parameters": pub.snapshot.get("parameters") or {},
+            "stage": pub.snapshot.get("stage"),
             "active_stage": (pub.snapshot.get("supervisor") or {}).get("active_stage"),
-            "resets": pub.snapshot.get("resets") or {}, "uptime": self.uptime(),
+            "resets": pub.snapshot.get("resets") or {},
+            "uptime": self.uptime(),
             "raw_bytes": rl.stats()["bytes"] if rl is not None else 0,
-            "raw_frames": rl.frames if rl is not None else 0, "raw_lost": rl.lost if rl is not None else 0,
+            "raw_frames": rl.frames if rl is not None else 0,
+            "raw_lost": rl.lost if rl is not None else 0,
             "raw_ok": rl is None or rl.error is None,
-            "store_ok": self.store_state == "ok", "store_commits": self.store.commits if self.store else 0,
+            "store_ok": self.store_state == "ok",
+            "store_commits": self.store.commits if self.store else 0,
             "healthy": self.health()["status"] == "ok",
             "channels_stale": sum(1 for f in pub.freshness.values() if f.get("stale")),
             "channels": len(channels.NAMES),

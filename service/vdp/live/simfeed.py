@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import can
 
@@ -69,11 +69,19 @@ class SimFeed:
         return not self._thread.is_alive()
 
     def status(self) -> dict:
-        return {"scenario": self.cfg.scenario, "speed": self.cfg.speed, "seed": self.cfg.seed,
-                "noise": self.truth.get("noise", {}).get("model", self.cfg.noise),
-                "sim_time": self.sim_time, "duration": self.duration, "loops": self.loops,
-                "frames_sent": self.sent, "done": self.done, "error": self.error,
-                "truth": self.truth.get("parameters")}
+        return {
+            "scenario": self.cfg.scenario,
+            "speed": self.cfg.speed,
+            "seed": self.cfg.seed,
+            "noise": self.truth.get("noise", {}).get("model", self.cfg.noise),
+            "sim_time": self.sim_time,
+            "duration": self.duration,
+            "loops": self.loops,
+            "frames_sent": self.sent,
+            "done": self.done,
+            "error": self.error,
+            "truth": self.truth.get("parameters"),
+        }
 
     def _run(self, ready: Callable[[], bool]) -> None:
         # Frames sent before the service's receiving bus exists would be lost.
@@ -81,8 +89,9 @@ class SimFeed:
             if self._stop.wait(0.05):
                 return
         try:
-            bus = can.Bus(interface="virtual", channel=self.channel, preserve_timestamps=True,
-                          receive_own_messages=False)
+            bus = can.Bus(
+                interface="virtual", channel=self.channel, preserve_timestamps=True, receive_own_messages=False
+            )
         except Exception as exc:
             self.error = f"cannot open the virtual bus: {exc}"
             log.error("simulation: %s", self.error)
@@ -98,8 +107,9 @@ class SimFeed:
                 sim = self._make(float(int(last) + 2))
             self.done = not self._stop.is_set()
             if self.done:
-                log.info("simulation: scenario %s done (%d frames); the service keeps serving",
-                         self.cfg.scenario, self.sent)
+                log.info(
+                    "simulation: scenario %s done (%d frames); the service keeps serving", self.cfg.scenario, self.sent
+                )
         except VdpError as exc:
             self.error = str(exc)
             log.error("simulation stopped: %s", exc)
@@ -120,9 +130,8 @@ class SimFeed:
                 t0, w0 = ts, time.monotonic()
             if speed > 0:
                 ahead = w0 + (ts - t0) / speed - time.monotonic()
-                if ahead > 0.002:
-                    if stop.wait(ahead):
-                        return None
+                if ahead > 0.002 and stop.wait(ahead):
+                    return None
             if not n & 0xFF:
                 if stop.is_set():
                     return None

@@ -10,13 +10,27 @@ here; they load lazily so that ``vdp.sim.vehicle`` stays free of python-can.
 
 from __future__ import annotations
 
-_RUN = ("Simulation", "simulate", "trace", "write_log", "write_truth", "truth_path", "send_live",
-        "tee_bus", "open_bus", "paced", "resolve_profile", "START_TIME", "DT")
+_RUN = (
+    "Simulation",
+    "simulate",
+    "trace",
+    "write_log",
+    "write_truth",
+    "truth_path",
+    "send_live",
+    "tee_bus",
+    "open_bus",
+    "paced",
+    "resolve_profile",
+    "START_TIME",
+    "DT",
+)
 
 
 def __getattr__(name: str):
     if name in _RUN:
         from . import run
+
         return getattr(run, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 

@@ -30,8 +30,7 @@ ADDONS = {  # channel: (vdp.dbc message, signal, unit)
 CAR_TRUTH = {
     "toyota_rav4": {"l_f": 1.2, "h": 0.62, "C_K": 10.0, "C_alpha": 95000.0, "I_z": 2900.0, "I_x": 650.0},
     "vw_golf_mk7": {"l_f": 1.1, "h": 0.53, "C_K": 10.0, "C_alpha": 85000.0, "I_z": 2400.0, "I_x": 520.0},
-    "hyundai_elantra_2017": {"l_f": 1.12, "h": 0.52, "C_K": 10.0, "C_alpha": 80000.0, "I_z": 2200.0,
-                             "I_x": 480.0},
+    "hyundai_elantra_2017": {"l_f": 1.12, "h": 0.52, "C_K": 10.0, "C_alpha": 80000.0, "I_z": 2200.0, "I_x": 480.0},
 }
 
 

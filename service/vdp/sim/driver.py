@@ -61,8 +61,7 @@ class Driver:
         self._lag_s = 1.0 - math.exp(-dt / self.cfg.tau_steer)
         self._rate_step = self.cfg.steer_rate * dt
 
-    def update(self, dt: float, v_cmd: float, a_cmd: float, delta_cmd: float,
-               v_x: float) -> tuple[float, float, float]:
+    def update(self, dt: float, v_cmd: float, a_cmd: float, delta_cmd: float, v_x: float) -> tuple[float, float, float]:
         """Returns (T_f, T_r, delta) to apply over the next step."""
         if dt != self._dt:
             self._set_dt(dt)

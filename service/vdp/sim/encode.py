@@ -128,6 +128,7 @@ class Encoder:
         self.profile = profile
         if db is None:
             from ..io.decoder import load_dbc as load_profile_dbc
+
             db = load_profile_dbc(profile)  # the profile's DBC(s), merged as the decoder sees them
         self.db = db
         self.plans: list[MessagePlan] = []
@@ -141,8 +142,11 @@ class Encoder:
         # Fixed phases inside each period so the messages interleave like on a real bus.
         for j, p in enumerate(self.plans):
             p.phase_ms = (1 + 3 * j) % p.period_ms
-        log.debug("encoder: %d messages: %s", len(self.plans),
-                  ", ".join(f"{p.name}@{p.period_ms}ms+{p.phase_ms}" for p in self.plans))
+        log.debug(
+            "encoder: %d messages: %s",
+            len(self.plans),
+            ", ".join(f"{p.name}@{p.period_ms}ms+{p.phase_ms}" for p in self.plans),
+        )
 
     @property
     def frame_ids(self) -> set[int]:
@@ -157,8 +161,9 @@ class Encoder:
     def _add(self, cm: ChannelMap, by_name: dict[str, MessagePlan]) -> None:
         msg = self._message(cm)
         if msg.is_multiplexed():
-            raise ProfileError(f"{cm.where}: message '{cm.message}' is multiplexed; "
-                               f"the simulator cannot encode multiplexed messages")
+            raise ProfileError(
+                f"{cm.where}: message '{cm.message}' is multiplexed; the simulator cannot encode multiplexed messages"
+            )
         plan = by_name.get(msg.name)
         if plan is None:
             base = {}
@@ -167,10 +172,13 @@ class Encoder:
                 base[sig.name] = clip(float(CONSTANTS.get(sig.name, 0)), lo, hi)
             period = msg.cycle_time or DEFAULT_CYCLE_MS
             if not msg.cycle_time:
-                log.info("%s: message %s has no cycle time; sending it every %d ms",
-                            self.profile.dbc, msg.name, DEFAULT_CYCLE_MS)
-            plan = MessagePlan(msg.name, msg.frame_id, msg.is_extended_frame, bool(msg.is_fd),
-                               int(period), msg, base)
+                log.info(
+                    "%s: message %s has no cycle time; sending it every %d ms",
+                    self.profile.dbc,
+                    msg.name,
+                    DEFAULT_CYCLE_MS,
+                )
+            plan = MessagePlan(msg.name, msg.frame_id, msg.is_extended_frame, bool(msg.is_fd), int(period), msg, base)
             by_name[msg.name] = plan
         try:
             sig = msg.get_signal_by_name(cm.signal)
@@ -181,8 +189,9 @@ class Encoder:
         if any(s.signal == cm.signal for s in plan.signals):
             return  # one signal feeding two channels (e.g. a shared wheel speed): encode once
         lo, hi = signal_range(sig)
-        sp = SignalPlan(cm.signal, cm.channel, 1.0 / cm.factor(self.profile.vehicle),
-                        cm.scale, cm.offset, lo, hi, cm.sign_signal)
+        sp = SignalPlan(
+            cm.signal, cm.channel, 1.0 / cm.factor(self.profile.vehicle), cm.scale, cm.offset, lo, hi, cm.sign_signal
+        )
         if cm.fine is not None:
             try:
                 fine = msg.get_signal_by_name(cm.fine)
@@ -210,8 +219,10 @@ class Encoder:
                 s = sigs.get(chk.checksum)
                 if s is None:
                     raise ProfileError(f"{where}: checksum '{chk.checksum}' is not in message '{name}'")
-                in_byte7 = s.length == 8 and ((s.byte_order == "little_endian" and s.start == 56)
-                                              or (s.byte_order == "big_endian" and s.start == 63))
+                in_byte7 = s.length == 8 and (
+                    (s.byte_order == "little_endian" and s.start == 56)
+                    or (s.byte_order == "big_endian" and s.start == 63)
+                )
                 if not in_byte7 or plan.message.length < 8:
                     raise ProfileError(f"{where}: the vdp checksum must be an 8-bit signal in byte 7")
                 plan.checksum = True

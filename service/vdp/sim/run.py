@@ -21,8 +21,8 @@ import io
 import json
 import logging
 import time
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
-from typing import Callable, Iterator, Mapping
 
 import can
 import numpy as np
@@ -34,7 +34,7 @@ from .encode import Encoder
 from .scenario import Scenario, get_scenario
 from .sensors import NoiseModel, Sensors, draw_bias, noise_model
 from .truth import truth_parameters
-from .vehicle import Model, Params, STATE
+from .vehicle import STATE, Model, Params
 
 log = logging.getLogger(__name__)
 
@@ -74,12 +74,23 @@ def _profile(profile: Profile | str | Path | None, dbc: str | Path | None) -> Pr
 class Simulation:
     """One simulated drive.  ``truth`` is known up front; ``frames()`` streams the bus."""
 
-    def __init__(self, profile: Profile | str | Path | None = None, scenario: str | Scenario = "paper",
-                 seed: int = 0, noise: str | NoiseModel = "realistic", *,
-                 params: Mapping[str, float] | None = None, dbc: str | Path | None = None,
-                 drop_rate: float = 0.0, extra_ids: int = 0, extra_rate: float = 100.0,
-                 duration: float | None = None, start_time: float = START_TIME,
-                 driver: DriverConfig | None = None, bus_channel: str | None = None):
+    def __init__(
+        self,
+        profile: Profile | str | Path | None = None,
+        scenario: str | Scenario = "paper",
+        seed: int = 0,
+        noise: str | NoiseModel = "realistic",
+        *,
+        params: Mapping[str, float] | None = None,
+        dbc: str | Path | None = None,
+        drop_rate: float = 0.0,
+        extra_ids: int = 0,
+        extra_rate: float = 100.0,
+        duration: float | None = None,
+        start_time: float = START_TIME,
+        driver: DriverConfig | None = None,
+        bus_channel: str | None = None,
+    ):
         self.profile = _profile(profile, dbc)
         veh = self.profile.vehicle
         self.scenario = scenario if isinstance(scenario, Scenario) else get_scenario(scenario, veh.wheelbase)
@@ -103,8 +114,10 @@ class Simulation:
         self.encoder = Encoder(self.profile)  # validates the mapping against the DBC now
         for p in self.encoder.plans:
             if p.period_ms <= 0 or p.period_ms % STEP_MS:
-                raise ProfileError(f"{self.profile.dbc}: cycle time of {p.name} ({p.period_ms} ms) "
-                                   f"is not a positive multiple of {STEP_MS} ms")
+                raise ProfileError(
+                    f"{self.profile.dbc}: cycle time of {p.name} ({p.period_ms} ms) "
+                    f"is not a positive multiple of {STEP_MS} ms"
+                )
         if self.extra_ids > 0x800 - len(self.encoder.frame_ids & set(range(0x800))):
             raise ConfigError(f"--extra-ids {self.extra_ids}: not that many free 11-bit IDs")
         self.bias = draw_bias(self.noise, self._rngs()[0])
@@ -131,19 +144,34 @@ class Simulation:
             "segments": self.scenario.meta(self.duration),
             "profile": str(self.profile.path.resolve()),
             "dbc": str(self.profile.dbc),
-            "bus": {"channel": self.bus_channel, "drop_rate": self.drop_rate,
-                    "extra_ids": self.extra_ids, "extra_rate": self.extra_rate if self.extra_ids else 0.0,
-                    "messages": {p.name: {"id": p.frame_id, "period_ms": p.period_ms, "phase_ms": p.phase_ms}
-                                 for p in self.encoder.plans}},
+            "bus": {
+                "channel": self.bus_channel,
+                "drop_rate": self.drop_rate,
+                "extra_ids": self.extra_ids,
+                "extra_rate": self.extra_rate if self.extra_ids else 0.0,
+                "messages": {
+                    p.name: {"id": p.frame_id, "period_ms": p.period_ms, "phase_ms": p.phase_ms}
+                    for p in self.encoder.plans
+                },
+            },
             "driver": dataclasses.asdict(self.driver_cfg),
             "sim": {"dt": DT, "wheels": "linearly implicit backward Euler", "body": "Heun, omega held"},
-            "units": {"parameters": {"l_f": "m", "h": "m", "C_K": "-", "C_alpha": "N/rad (per axle)",
-                                     "I_z": "kg m^2", "I_x": "kg m^2"},
-                      "vehicle": "SI; roll_stiffness N m/rad, roll_damping N m s/rad, wheel_inertia per axle"},
+            "units": {
+                "parameters": {
+                    "l_f": "m",
+                    "h": "m",
+                    "C_K": "-",
+                    "C_alpha": "N/rad (per axle)",
+                    "I_z": "kg m^2",
+                    "I_x": "kg m^2",
+                },
+                "vehicle": "SI; roll_stiffness N m/rad, roll_damping N m s/rad, wheel_inertia per axle",
+            },
         }
 
-    def frames(self, tap: Tap | None = None,
-               progress: Callable[[float, float], None] | None = None) -> Iterator[can.Message]:
+    def frames(
+        self, tap: Tap | None = None, progress: Callable[[float, float], None] | None = None
+    ) -> Iterator[can.Message]:
         """Time-ordered frames; every call restarts the drive from the same seed.
 
         ``tap(t, message_name, values)`` sees the canonical values (with noise, before
@@ -157,12 +185,15 @@ class Simulation:
         sensors = Sensors(self.noise, self.bias, noise_rng)
         enc = Encoder(self.profile, self.encoder.db)  # fresh counters
         step_ms = STEP_MS
-        sched = [[p.phase_ms // step_ms, p.period_ms // step_ms, p,
-                  [(c, sensors.reader(c)) for c in p.channels]] for p in enc.plans]
+        sched = [
+            [p.phase_ms // step_ms, p.period_ms // step_ms, p, [(c, sensors.reader(c)) for c in p.channels]]
+            for p in enc.plans
+        ]
         drop = self.drop_rate
         drops = _Uniforms(drop_rng)
-        fill = _Filler(fill_rng, self.extra_ids, self.extra_rate, enc.frame_ids, self.start_us) \
-            if self.extra_ids else None
+        fill = (
+            _Filler(fill_rng, self.extra_ids, self.extra_rate, enc.frame_ids, self.start_us) if self.extra_ids else None
+        )
         chan = self.bus_channel
         x = model.straight(sc.v0)
         n_steps = int(round(self.duration / DT))
@@ -186,8 +217,15 @@ class Simulation:
                     continue
                 if tap is not None:
                     tap(t, plan.name, values)
-                yield can.Message(timestamp=ts, arbitration_id=plan.frame_id, is_extended_id=plan.is_extended,
-                                  is_fd=plan.is_fd, data=data, channel=chan, is_rx=False)
+                yield can.Message(
+                    timestamp=ts,
+                    arbitration_id=plan.frame_id,
+                    is_extended_id=plan.is_extended,
+                    is_fd=plan.is_fd,
+                    data=data,
+                    channel=chan,
+                    is_rx=False,
+                )
             if fill is not None:
                 end_us = start_us + (n + 1) * step_ms * 1000
                 for msg in fill.until(end_us, chan):
@@ -227,21 +265,39 @@ class _Filler:
         while heap[0][0] < end_us:
             ts, fid = heapq.heappop(heap)
             heapq.heappush(heap, (ts + self.period_us, fid))
-            yield can.Message(timestamp=ts / 1e6, arbitration_id=fid, is_extended_id=False,
-                              data=self.rng.bytes(8), channel=chan, is_rx=False)
+            yield can.Message(
+                timestamp=ts / 1e6,
+                arbitration_id=fid,
+                is_extended_id=False,
+                data=self.rng.bytes(8),
+                channel=chan,
+                is_rx=False,
+            )
 
 
-def simulate(profile: Profile | str | Path | None = None, scenario: str | Scenario = "paper", seed: int = 0,
-             noise: str = "realistic", **kwargs) -> tuple[Iterator[can.Message], dict]:
+def simulate(
+    profile: Profile | str | Path | None = None,
+    scenario: str | Scenario = "paper",
+    seed: int = 0,
+    noise: str = "realistic",
+    **kwargs,
+) -> tuple[Iterator[can.Message], dict]:
     """(lazy time-ordered iterator of can.Message, truth dict); kwargs as :class:`Simulation`."""
     sim = Simulation(profile, scenario, seed, noise, **kwargs)
     return sim.frames(), sim.truth
 
 
 # -- physics-only trace (tests, plots) ------------------------------------------------
-def trace(scenario: str | Scenario = "paper", profile: Profile | str | Path | None = None, *,
-          params: Mapping[str, float] | None = None, dt: float = DT, every: int = 10,
-          duration: float | None = None, driver: DriverConfig | None = None) -> dict[str, np.ndarray]:
+def trace(
+    scenario: str | Scenario = "paper",
+    profile: Profile | str | Path | None = None,
+    *,
+    params: Mapping[str, float] | None = None,
+    dt: float = DT,
+    every: int = 10,
+    duration: float | None = None,
+    driver: DriverConfig | None = None,
+) -> dict[str, np.ndarray]:
     """Truth time series of a scenario, without sensors: states, inputs, forces, heading.
 
     Keys: ``t``, the state names of :data:`vdp.sim.vehicle.STATE`, ``T_f``, ``T_r``,
@@ -256,9 +312,13 @@ def trace(scenario: str | Scenario = "paper", profile: Profile | str | Path | No
     drv = Driver(driver or DriverConfig(), p.m, p.r, p.J)
     T = sc.duration if duration is None else min(duration, sc.duration)
     n_steps = int(round(T / dt))
-    keys = ("t",) + STATE + ("T_f", "T_r", "delta", "v_cmd", "delta_cmd") + \
-        ("a_x", "a_y", "F_zf", "F_zr", "F_xf", "F_xr", "F_yf", "F_yr", "s_f", "s_r", "alpha_f", "alpha_r") + \
-        ("heading",)
+    keys = (
+        ("t",)
+        + STATE
+        + ("T_f", "T_r", "delta", "v_cmd", "delta_cmd")
+        + ("a_x", "a_y", "F_zf", "F_zr", "F_xf", "F_xr", "F_yf", "F_yr", "s_f", "s_r", "alpha_f", "alpha_r")
+        + ("heading",)
+    )
     rows = []
     x = model.straight(sc.v0)
     hint, psi = 0, 0.0
@@ -309,7 +369,7 @@ def write_log(frames: Iterator[can.Message], path: str | Path, channel: str = "c
     if not path.parent.is_dir():
         raise LogFormatError(f"{path}: directory {path.parent} does not exist")
     n = 0
-    if name.endswith(".log") or name.endswith(".log.gz"):
+    if name.endswith((".log", ".log.gz")):
         raw = open(path, "wb")
         try:
             if name.endswith(".gz"):
@@ -349,6 +409,7 @@ def open_bus(interface: str, channel: str | None = None) -> can.BusABC:
     defaults = {"virtual": "vdp", "socketcan": "vcan0"}
     if interface == "udp_multicast":
         from can.interfaces.udp_multicast import UdpMulticastBus
+
         defaults["udp_multicast"] = UdpMulticastBus.DEFAULT_GROUP_IPv4
     chan = channel or defaults.get(interface)
     try:
@@ -387,5 +448,18 @@ def send_live(frames: Iterator[can.Message], bus: can.BusABC, speed: float = 1.0
     return sum(1 for _ in tee_bus(frames, bus, speed))
 
 
-__all__ = ["Simulation", "simulate", "trace", "write_log", "write_truth", "truth_path", "send_live",
-           "tee_bus", "open_bus", "paced", "resolve_profile", "START_TIME", "DT"]
+__all__ = [
+    "DT",
+    "START_TIME",
+    "Simulation",
+    "open_bus",
+    "paced",
+    "resolve_profile",
+    "send_live",
+    "simulate",
+    "tee_bus",
+    "trace",
+    "truth_path",
+    "write_log",
+    "write_truth",
+]

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from ..errors import ConfigError
 
@@ -39,6 +39,7 @@ def ramp_speed(v0: float, v1: float, T: float) -> SpeedFn:
         if t >= T:
             return v1, 0.0
         return v0 + 0.5 * dv * (1.0 - math.cos(w * t)), 0.5 * dv * w * math.sin(w * t)
+
     return f
 
 
@@ -127,8 +128,7 @@ class Plan:
         self.name, self.v0, self.v, self.t = name, float(v0), float(v0), 0.0
         self.segments: list[Segment] = []
 
-    def add(self, name: str, kind: str, T: float, speed: SpeedFn, v_end: float,
-            steer: SteerFn | None = None) -> "Plan":
+    def add(self, name: str, kind: str, T: float, speed: SpeedFn, v_end: float, steer: SteerFn | None = None) -> Plan:
         if kind not in KINDS:
             raise ConfigError(f"scenario {self.name}: segment kind must be one of {KINDS}, got {kind!r}")
         if T <= 0:
@@ -138,19 +138,20 @@ class Plan:
         self.v = float(v_end)
         return self
 
-    def cruise(self, T: float, name: str, kind: str = "other", steer: SteerFn | None = None) -> "Plan":
+    def cruise(self, T: float, name: str, kind: str = "other", steer: SteerFn | None = None) -> Plan:
         return self.add(name, kind, T, const_speed(self.v), self.v, steer)
 
-    def hold(self, T: float, name: str = "stop") -> "Plan":
+    def hold(self, T: float, name: str = "stop") -> Plan:
         if self.v != 0.0:
             raise ConfigError(f"scenario {self.name}: '{name}' holds a stopped car; ramp to 0 first")
         return self.add(name, "other", T, const_speed(0.0), 0.0)
 
-    def ramp(self, v1: float, T: float, name: str, kind: str = "other", steer: SteerFn | None = None) -> "Plan":
+    def ramp(self, v1: float, T: float, name: str, kind: str = "other", steer: SteerFn | None = None) -> Plan:
         return self.add(name, kind, T, ramp_speed(self.v, v1, T), v1, steer)
 
-    def sine(self, amp: float, period: float, cycles: int, name: str, kind: str = "other",
-             steer: SteerFn | None = None) -> "Plan":
+    def sine(
+        self, amp: float, period: float, cycles: int, name: str, kind: str = "other", steer: SteerFn | None = None
+    ) -> Plan:
         return self.add(name, kind, period * cycles, sine_speed(self.v, amp, period), self.v, steer)
 
     def build(self) -> Scenario:
@@ -224,7 +225,10 @@ def city(wheelbase: float = 2.5) -> Scenario:
 
 
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
-    "stage1": stage1, "stage2": stage2, "paper": paper, "city": city,
+    "stage1": stage1,
+    "stage2": stage2,
+    "paper": paper,
+    "city": city,
 }
 
 

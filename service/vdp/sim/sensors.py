@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import channels
 from ..errors import ConfigError
-from .vehicle import P, VX, VY, WF, WR, WZ
+from .vehicle import VX, VY, WF, WR, WZ, P
 
 log = logging.getLogger(__name__)
 
@@ -34,8 +34,12 @@ class NoiseModel:
     bias_sigma: dict[str, float] = field(default_factory=dict)  # per-run constant bias, SI
 
     def describe(self) -> dict:
-        return {"model": self.name, "sigma": dict(self.sigma), "bias_sigma": dict(self.bias_sigma),
-                "units": {c: channels.UNITS[c] for c in self.sigma}}
+        return {
+            "model": self.name,
+            "sigma": dict(self.sigma),
+            "bias_sigma": dict(self.bias_sigma),
+            "units": {c: channels.UNITS[c] for c in self.sigma},
+        }
 
 
 def noise_model(name: str, steering_ratio: float = 1.0) -> NoiseModel:
@@ -44,14 +48,19 @@ def noise_model(name: str, steering_ratio: float = 1.0) -> NoiseModel:
         return NoiseModel("none")
     if name != "realistic":
         raise ConfigError(f"unknown noise model '{name}'; choose one of {', '.join(NOISE_MODELS)}")
-    sigma = {c: 0.03 for c in ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr")}
-    sigma.update({
-        "wheel_torque_front": 5.0, "wheel_torque_rear": 5.0,
-        "steering_angle": 0.1 * _DEG / steering_ratio,
-        "accel_x": 0.05, "accel_y": 0.05,
-        "yaw_rate": 0.1 * _DEG, "roll_rate": 0.1 * _DEG,
-        "speed": 0.05,
-    })
+    sigma = dict.fromkeys(("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr"), 0.03)
+    sigma.update(
+        {
+            "wheel_torque_front": 5.0,
+            "wheel_torque_rear": 5.0,
+            "steering_angle": 0.1 * _DEG / steering_ratio,
+            "accel_x": 0.05,
+            "accel_y": 0.05,
+            "yaw_rate": 0.1 * _DEG,
+            "roll_rate": 0.1 * _DEG,
+            "speed": 0.05,
+        }
+    )
     bias = {"accel_x": 0.02, "accel_y": 0.02, "yaw_rate": 0.03 * _DEG, "roll_rate": 0.03 * _DEG}
     return NoiseModel("realistic", sigma, bias)
 
@@ -95,8 +104,7 @@ TRUTH_READERS = _truth_readers()  # the roll angle itself is not measured (NOTES
 
 def draw_bias(model: NoiseModel, rng: np.random.Generator) -> dict[str, float]:
     """Per-run constant biases, drawn in channel order so a seed always gives the same ones."""
-    return {c: float(rng.normal(0.0, model.bias_sigma[c])) if c in model.bias_sigma else 0.0
-            for c in channels.NAMES}
+    return {c: float(rng.normal(0.0, model.bias_sigma[c])) if c in model.bias_sigma else 0.0 for c in channels.NAMES}
 
 
 class Sensors:

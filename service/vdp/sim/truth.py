@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Mapping
+from collections.abc import Mapping
 
 from ..errors import ConfigError
 

@@ -35,8 +35,9 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Mapping, NamedTuple, Sequence
+from typing import Any, NamedTuple
 
 log = logging.getLogger(__name__)
 
@@ -71,12 +72,23 @@ class Params:
         return self.L - self.l_f
 
     @classmethod
-    def from_vehicle(cls, vehicle: Any, unknowns: Mapping[str, float]) -> "Params":
+    def from_vehicle(cls, vehicle: Any, unknowns: Mapping[str, float]) -> Params:
         """Known constants from a :class:`vdp.profile.Vehicle`, unknowns from a dict."""
-        return cls(m=vehicle.mass, g=vehicle.g, L=vehicle.wheelbase, r=vehicle.wheel_radius,
-                   J=vehicle.wheel_inertia, k_phi=vehicle.roll_stiffness, c_phi=vehicle.roll_damping,
-                   l_f=unknowns["l_f"], h=unknowns["h"], C_K=unknowns["C_K"],
-                   C_alpha=unknowns["C_alpha"], I_z=unknowns["I_z"], I_x=unknowns["I_x"])
+        return cls(
+            m=vehicle.mass,
+            g=vehicle.g,
+            L=vehicle.wheelbase,
+            r=vehicle.wheel_radius,
+            J=vehicle.wheel_inertia,
+            k_phi=vehicle.roll_stiffness,
+            c_phi=vehicle.roll_damping,
+            l_f=unknowns["l_f"],
+            h=unknowns["h"],
+            C_K=unknowns["C_K"],
+            C_alpha=unknowns["C_alpha"],
+            I_z=unknowns["I_z"],
+            I_x=unknowns["I_x"],
+        )
 
 
 class Forces(NamedTuple):
@@ -143,8 +155,7 @@ class Model:
     def step(self, x: Sequence[float], T_f: float, T_r: float, delta: float, dt: float) -> list[float]:
         return self.advance(x, T_f, T_r, delta, dt)[0]
 
-    def advance(self, x: Sequence[float], T_f: float, T_r: float, delta: float,
-                dt: float) -> tuple[list[float], tuple]:
+    def advance(self, x: Sequence[float], T_f: float, T_r: float, delta: float, dt: float) -> tuple[list[float], tuple]:
         """One step of length dt with inputs held; returns (new state, raw Forces tuple at x)."""
         vx, vy, wz, phi, p, wf, wr = x
         if vx < V_HOLD and T_f + T_r < 0.0:
@@ -163,16 +174,21 @@ class Model:
         wf1 = self._wheel(wf, T_f, e[2], vx_t * cd + (vy_t + self.lf * wz_t) * sd, dt)
         wr1 = self._wheel(wr, T_r, e[3], vx_t, dt)
         # Heun stage 2 at (x_pred, omega_n+1): the body feels the same F_x the wheel did.
-        k2 = self._body(vx_t, vy_t, wz_t, phi_t, p_t,
-                        self._eval(vx_t, vy_t, wz_t, wf1, wr1, delta, cd, sd), cd, sd)
+        k2 = self._body(vx_t, vy_t, wz_t, phi_t, p_t, self._eval(vx_t, vy_t, wz_t, wf1, wr1, delta, cd, sd), cd, sd)
         h = 0.5 * dt
         vx1 = vx + h * (k1[0] + k2[0])
-        return [vx1 if vx1 > 0.0 else 0.0, vy + h * (k1[1] + k2[1]), wz + h * (k1[2] + k2[2]),
-                phi + h * (k1[3] + k2[3]), p + h * (k1[4] + k2[4]), wf1, wr1], e
+        return [
+            vx1 if vx1 > 0.0 else 0.0,
+            vy + h * (k1[1] + k2[1]),
+            wz + h * (k1[2] + k2[2]),
+            phi + h * (k1[3] + k2[3]),
+            p + h * (k1[4] + k2[4]),
+            wf1,
+            wr1,
+        ], e
 
     # -- hot path -------------------------------------------------------------------
-    def _eval(self, vx: float, vy: float, wz: float, wf: float, wr: float,
-              delta: float, cd: float, sd: float) -> tuple:
+    def _eval(self, vx: float, vy: float, wz: float, wf: float, wr: float, delta: float, cd: float, sd: float) -> tuple:
         CK, Ca, mu, m, k = self.CK, self.Ca, self.mu, self.m, self.k
         u = vx if vx > V_FLOOR else V_FLOOR
         vyf = vy + self.lf * wz
@@ -210,14 +226,15 @@ class Model:
         ay = (fxf * sd + fyf * cd + fyr) / m  # eq 7
         return ax, ay, fzf, fzr, fxf, fxr, fyf, fyr, sf, sr, af, ar
 
-    def _body(self, vx: float, vy: float, wz: float, phi: float, p: float, e: tuple,
-              cd: float, sd: float) -> tuple:
+    def _body(self, vx: float, vy: float, wz: float, phi: float, p: float, e: tuple, cd: float, sd: float) -> tuple:
         ax, ay, _, _, fxf, _, fyf, fyr = e[:8]
-        return (ax + vy * wz,  # eq 4
-                ay - vx * wz,  # eq 5 corrected (NOTES 1)
-                (self.lf * (fxf * sd + fyf * cd) - self.lr * fyr) / self.Iz,  # eqs 8, 10 (NOTES 2)
-                p,
-                (self.mh * (ay + self.g * phi) - self.kphi * phi - self.cphi * p) / self.Ix)  # eq 9
+        return (
+            ax + vy * wz,  # eq 4
+            ay - vx * wz,  # eq 5 corrected (NOTES 1)
+            (self.lf * (fxf * sd + fyf * cd) - self.lr * fyr) / self.Iz,  # eqs 8, 10 (NOTES 2)
+            p,
+            (self.mh * (ay + self.g * phi) - self.kphi * phi - self.cphi * p) / self.Ix,
+        )  # eq 9
 
     def _roll_acc(self, ay: float, phi: float, p: float) -> float:
         return (self.mh * (ay + self.g * phi) - self.kphi * phi - self.cphi * p) / self.Ix
