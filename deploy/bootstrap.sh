@@ -9,11 +9,13 @@ cd "$(dirname "$0")/.."
 mode=${1:-run}
 shift || true
 
-# Debian packages: iproute2 for the network-namespace end-to-end tests.
+# Debian packages: iproute2 for the network-namespace end-to-end tests, chromium for the
+# dashboard's browser test (Debian's build: a browser that downloads itself cannot here).
 if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
     missing=()
     command -v ip >/dev/null 2>&1 || missing+=(iproute2)
     command -v unshare >/dev/null 2>&1 || missing+=(util-linux)
+    [ "$mode" = test ] && ! command -v chromium >/dev/null 2>&1 && missing+=(chromium)
     if ((${#missing[@]})); then
         apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${missing[@]}" \
             || echo "bootstrap: could not install ${missing[*]}; the tests that need them will skip" >&2
@@ -27,7 +29,7 @@ fi
 stamp=.venv/.vdp-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install -q --upgrade pip >/dev/null 2>&1 || true
-    .venv/bin/python -m pip install -q -e ".[test,opendbc]"
+    .venv/bin/python -m pip install -q -e ".[test,opendbc,parquet]"
     touch "$stamp"
 fi
 export PATH="$PWD/.venv/bin:$PATH"

@@ -12,13 +12,15 @@ import importlib
 import logging
 import sys
 
+from .. import __version__
 from ..errors import VdpError
 
-SUBCOMMANDS = ("simulate", "replay", "serve")
+SUBCOMMANDS = ("simulate", "replay", "serve", "export")
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="vdp", description="Vehicle dynamic parameter estimation from CAN data.")
+    parser.add_argument("--version", action="version", version=f"vdp {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from ..errors import ConfigError
+from .paths import check_output
 
 
 def add_parser(sub):
@@ -23,6 +24,16 @@ def add_parser(sub):
     p.add_argument("--profile", default=None, help="vehicle profile TOML (default: profiles/paper.toml)")
     p.add_argument("--json", dest="json_out", metavar="PATH", help="write the full result as JSON")
     p.add_argument("--plot", metavar="PATH", help="write a PNG of each parameter over time")
+    p.add_argument(
+        "--series",
+        metavar="FILE",
+        help="write the estimates over time (.csv or .parquet): t, then value, std, status per parameter",
+    )
+    p.add_argument(
+        "--channels",
+        metavar="FILE",
+        help="write the aligned, validated channel samples the estimator saw (.csv or .parquet)",
+    )
     p.add_argument("--truth", metavar="PATH", help="a .truth.json from vdp simulate, to compare against")
     p.add_argument("--strict", action="store_true", help="stop at the first malformed log line")
     p.add_argument("--no-ekf", action="store_true", help="skip the EKF baseline (faster)")
@@ -74,15 +85,28 @@ def run(args) -> int:
     from ..pipeline import Pipeline
     from ..profile import load_profile
     from ..replay import replay
+    from ..series import SUFFIXES, ChannelTap, SeriesRecorder, write_table
 
+    # every output is checked before the replay: a bad path never costs a long run
+    for flag, path, suffixes in (
+        ("--json", args.json_out, None),
+        ("--plot", args.plot, (".png", ".pdf", ".svg")),
+        ("--series", args.series, SUFFIXES),
+        ("--channels", args.channels, SUFFIXES),
+    ):
+        if path:
+            check_output(path, flag, suffixes)
     profile = load_profile(args.profile or default_profile())
     truth = report.load_truth(args.truth) if args.truth else None
     cfg = EstimatorConfig(baseline=not args.no_ekf)
     source = open_log(args.log, strict=args.strict, channel=profile.bus_channel)
     progress = Progress(source.size, enabled=not args.no_progress)
     pipeline = Pipeline(profile, cfg)
-    result = replay(source, pipeline, truth=truth, progress=progress.update)
+    recorder = SeriesRecorder(pipeline) if args.series else None
+    tap = ChannelTap(pipeline) if args.channels else None
+    result = replay(recorder.wrap(source) if recorder else source, pipeline, truth=truth, progress=progress.update)
     progress.close()
+    result["vehicle"] = _constants(profile)
 
     print(
         f"{args.log}: {result['log']['frames']} frames, {result['log'].get('duration_s', 0):.1f} s of bus time, "
@@ -91,12 +115,25 @@ def run(args) -> int:
     for line in report.stage_lines(result):
         print(line)
     print(report.table(result))
+    kept, total = len(result["windows"]), (result.get("supervisor") or {}).get("windows", 0)
+    if total > kept:
+        print(f"{total} gating windows in all; the JSON and the plot keep the newest {kept}")
     bad = result["log"].get("bad_lines", 0)
     if bad:
         print(f"{bad} malformed log line(s) skipped; see the JSON 'log' section for line numbers")
     if args.json_out:
         report.write_json(result, args.json_out)
         print(f"wrote {args.json_out}")
+    t0 = result["log"].get("start_time")
+    if recorder is not None:
+        recorder.finish(result)
+        cols, rows = recorder.table(t0)
+        write_table(args.series, cols, rows)
+        print(f"wrote {args.series} ({len(rows)} rows)")
+    if tap is not None:
+        a = tap.array(t0)
+        write_table(args.channels, tap.columns(), a)
+        print(f"wrote {args.channels} ({len(a)} samples)")
     if args.plot:
         report.plot(
             pipeline.estimator.trace,
@@ -108,3 +145,12 @@ def run(args) -> int:
         )
         print(f"wrote {args.plot}")
     return 0
+
+
+def _constants(profile) -> dict:
+    """The profile's known constants, so that `vdp export` needs no profile to hand the result on."""
+    from dataclasses import asdict
+
+    from ..export import Constants
+
+    return {**asdict(Constants.of(profile.vehicle)), "profile": str(profile.path)}

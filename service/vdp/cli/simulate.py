@@ -52,7 +52,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
         metavar="NAME=VALUE",
         help="override a true parameter (l_f, h, C_K, C_alpha, I_z, I_x); repeatable",
     )
-    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument(
+        "--duration", type=float, help="stop after this many seconds (at most the scenario's length; said if capped)"
+    )
     p.add_argument("--drop-rate", type=float, default=0.0, help="drop each frame with this probability")
     p.add_argument("--extra-ids", type=int, default=0, help="number of unrelated filler IDs (benchmarks)")
     p.add_argument("--extra-rate", type=float, default=100.0, help="frames per second of each filler ID")
@@ -102,6 +104,13 @@ def run(args: argparse.Namespace) -> int:
         extra_rate=args.extra_rate,
         duration=args.duration,
     )
+    if args.duration is not None and args.duration > sim.scenario.duration:
+        # the cap bites: say so rather than hand back a shorter drive than asked for
+        print(
+            f"vdp simulate: --duration {args.duration:g} s is longer than scenario '{sim.scenario.name}' "
+            f"({sim.scenario.duration:g} s); simulating {sim.duration:g} s",
+            file=sys.stderr,
+        )
     t0 = time.perf_counter()
     frames = sim.frames(progress=_progress())
     bus = None

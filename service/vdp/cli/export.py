@@ -1,0 +1,81 @@
+"""vdp export: a replay's result handed to a simulator or a script.
+
+vdp export out.json --format commonroad --out car.yaml     # commonroad-vehicle-models parameter layout
+vdp export out.json --format carla --out car.carla.json    # CARLA 0.9 vehicle physics fields
+vdp export out.json --format toml --out car.toml           # plain, with units, stds and status
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from ..errors import ConfigError
+from .paths import check_output
+
+
+def add_parser(sub):
+    from ..export import FORMATS
+
+    p = sub.add_parser(
+        "export",
+        help="write a result's parameters for CommonRoad, CARLA, or as plain JSON/TOML",
+        description="Convert the JSON result of `vdp replay --json` into a simulator's parameter file. "
+        "Parameters that were never estimated (not_run, invalid) are left out of the simulator formats.",
+    )
+    p.add_argument("result", type=Path, help="a result JSON from vdp replay --json")
+    p.add_argument("--format", required=True, metavar="F", help=f"one of {', '.join(FORMATS)}")
+    p.add_argument("--out", required=True, type=Path, help="file to write ('-' for standard output)")
+    p.add_argument(
+        "--profile", help="vehicle profile for the known constants (default: the one the result names, else paper)"
+    )
+    return p
+
+
+def _load(path: Path) -> dict:
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such result file") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"{path}: not a result JSON: {exc}") from None
+    if not isinstance(data, dict) or not isinstance(data.get("parameters"), dict):
+        raise ConfigError(f"{path}: has no 'parameters' object; is it the JSON of vdp replay --json?")
+    return data
+
+
+def constants(data: dict, profile: str | None):
+    from ..export import Constants
+    from ..profile import load_profile
+    from .replay import default_profile
+
+    if profile is None and isinstance(data.get("vehicle"), dict):
+        return Constants.from_dict(data["vehicle"])
+    return Constants.of(load_profile(profile or default_profile()).vehicle)
+
+
+def run(args) -> int:
+    from ..export import check_format, render, usable
+
+    # everything that can be refused is refused before any work
+    check_format(args.format)
+    to_stdout = str(args.out) == "-"
+    if not to_stdout:
+        check_output(args.out, "--out")
+    data = _load(args.result)
+    const = constants(data, args.profile)
+    text = render(args.format, data["parameters"], const, source=str(args.result))
+    if to_stdout:
+        sys.stdout.write(text)
+    else:
+        args.out.write_text(text, encoding="utf-8")
+    _, skipped = usable(data["parameters"])
+    if skipped and args.format in ("commonroad", "carla"):
+        print(
+            f"vdp export: left out (not estimated from the data, or mostly the prior): {', '.join(skipped)}",
+            file=sys.stderr,
+        )
+    if not to_stdout:
+        print(f"wrote {args.out} ({args.format})")
+    return 0

@@ -1,0 +1,252 @@
+"""Estimates handed on: a CommonRoad vehicle-parameter file, CARLA vehicle physics, plain JSON or TOML.
+
+Pure text out of (parameters, vehicle constants): the CLI (``vdp export``) and the API
+(``/export``) write or serve it.  A parameter whose estimate is ``not_run``,
+``not_identifiable`` or ``invalid`` is the prior, mostly the prior, or garbage, so it is
+left out of the simulator formats (and named in ``skipped``); plain JSON and TOML carry
+every one with its status and std.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass
+
+from .core.params import BY_NAME, NAMES
+from .errors import ConfigError
+
+FORMATS = {
+    "commonroad": ("yaml", "application/yaml"),
+    "carla": ("json", "application/json"),
+    "json": ("json", "application/json"),
+    "toml": ("toml", "application/toml"),
+}
+UNUSABLE = ("not_run", "invalid", "not_identifiable")  # the prior, garbage, or mostly the prior
+
+
+@dataclass(frozen=True)
+class Constants:
+    """The known constants a simulator file needs beside the estimates (the profile's [vehicle])."""
+
+    name: str
+    mass: float
+    wheelbase: float
+    wheel_radius: float
+    wheel_inertia: float  # per axle, both wheels
+    track: float
+    g: float = 9.8
+
+    @classmethod
+    def of(cls, vehicle) -> Constants:
+        v = vehicle
+        return cls(v.name, v.mass, v.wheelbase, v.wheel_radius, v.wheel_inertia, v.track, v.g)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Constants:
+        try:
+            return cls(**{k: d[k] for k in cls.__dataclass_fields__ if k in d})
+        except TypeError as exc:
+            raise ConfigError(f"vehicle constants incomplete: {exc}") from None
+
+
+def check_format(fmt: str) -> str:
+    if fmt not in FORMATS:
+        raise ConfigError(f"unknown export format '{fmt}'; use one of {', '.join(FORMATS)}")
+    return fmt
+
+
+def usable(params: dict) -> tuple[dict[str, dict], list[str]]:
+    """(name -> estimate) of the parameters worth handing on, and the names left out."""
+    keep, skipped = {}, []
+    for name in NAMES:
+        p = params.get(name) or {}
+        if p.get("value") is None or p.get("status", "not_run") in UNUSABLE:
+            skipped.append(name)
+        else:
+            keep[name] = p
+    return keep, skipped
+
+
+def render(fmt: str, params: dict, const: Constants, source: str = "") -> str:
+    """The text of ``params`` (a result's ``parameters``) in format ``fmt``."""
+    check_format(fmt)
+    return {"commonroad": _commonroad, "carla": _carla, "json": _json, "toml": _toml}[fmt](params, const, source)
+
+
+def _num(v: float) -> str:
+    return repr(float(v))
+
+
+def _axle_loads(const: Constants, l_f: float) -> tuple[float, float]:
+    """Static axle loads [N]: the front axle carries the share l_r / L (moment balance)."""
+    w = const.mass * const.g
+    return w * (const.wheelbase - l_f) / const.wheelbase, w * l_f / const.wheelbase
+
+
+def _about(p: dict) -> str:
+    std = p.get("std")
+    sd = f"+- {std:.4g}" if std is not None else "std unknown"
+    return f"{sd} {p.get('unit', '')}, {p.get('status', '?')}"
+
+
+def _commonroad(params: dict, const: Constants, source: str) -> str:
+    """The layout of the commonroad-vehicle-models parameter YAML (parameters_vehicleN.yaml):
+    the same keys and units, only those vdp knows; load it over a base set."""
+    keep, skipped = usable(params)
+    lines = [
+        f"# {const.name}: vehicle parameters estimated by vdp" + (f" from {source}" if source else ""),
+        "# layout of commonroad-vehicle-models' parameters_vehicle<N>.yaml; merge over a base set",
+        "# (keys vdp does not estimate are absent). Each estimate's 1-sigma and status in its comment.",
+    ]
+    if skipped:
+        lines.append(f"# left out (not estimated from the data): {', '.join(skipped)}")
+    lines += ["", "# vehicle mass [kg] (known constant)", f"m: {_num(const.mass)}"]
+    if "l_f" in keep:
+        l_f = keep["l_f"]["value"]
+        lines += [
+            "",
+            f"# distance from center of gravity to front axle [m]  ({_about(keep['l_f'])})",
+            f"a: {_num(l_f)}",
+            "# distance from center of gravity to rear axle [m]  (wheelbase - a)",
+            f"b: {_num(const.wheelbase - l_f)}",
+        ]
+    if "I_z" in keep:
+        lines += [
+            "",
+            f"# moment of inertia in yaw [kg m^2]  ({_about(keep['I_z'])})",
+            f"I_z: {_num(keep['I_z']['value'])}",
+        ]
+    if "I_x" in keep:
+        lines += [
+            "",
+            f"# moment of inertia in roll [kg m^2]  ({_about(keep['I_x'])}; vdp's is of the whole car)",
+            f"I_Phi_s: {_num(keep['I_x']['value'])}",
+        ]
+    if "h" in keep:
+        h = keep["h"]["value"]
+        lines += [
+            "",
+            f"# center of gravity height of total mass [m]  ({_about(keep['h'])})",
+            f"h_cg: {_num(h)}",
+            "# M_s center of gravity above ground [m]  (vdp does not split sprung mass: h_cg)",
+            f"h_s: {_num(h)}",
+        ]
+    lines += [
+        "",
+        "# track width front and rear [m] (known constant)",
+        f"T_f: {_num(const.track)}",
+        f"T_r: {_num(const.track)}",
+        "# effective wheel radius [m] (known constant)",
+        f"R_w: {_num(const.wheel_radius)}",
+        "# wheel inertia [kg m^2] (known constant, per wheel)",
+        f"I_y_w: {_num(const.wheel_inertia / 2)}",
+    ]
+    tire = []
+    if "C_K" in keep:
+        # Pacejka's K_x / F_z at nominal load is vdp's C_K by definition (eq 14)
+        tire += [
+            f"  # longitudinal slip stiffness Kfx/Fz  ({_about(keep['C_K'])})",
+            f"  p_kx1: {_num(keep['C_K']['value'])}",
+        ]
+    if "C_alpha" in keep and "l_f" in keep:
+        # the single-track model uses C_S = -p_ky1 / p_dy1 per unit axle load: vdp's one
+        # C_alpha per axle over the mean static axle load (m g / 2)
+        c = keep["C_alpha"]
+        c_s = c["value"] / (const.mass * const.g / 2)
+        sd = f"+- {c['std'] / (const.mass * const.g / 2):.4g}" if c.get("std") is not None else "std unknown"
+        tire += [
+            f"  # lateral stiffness Kfy/Fznom [1/rad]: -C_alpha / (m g / 2)  ({sd}, {c.get('status')})",
+            f"  p_ky1: {_num(-c_s)}",
+        ]
+    if tire:
+        lines += ["", "tire:", *tire]
+    return "\n".join(lines) + "\n"
+
+
+def _carla(params: dict, const: Constants, source: str) -> str:
+    """CARLA 0.9's VehiclePhysicsControl / WheelPhysicsControl field names and units (radius in
+    cm), wheels front-left, front-right, rear-left, rear-right.  PhysX has no inertia fields:
+    I_z and I_x go in the ``vdp`` block only."""
+    keep, skipped = usable(params)
+    out: dict = {"mass": const.mass}
+    l_f = keep["l_f"]["value"] if "l_f" in keep else None
+    if l_f is not None:
+        # forward of the wheelbase midpoint, above the ground; CARLA 0.9 applies center_of_mass
+        # as a nudge from the mesh's own centre, so subtract the blueprint's before applying
+        out["center_of_mass"] = {
+            "x": const.wheelbase / 2 - l_f,
+            "y": 0.0,
+            "z": keep["h"]["value"] if "h" in keep else 0.0,
+        }
+    wheels = []
+    loads = _axle_loads(const, l_f) if l_f is not None else None
+    for axle in (0, 0, 1, 1):
+        w: dict = {"radius": const.wheel_radius * 100.0}
+        if loads is not None:
+            f_z = loads[axle] / 2  # per wheel
+            if "C_K" in keep:
+                # PhysX: longitudinal stiffness [N per unit slip] per unit g = C_K F_z / g
+                w["long_stiff_value"] = keep["C_K"]["value"] * f_z / const.g
+            if "C_alpha" in keep:
+                # cornering stiffness of one wheel per unit of its static load [1/rad]
+                w["lat_stiff_value"] = keep["C_alpha"]["value"] / 2 / f_z
+        wheels.append(w)
+    out["wheels"] = wheels
+    out["vdp"] = {
+        "vehicle": const.name,
+        "source": source,
+        "note": "CARLA 0.9 (PhysX) fields; set them on carla.VehiclePhysicsControl / WheelPhysicsControl. "
+        "center_of_mass is relative to the wheelbase midpoint on the ground; PhysX's load curve scales "
+        "lat_stiff_value at the rest load, check it against your CARLA version.",
+        "parameters": _plain(params)["parameters"],
+        "skipped": skipped,
+    }
+    return json.dumps(out, indent=2, allow_nan=False) + "\n"
+
+
+def _plain(params: dict, const: Constants | None = None, source: str = "") -> dict:
+    out: dict = {"parameters": {}}
+    for name in NAMES:
+        p = params.get(name) or {}
+        out["parameters"][name] = {
+            "value": _finite(p.get("value")),
+            "std": _finite(p.get("std")),
+            "unit": p.get("unit", BY_NAME[name].unit),
+            "status": p.get("status", "not_run"),
+            "valid": bool(p.get("valid", False)),
+            "description": BY_NAME[name].description,
+        }
+    if const is not None:
+        out["vehicle"] = asdict(const)
+    if source:
+        out["source"] = source
+    return out
+
+
+def _finite(v):
+    return float(v) if v is not None and math.isfinite(v) else None
+
+
+def _json(params: dict, const: Constants, source: str) -> str:
+    return json.dumps(_plain(params, const, source), indent=2, allow_nan=False) + "\n"
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(float(v)) if isinstance(v, float) else str(v)
+    return json.dumps(str(v))  # a JSON string is a valid TOML basic string
+
+
+def _toml(params: dict, const: Constants, source: str) -> str:
+    """Plain TOML; an unknown number is left out (TOML has no null)."""
+    d = _plain(params, const, source)
+    lines = [f"# vdp estimates of {const.name}" + (f" from {source}" if source else ""), ""]
+    lines.append("[vehicle]")
+    lines += [f"{k} = {_toml_value(v)}" for k, v in d["vehicle"].items()]
+    for name, p in d["parameters"].items():
+        lines += ["", f"[parameters.{name}]"]
+        lines += [f"{k} = {_toml_value(v)}" for k, v in p.items() if v is not None]
+    return "\n".join(lines) + "\n"

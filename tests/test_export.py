@@ -1,0 +1,154 @@
+"""Exports: replay --series/--channels, vdp export's formats, --version, caps that say they bite."""
+
+import csv
+import json
+import sys
+
+import pytest
+import yaml
+
+from vdp import __version__
+from vdp.cli import main
+from vdp.core.params import NAMES
+from vdp.sim.run import simulate, write_log, write_truth
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory, repo_root):
+    """The paper drive's first 45 s: stage 1 converges and stage 2 has windows."""
+    d = tmp_path_factory.mktemp("export")
+    frames, truth = simulate(repo_root / "profiles" / "paper.toml", "paper", seed=3, noise="realistic", duration=45.0)
+    log = d / "drive.log"
+    write_log(frames, log)
+    write_truth(truth, d / "drive.truth.json")
+    return d, log
+
+
+@pytest.fixture(scope="module")
+def replayed(drive, repo_root):
+    d, log = drive
+    out = {k: d / f"r.{k}" for k in ("json", "csv", "parquet")}
+    code = main(
+        [
+            "replay",
+            str(log),
+            "--profile",
+            str(repo_root / "profiles" / "paper.toml"),
+            "--no-ekf",
+            "--json",
+            str(out["json"]),
+            "--series",
+            str(out["csv"]),
+            "--channels",
+            str(out["parquet"]),
+        ]
+    )
+    assert code == 0
+    return d, out, json.loads(out["json"].read_text())
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0 and capsys.readouterr().out.strip() == f"vdp {__version__}"
+
+
+def test_series_last_row_is_the_json_result_and_covers_window_time(replayed):
+    _, out, res = replayed
+    rows = list(csv.DictReader(out["csv"].open()))
+    assert list(rows[0])[:4] == ["t", "l_f", "l_f_std", "l_f_status"]
+    last = rows[-1]
+    for name in NAMES:
+        p = res["parameters"][name]
+        assert float(last[name]) == p["value"] and float(last[f"{name}_std"]) == p["std"]
+        assert last[f"{name}_status"] == p["status"]
+    t = [float(r["t"]) for r in rows]
+    assert t == sorted(t) and t[0] >= 0
+    end = res["log"]["duration_s"]
+    for w in res["windows"]:
+        lo, hi = w["start"], w["end"] if w["end"] is not None else end
+        inside = sum(lo <= x <= hi for x in t)
+        assert inside >= int(hi - lo), (w, inside)  # at least one row per second of window time
+    # the estimates move over time: the series is not one row repeated
+    assert len({r["l_f"] for r in rows}) > 10
+
+
+def test_channels_are_the_aligned_samples(replayed):
+    pq = pytest.importorskip("pyarrow.parquet")
+    _, out, res = replayed
+    table = pq.read_table(out["parquet"]).to_pydict()
+    assert "steering_angle_rad" in table and "v_x_est_m_s" in table
+    t = table["t"]
+    # one sample per estimator tick (20 ms) over the drive
+    assert len(t) == pytest.approx(res["log"]["duration_s"] / 0.02, rel=0.02)
+    speed = [v for v in table["speed_m_s"] if v is not None]
+    assert 10 < sum(speed) / len(speed) < 40  # m/s: SI units, not km/h
+
+
+def test_bad_outputs_are_refused_before_the_replay(drive, tmp_path, capsys):
+    _, log = drive
+    js = tmp_path / "never.json"
+    for flag, bad in (("--series", tmp_path / "x.xlsx"), ("--channels", tmp_path / "no" / "dir" / "c.csv")):
+        code = main(["replay", str(log), "--json", str(js), flag, str(bad)])
+        err = capsys.readouterr().err
+        assert code == 2 and flag in err and len(err.strip().splitlines()) == 1
+        assert not js.exists()  # refused before any work
+
+
+@pytest.mark.parametrize("fmt", ["commonroad", "carla", "json", "toml"])
+def test_export_formats(replayed, fmt, tmp_path):
+    d, out, res = replayed
+    dest = tmp_path / f"car.{fmt}"
+    assert main(["export", str(out["json"]), "--format", fmt, "--out", str(dest)]) == 0
+    text = dest.read_text()
+    p = res["parameters"]
+    if fmt == "commonroad":
+        y = yaml.safe_load(text)
+        # the commonroad-vehicle-models layout: a, b from the CG, h_cg, I_z; tire p_kx1 is C_K
+        assert y["a"] == p["l_f"]["value"] and y["a"] + y["b"] == pytest.approx(2.5)
+        assert y["m"] == 1600.0 and y["tire"]["p_kx1"] == p["C_K"]["value"]
+        for name, key in (("h", "h_cg"), ("I_z", "I_z"), ("I_x", "I_Phi_s")):
+            usable = p[name]["status"] in ("converged", "uncertain")
+            assert (key in y) == usable, (name, p[name]["status"])
+    elif fmt == "carla":
+        c = json.loads(text)
+        assert c["mass"] == 1600.0 and len(c["wheels"]) == 4 and c["wheels"][0]["radius"] == 30.0
+        assert c["center_of_mass"]["x"] == pytest.approx(1.25 - p["l_f"]["value"])
+        # front wheels carry l_r / L of the weight: C_K * F_z / g per wheel
+        f_z = 1600 * 9.8 * (2.5 - p["l_f"]["value"]) / 2.5 / 2
+        assert c["wheels"][0]["long_stiff_value"] == pytest.approx(p["C_K"]["value"] * f_z / 9.8)
+    else:
+        doc = json.loads(text) if fmt == "json" else tomllib.loads(text)
+        for name in NAMES:
+            e = doc["parameters"][name]
+            assert e["value"] == p[name]["value"] and e["std"] == p[name]["std"]
+            assert e["unit"] == p[name]["unit"] and e["status"] == p[name]["status"]
+        assert doc["vehicle"]["wheelbase"] == 2.5
+
+
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["--format", "sumo", "--out", "OUT"], "unknown export format"),
+        (["--format", "json", "--out", "/nonexistent-dir/x.json"], "does not exist"),
+        (["--format", "json", "--out", "DIR"], "is a directory"),
+    ],
+)
+def test_export_refuses_bad_input(replayed, tmp_path, capsys, args, needle):
+    _, out, _ = replayed
+    args = [str(tmp_path / "o.json") if a == "OUT" else str(tmp_path) if a == "DIR" else a for a in args]
+    assert main(["export", str(out["json"]), *args]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and len(err.strip().splitlines()) == 1
+
+
+def test_simulate_says_when_duration_is_capped(tmp_path, capsys):
+    out = tmp_path / "s.log"
+    assert main(["simulate", "--scenario", "stage1", "--duration", "9999", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "--duration 9999 s is longer than scenario 'stage1'" in err
