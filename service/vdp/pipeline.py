@@ -14,6 +14,7 @@ import numpy as np
 
 from . import channels
 from .buffer import Aligner, SampleRing
+from .core import progress
 from .core.estimator import EstimatorConfig, TwoStageEstimator
 from .io.decoder import FrameDecoder
 from .profile import Profile
@@ -86,6 +87,13 @@ class Pipeline:
     def snapshot(self) -> dict:
         snap = self.estimator.snapshot()
         snap["capabilities"] = self.capabilities()
+        # progress and coaching from what the learners have (core.progress)
+        coach = progress.assess(snap, self.profile.priors, self.estimator.cfg.tick)
+        for name, c in coach["parameters"].items():
+            e = snap["parameters"].get(name)
+            if e is not None:
+                e["progress"], e["hint"] = c["progress"], c["hint"]
+        snap["coaching"] = coach
         return snap
 
     def freshness(self) -> dict[str, dict]:

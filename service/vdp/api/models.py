@@ -26,6 +26,10 @@ class Estimate(_Model):
     stage: int = Field(description="1 (l_f, h, C_K) or 2 (C_alpha, I_z, I_x)")
     samples: int = Field(description="samples the filter has used for this parameter")
     status: str = Field(description=f"one of {', '.join(STATUSES)}")
+    progress: float | None = Field(
+        None, description="0-1: how far the std has come from the prior's to the convergence threshold (log scale)"
+    )
+    hint: str | None = Field(None, description="what to drive for this parameter, in a driver's words")
 
 
 class Supervisor(_Model):
@@ -41,6 +45,11 @@ class Estimates(_Model):
     supervisor: Supervisor
     capabilities: dict[str, str | None] = Field(
         default_factory=dict, description="per stage: null if it can run, else why not"
+    )
+    coaching: dict[str, Any] | None = Field(
+        None,
+        description="per stage progress (0-1) and gate, per parameter information gained, window "
+        "seconds and seconds to go, and `next`: the manoeuvre to drive next",
     )
     resets: dict[str, int] = Field(default_factory=dict, description="divergence resets per filter kind")
     restored: bool = Field(False, description="the estimator started from the stored estimates")

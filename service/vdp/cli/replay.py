@@ -115,6 +115,8 @@ def run(args) -> int:
     for line in report.stage_lines(result):
         print(line)
     print(report.table(result))
+    for line in _coaching(result):
+        print(line)
     kept, total = len(result["windows"]), (result.get("supervisor") or {}).get("windows", 0)
     if total > kept:
         print(f"{total} gating windows in all; the JSON and the plot keep the newest {kept}")
@@ -154,3 +156,20 @@ def _constants(profile) -> dict:
     from ..export import Constants
 
     return {**asdict(Constants.of(profile.vehicle)), "profile": str(profile.path)}
+
+
+def _coaching(result: dict) -> list[str]:
+    """Progress per stage, and what to drive for what is not yet learnt."""
+    coach = result.get("coaching")
+    if not coach:
+        return []
+    stages = coach["stages"]
+    lines = [
+        "progress: "
+        + ", ".join(f"stage {k} {100 * v['progress']:.0f} %" for k, v in stages.items())
+        + f"; next: {coach['next']}"
+    ]
+    for name, p in result["parameters"].items():
+        if p.get("status") != "converged" and p.get("hint"):
+            lines.append(f"  {name}: {p['hint']}")
+    return lines

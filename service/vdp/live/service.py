@@ -417,6 +417,7 @@ class Service:
             "stage": s.get("stage", "stage1"),
             "supervisor": s.get("supervisor") or {"active_stage": None, "reasons": {}, "windows": 0},
             "capabilities": s.get("capabilities") or {},
+            "coaching": s.get("coaching"),
             "resets": s.get("resets") or {},
             "restored": pub.restored,
             "bus_time": pub.bus_time,

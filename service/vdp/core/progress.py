@@ -1,0 +1,188 @@
+"""How far learning has got, and what to drive next: from what the learners have, never a timer.
+
+Pure: a snapshot (the estimator's parameters, supervisor state and capabilities) and the
+priors in, numbers and words out.
+
+- **Information gained** is the share of the way the std has come from the prior's to the
+  convergence threshold, on a log scale: ``ln(prior/std) / ln(prior/target)``, with
+  ``target = converged_rel * |value|`` (the learners' own convergence rule).  1 only when
+  the learner says ``converged``.
+- **Time still needed**: while the data, not the prior, sets the std, it shrinks as
+  1/sqrt(samples), so reaching the target takes ``window_s * ((std/target)^2 - 1)`` more
+  seconds of the same driving (an estimate from the learner's state, shown as such).
+- **The hint** follows the supervisor's reason for its stage's gate (excitation seen, speed,
+  steering, a missing channel) in words a driver can act on.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .params import BY_NAME, NAMES, STAGE1, STAGE2
+
+STAGE_PARAMS = {1: STAGE1, 2: STAGE2}
+
+# What each stage needs, said to a driver (Table 2 of the paper, and the supervisor's gates).
+DRIVE = {
+    1: "on a straight, level road, accelerate firmly and brake, again and again "
+    "(say 40 to 80 km/h and back), keeping the wheel straight",
+    2: "at a steady speed (40 to 70 km/h) on a wide, empty road or lot, weave: steer left and "
+    "right continuously, one swing every 2 to 4 s",
+}
+
+# The supervisor's reasons (core.supervisor) turned into what to change.
+_FIX = (
+    ("speed below", "too slow: it needs more than 20 km/h"),
+    ("steering (|delta|", "the wheel is turned: hold it straight"),
+    ("yawing", "the car is turning: find a straight stretch"),
+    ("little longitudinal excitation", "the speed is not changing enough"),
+    ("little steering excitation", "not enough steering yet"),
+    ("speed not constant", "the speed is changing: hold it steady (cruise control helps)"),
+    ("channels missing or stale", "check the bus: a sensor the stage needs is silent"),
+)
+
+# Per parameter, what excites it most (where it differs from its stage's manoeuvre).
+_EXTRA = {
+    "h": "firm braking moves most load between the axles, which is what shows the CG height",
+    "I_x": "roll needs quick steering reversals: weave faster, about one swing per second",
+    "I_z": "quick steering reversals show the yaw inertia best",
+}
+
+
+def _fix(reason: str | None) -> str | None:
+    if not reason:
+        return None
+    for key, words in _FIX:
+        if reason.startswith(key):
+            if key == "channels missing or stale":
+                return f"check the bus: {reason.split(': ', 1)[-1]} silent or stale"
+            return words
+    return None
+
+
+def information(value: float | None, std: float | None, prior_std: float, converged_rel: float) -> float:
+    """0 at the prior's std, 1 at the convergence threshold (log scale), clipped to [0, 1]."""
+    if value is None or std is None or not (std > 0 and prior_std > 0 and math.isfinite(value)):
+        return 0.0
+    target = converged_rel * abs(value)
+    if target <= 0:
+        return 0.0
+    if target >= prior_std:  # the prior alone is already tight enough: any data finishes it
+        return 1.0 if std <= target else 0.0
+    f = math.log(prior_std / std) / math.log(prior_std / target)
+    return min(max(f, 0.0), 1.0)
+
+
+def seconds_to_go(value: float | None, std: float | None, window_s: float, converged_rel: float) -> float | None:
+    """More seconds of the same driving until std reaches the threshold, if the data keeps coming
+    as it has (std ~ 1/sqrt(samples)); None before any window."""
+    if value is None or std is None or window_s <= 0 or not math.isfinite(value):
+        return None
+    target = converged_rel * abs(value)
+    if target <= 0 or std <= target:
+        return 0.0
+    return window_s * ((std / target) ** 2 - 1.0)
+
+
+def _duration(s: float) -> str:
+    if s < 90:
+        return f"{max(s, 1):.0f} s"
+    if s < 3600:
+        return f"{s / 60:.0f} min"
+    return "more than an hour"
+
+
+def assess(snapshot: dict, priors: dict, tick: float) -> dict:
+    """Per parameter progress (0-1) and a hint, per stage progress and the next manoeuvre.
+
+    ``snapshot``: the estimator's (``parameters``, ``stage``, ``supervisor``, ``capabilities``);
+    ``priors``: name -> object with ``std`` (the profile's); ``tick``: s per sample.
+    """
+    params = snapshot.get("parameters") or {}
+    sup = snapshot.get("supervisor") or {}
+    reasons = sup.get("reasons") or {}
+    excitation = sup.get("excitation") or {}
+    caps = snapshot.get("capabilities") or {}
+    handed_over = snapshot.get("stage") in ("stage2", "done")
+
+    out: dict = {"parameters": {}, "stages": {}}
+    for name in NAMES:
+        spec, p = BY_NAME[name], params.get(name) or {}
+        stage = spec.stage
+        status = p.get("status", "not_run")
+        window_s = (p.get("samples") or 0) * tick
+        info = information(p.get("value"), p.get("std"), priors[name].std, spec.converged_rel)
+        progress = 1.0 if status == "converged" else min(info, 0.99) if status != "invalid" else 0.0
+        to_go = seconds_to_go(p.get("value"), p.get("std"), window_s, spec.converged_rel)
+        out["parameters"][name] = {
+            "progress": round(progress, 3),
+            "information": round(info, 3),
+            "window_s": round(window_s, 2),
+            "seconds_to_go": None if to_go is None or status != "uncertain" else round(to_go, 1),
+            "hint": _hint(
+                name, stage, status, p, to_go, priors[name].std, caps.get(str(stage)), reasons, excitation, handed_over
+            ),
+        }
+    for stage, names in STAGE_PARAMS.items():
+        per = out["parameters"]
+        # the mean over the stage's parameters; one the data was judged unable to pin no longer
+        # holds its stage back (the estimator calls the stage done then, too)
+        counted = [1.0 if params.get(n, {}).get("status") == "not_identifiable" else per[n]["progress"] for n in names]
+        ex = excitation.get(str(stage)) or {}
+        out["stages"][str(stage)] = {
+            "progress": round(sum(counted) / len(counted), 3),
+            "can_run": not caps.get(str(stage)),
+            "why_not": caps.get(str(stage)),
+            "gate": reasons.get(str(stage)),
+            "excited_s": ex.get("seconds"),
+            "observed_s": ex.get("of"),
+        }
+    out["next"] = _next(snapshot, out, reasons, caps)
+    return out
+
+
+def _hint(name, stage, status, p, to_go, prior_std, why_not, reasons, excitation, handed_over) -> str:
+    if why_not:
+        return f"cannot be learnt on this car: {why_not}"
+    if status == "converged":
+        rel = (p.get("std") or 0) / abs(p["value"]) if p.get("value") else 0
+        return f"enough: known to ±{100 * rel:.1f} % (1σ); nothing more to drive for it"
+    if status == "invalid":
+        return "the estimate left its sane range; it restarts from its last good value — keep driving"
+    if stage == 2 and not handed_over:
+        return "waits for l_f, h and C_K (stage 1): first " + DRIVE[1]
+    reason = reasons.get(str(stage))
+    if status == "not_identifiable":
+        extra = _EXTRA.get(name)
+        return (
+            "this driving has not narrowed it (std still above half the prior's): "
+            + (extra if extra else DRIVE[stage])
+            + "; until then its value is mostly the prior's"
+        )
+    if reason == "open":
+        # the 1/sqrt(samples) extrapolation holds once the data, not the prior, sets the std
+        sure = to_go and information(p.get("value"), p.get("std"), prior_std, BY_NAME[name].converged_rel) > 0.5
+        more = f" for about {_duration(to_go)} more" if sure else ""
+        head = f"learning now: keep doing this{more}"
+        return head + (f"; {_EXTRA[name]}" if name in _EXTRA else "")
+    fix = _fix(reason)
+    seen = (excitation.get(str(stage)) or {}).get("seconds")
+    had = f" (the drive has given {seen:.0f} s of it so far)" if seen else ""
+    return DRIVE[stage] + had + (f"; now: {fix}" if fix else "")
+
+
+def _next(snapshot, out, reasons, caps) -> str:
+    """The one manoeuvre to drive next, in a driver's words."""
+    stage = snapshot.get("stage", "stage1")
+    if stage == "done" or (caps.get("1") and caps.get("2")):
+        if caps.get("1") and caps.get("2"):
+            return "nothing to drive: this car's bus lacks what both stages need (see the stages)"
+        return "done: every parameter is learnt or known not to be learnable from driving; drive normally"
+    n = 1 if stage == "stage1" and not caps.get("1") else 2
+    if caps.get(str(n)):
+        return f"stage {n} cannot run on this car: {caps[str(n)]}"
+    reason = reasons.get(str(n))
+    if reason == "open":
+        return f"keep going: {DRIVE[n]}"
+    fix = _fix(reason)
+    return DRIVE[n][0].upper() + DRIVE[n][1:] + (f" — now: {fix}" if fix else "")

@@ -1,0 +1,102 @@
+"""Progress and coaching (core.progress): from the learners' state, never from a clock."""
+
+import math
+from types import SimpleNamespace
+
+import pytest
+
+from vdp.core import progress
+from vdp.core.params import NAMES, STAGE1, STAGE2
+from vdp.io.logs import open_log
+from vdp.pipeline import Pipeline
+from vdp.profile import load_profile
+from vdp.sim.run import simulate, write_log
+
+PRIORS = {
+    n: SimpleNamespace(value=v, std=s)
+    for n, v, s in zip(NAMES, (1.25, 0.55, 8, 5e4, 2500, 3000), (0.3, 0.2, 4, 2.5e4, 1200, 1500))
+}
+
+
+def snap(stage="stage1", reasons=None, caps=None, **params):
+    base = {n: {"value": PRIORS[n].value, "std": PRIORS[n].std, "status": "not_run", "samples": 0} for n in NAMES}
+    for n, p in params.items():
+        base[n] = {**base[n], **p}
+    return {
+        "parameters": base,
+        "stage": stage,
+        "supervisor": {"reasons": reasons or {"1": "open", "2": "waiting for stage 1 to converge"}, "excitation": {}},
+        "capabilities": caps or {"1": None, "2": None},
+    }
+
+
+def test_information_runs_from_prior_to_threshold_on_a_log_scale():
+    # l_f: converged at 0.7 % of 1.4 m = 0.0098 m; the prior's std is 0.3 m
+    f = [progress.information(1.4, sd, 0.3, 0.007) for sd in (0.3, 0.1, 0.03, 0.0098, 0.001)]
+    assert f[0] == 0 and f[-2] == pytest.approx(1.0) and f[-1] == 1.0
+    assert f == sorted(f)
+    assert f[2] == pytest.approx(math.log(10) / math.log(0.3 / 0.0098))
+    assert progress.information(None, 0.1, 0.3, 0.007) == 0.0
+
+
+def test_seconds_to_go_follows_one_over_root_n():
+    # std twice the target after 10 s: four times the samples, 30 s more
+    assert progress.seconds_to_go(1.0, 0.02, 10.0, 0.01) == pytest.approx(30.0)
+    assert progress.seconds_to_go(1.0, 0.005, 10.0, 0.01) == 0.0
+    assert progress.seconds_to_go(1.0, 0.02, 0.0, 0.01) is None
+
+
+def test_nothing_driven_is_zero_and_says_what_to_drive():
+    out = progress.assess(snap(reasons={"1": "little longitudinal excitation (a_x varies too little)"}), PRIORS, 0.02)
+    assert all(p["progress"] == 0 for p in out["parameters"].values())
+    assert out["stages"]["1"]["progress"] == 0 and out["stages"]["2"]["progress"] == 0
+    assert "accelerate" in out["next"] and "not changing enough" in out["next"]
+    assert "stage 1" in out["parameters"]["I_z"]["hint"]
+
+
+def test_progress_comes_from_the_std_not_from_time():
+    half = {"value": 1.4, "std": 0.05, "status": "uncertain", "samples": 1000}
+    a = progress.assess(snap(l_f=half), PRIORS, 0.02)["parameters"]["l_f"]
+    b = progress.assess(snap(l_f={**half, "samples": 100000}), PRIORS, 0.02)["parameters"]["l_f"]
+    assert 0 < a["progress"] < 1 and a["progress"] == b["progress"]  # more time, same information: same progress
+    assert a["window_s"] == 20.0 and "keep doing this" in a["hint"]
+
+
+def test_converged_and_not_identifiable():
+    done = {"value": 1.4, "std": 0.005, "status": "converged", "samples": 900}
+    stuck = {"value": 2900.0, "std": 1400.0, "status": "not_identifiable", "samples": 900}
+    conv = {"value": 6.7e4, "std": 500.0, "status": "converged", "samples": 900}
+    s = snap(stage="done", l_f=done, h=done, C_K=done, C_alpha=conv, I_z=conv, I_x=stuck)
+    out = progress.assess(s, PRIORS, 0.02)
+    assert out["parameters"]["l_f"]["progress"] == 1.0 and out["parameters"]["l_f"]["hint"].startswith("enough")
+    assert out["parameters"]["I_x"]["progress"] < 0.2 and "roll" in out["parameters"]["I_x"]["hint"]
+    assert out["stages"]["2"]["progress"] == 1.0 and out["next"].startswith("done")
+
+
+def test_a_stage_this_car_cannot_run_says_why():
+    why = "no roll-rate gyro (the profile maps no roll_rate)"
+    out = progress.assess(snap(caps={"1": None, "2": why}), PRIORS, 0.02)
+    for n in STAGE2:
+        assert why in out["parameters"][n]["hint"]
+    assert not out["stages"]["2"]["can_run"]
+
+
+@pytest.mark.slow
+def test_progress_grows_while_the_paper_drive_goes_on(tmp_path, repo_root):
+    profile = load_profile(repo_root / "profiles" / "paper.toml")
+    frames, _ = simulate(repo_root / "profiles" / "paper.toml", "paper", seed=2, duration=80.0)
+    log = tmp_path / "d.log"
+    write_log(frames, log)
+    pipe = Pipeline(profile)
+    seen = []
+    for i, msg in enumerate(open_log(log, channel=profile.bus_channel)):
+        pipe.feed(msg)
+        if i % 4000 == 0:
+            c = pipe.snapshot()["coaching"]
+            seen.append((c["stages"]["1"]["progress"], c["stages"]["2"]["progress"]))
+    s1 = [a for a, _ in seen]
+    assert s1[0] < 0.5 and s1[-1] == 1.0
+    assert max(b for _, b in seen) > 0.3  # stage 2 learns in the weaving that follows
+    final = pipe.snapshot()
+    for n in STAGE1:
+        assert final["parameters"][n]["progress"] == 1.0 and final["parameters"][n]["status"] == "converged"
