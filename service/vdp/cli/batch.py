@@ -1,0 +1,370 @@
+"""vdp batch: many logs on a Dask cluster, results as Parquet, drives combined per vehicle.
+
+vdp batch LOGS... [--manifest FILE] --out DIR [--workers N | --scheduler ADDRESS]
+
+Each log is one task.  A finished log is written at once to DIR/parts/, so an
+interrupted batch loses nothing and a rerun skips what is done (a log that
+failed, or changed since, is run again).  At the end DIR/runs.parquet (one row
+per log x parameter) and DIR/vehicles.parquet (one row per vehicle x
+parameter) are written from every part in DIR.
+"""
+
+from __future__ import annotations
+
+import csv
+import glob
+import logging
+import os
+import sys
+import time
+from pathlib import Path
+
+from ..errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+_GLOB_CHARS = set("*?[")
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "batch",
+        help="estimate the parameters of many logs on a Dask cluster; Parquet out",
+        description="Replay many CAN logs, each an independent task on Dask (a local cluster "
+        "by default), into DIR/runs.parquet and DIR/vehicles.parquet. Needs the 'fleet' extra: "
+        "pip install 'vdp[fleet]'.",
+    )
+    p.add_argument("logs", nargs="*", help="log files, globs ('logs/**/*.log') or directories")
+    p.add_argument(
+        "--manifest",
+        metavar="FILE",
+        help="CSV with the columns log,vehicle,profile (relative paths: from the manifest's folder)",
+    )
+    p.add_argument("--out", required=True, metavar="DIR", help="where the Parquet files go")
+    p.add_argument(
+        "--profile", default=None, help="vehicle profile for logs given without one (default: profiles/paper.toml)"
+    )
+    p.add_argument(
+        "--vehicle",
+        default=None,
+        help="vehicle name for logs given without one (default: the profile's [vehicle] name)",
+    )
+    g = p.add_mutually_exclusive_group()
+    g.add_argument(
+        "--workers", type=int, default=None, help="local cluster of N worker processes (default: one per core)"
+    )
+    g.add_argument("--scheduler", metavar="ADDRESS", help="run on an existing Dask cluster, e.g. tcp://10.0.0.5:8786")
+    p.add_argument("--redo", action="store_true", help="run every log again, even those already done")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return p
+
+
+# -- inputs -------------------------------------------------------------------
+
+
+def expand(inputs: list[str]) -> list[str]:
+    """Log paths from paths, globs and directories (a plain path is kept even if missing)."""
+    from ..io.logs import FORMATS
+
+    def is_log(p: Path) -> bool:
+        suffixes = [s.lower() for s in p.suffixes]
+        if suffixes and suffixes[-1] == ".gz":
+            suffixes = suffixes[:-1]
+        return p.is_file() and bool(suffixes) and suffixes[-1] in FORMATS
+
+    out: list[str] = []
+    for item in inputs:
+        p = Path(item)
+        if _GLOB_CHARS & set(item):
+            hits = sorted(glob.glob(item, recursive=True))
+            if not hits:
+                print(f"vdp batch: warning: no file matches {item}", file=sys.stderr)
+            out.extend(h for h in hits if Path(h).is_file())
+        elif p.is_dir():
+            hits = sorted(str(f) for f in p.rglob("*") if is_log(f))
+            if not hits:
+                print(f"vdp batch: warning: no log files ({', '.join(FORMATS)}) in {item}", file=sys.stderr)
+            out.extend(hits)
+        else:
+            out.append(item)
+    return out
+
+
+def read_manifest(path: str) -> list[tuple[str, str | None, str | None]]:
+    """(log, vehicle or None, profile or None) per manifest line."""
+    where = Path(path)
+    try:
+        text = where.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such manifest file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read the manifest: {exc}") from None
+    reader = csv.DictReader(text.splitlines())
+    cols = [c.strip() for c in reader.fieldnames or []]
+    if "log" not in cols:
+        raise ConfigError(
+            f"{path}: the manifest needs a header line with the columns log,vehicle,profile "
+            f"(found: {','.join(cols) or 'nothing'})"
+        )
+    base = where.resolve().parent
+    out = []
+    for n, rec in enumerate(reader, 2):
+        rec = {(k or "").strip(): (v or "").strip() for k, v in rec.items()}
+        if not rec.get("log"):
+            if any(rec.values()):
+                raise ConfigError(f"{path}: line {n}: no log path in the 'log' column")
+            continue
+
+        def rel(v: str) -> str:
+            return str(base / v) if v and not Path(v).is_absolute() else v
+
+        out.append((rel(rec["log"]), rec.get("vehicle") or None, rel(rec.get("profile", "")) or None))
+    if not out:
+        raise ConfigError(f"{path}: the manifest lists no logs")
+    return out
+
+
+def tasks(args) -> list:
+    from ..fleet import Task
+    from ..profile import load_profile
+    from .replay import default_profile
+
+    entries: list[tuple[str, str | None, str | None]] = []
+    if args.manifest:
+        entries += read_manifest(args.manifest)
+    entries += [(p, None, None) for p in expand(args.logs)]
+    if not entries:
+        raise ConfigError("no logs given: name log files, globs or directories, or --manifest FILE")
+    default = str(Path(args.profile).resolve()) if args.profile else None
+    names: dict[str, str] = {}
+    out, seen = [], set()
+    for logp, vehicle, prof in entries:
+        prof = str(Path(prof).resolve()) if prof else (default or str(default_profile().resolve()))
+        if vehicle is None:
+            vehicle = args.vehicle
+        if vehicle is None:
+            if prof not in names:
+                names[prof] = load_profile(prof).vehicle.name  # bad profile: one clear error up front
+            vehicle = names[prof]
+        t = Task(str(Path(logp).resolve()), vehicle, prof)
+        if t.key not in seen:
+            seen.add(t.key)
+            out.append(t)
+    return out
+
+
+# -- parquet ------------------------------------------------------------------
+
+
+def _schema():
+    import pyarrow as pa
+
+    from ..fleet import RUN_COLUMNS
+
+    types = {str: pa.string(), float: pa.float64(), int: pa.int64(), bool: pa.bool_()}
+    return pa.schema([(name, types[t]) for name, t in RUN_COLUMNS.items()])
+
+
+def write_part(out: Path, key: str, rows: list[dict]) -> None:
+    """One log's rows, written atomically (a crash leaves the old part or none)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    parts = out / "parts"
+    parts.mkdir(parents=True, exist_ok=True)
+    tmp = parts / f".{key}.tmp"
+    pq.write_table(pa.Table.from_pylist(rows, schema=_schema()), tmp)
+    os.replace(tmp, parts / f"{key}.parquet")
+
+
+def read_parts(out: Path) -> dict[str, list[dict]]:
+    import pyarrow.parquet as pq
+
+    got = {}
+    for f in sorted((out / "parts").glob("*.parquet")):
+        try:
+            got[f.stem] = pq.read_table(f).to_pylist()
+        except Exception as exc:  # a damaged part is redone, not fatal
+            log.warning("%s: unreadable (%s); its log will be run again", f, exc)
+    return got
+
+
+def done(rows: list[dict], task) -> bool:
+    """Already run on this very file, without an error."""
+    from ..fleet import file_stamp
+
+    if not rows or any(r["error"] for r in rows):
+        return False
+    stamp = file_stamp(task.log)
+    return stamp is not None and (rows[0]["log_size"], rows[0]["log_mtime_ns"]) == stamp
+
+
+def write_results(out: Path, parts: dict[str, list[dict]]) -> tuple[int, int]:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from ..fleet import combine
+
+    rows = [r for key in sorted(parts) for r in parts[key]]
+    vehicles, zs = combine(rows)
+    for r in rows:
+        z = zs.get((r["log"], r["vehicle"], r["parameter"]))
+        r["z"] = z
+        r["disagrees"] = None if z is None else abs(z) > _z_flag()
+    schema = _schema().append(pa.field("z", pa.float64())).append(pa.field("disagrees", pa.bool_()))
+    _atomic(pq, pa.Table.from_pylist(rows, schema=schema), out / "runs.parquet")
+    vschema = pa.schema(
+        [
+            ("vehicle", pa.string()),
+            ("parameter", pa.string()),
+            ("unit", pa.string()),
+            ("value", pa.float64()),
+            ("std", pa.float64()),
+            ("drives", pa.int64()),
+            ("runs", pa.int64()),
+            ("chi2", pa.float64()),
+            ("dof", pa.int64()),
+            ("p_value", pa.float64()),
+            ("consistent", pa.bool_()),
+            ("scale", pa.float64()),
+            ("flagged", pa.list_(pa.string())),
+        ]
+    )
+    _atomic(pq, pa.Table.from_pylist(vehicles, schema=vschema), out / "vehicles.parquet")
+    return len(rows), len(vehicles)
+
+
+def _z_flag() -> float:
+    from ..fleet import Z_FLAG
+
+    return Z_FLAG
+
+
+def _atomic(pq, table, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    pq.write_table(table, tmp)
+    os.replace(tmp, path)
+
+
+# -- dask -----------------------------------------------------------------------
+
+
+def client(args):
+    """A Dask client: on ``--scheduler``, or on a local cluster bound to 127.0.0.1 with no dashboard."""
+    try:
+        from distributed import Client, LocalCluster
+    except ModuleNotFoundError:
+        raise ConfigError("vdp batch needs Dask: pip install 'vdp[fleet]'") from None
+    if not getattr(args, "verbose", 0):  # Dask's INFO lines (scheduler, nannies) are noise here
+        for name in list(logging.root.manager.loggerDict):
+            if name.startswith("distributed"):
+                logging.getLogger(name).setLevel(logging.ERROR)
+    if args.scheduler:
+        try:
+            return Client(args.scheduler, timeout="20s"), None
+        except OSError as exc:
+            raise ConfigError(f"--scheduler {args.scheduler}: cannot reach the scheduler: {exc}") from None
+    n = args.workers if args.workers is not None else (os.cpu_count() or 1)
+    if n < 1:
+        raise ConfigError(f"--workers {n}: give at least 1")
+    # host: scheduler, nannies and workers listen on loopback only (nothing on the host
+    # network).  No dashboard; the scheduler still serves its health routes over HTTP,
+    # and without an address it would take port 8787 on every interface of its host:
+    # loopback and a free port instead.  One thread per worker: a replay is pure Python
+    # under the GIL, processes are what run in parallel.
+    cluster = LocalCluster(
+        n_workers=n,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address=None,
+        worker_dashboard_address=None,
+        scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
+        silence_logs=logging.ERROR,
+    )
+    return Client(cluster), cluster
+
+
+class Progress:
+    """Logs done of all, on one line of stderr (a terminal only)."""
+
+    def __init__(self, total: int, enabled: bool):
+        self.total, self.done, self.failed = total, 0, 0
+        self.enabled = enabled and sys.stderr.isatty()
+        self.t0 = time.monotonic()
+
+    def step(self, failed: bool) -> None:
+        self.done += 1
+        self.failed += failed
+        if not self.enabled:
+            return
+        el = time.monotonic() - self.t0
+        frac = self.done / max(self.total, 1)
+        eta = el * (1 - frac) / frac if frac else 0.0
+        bar = "#" * int(30 * frac)
+        sys.stderr.write(
+            f"\r[{bar:<30}] {self.done}/{self.total} logs  {self.failed} failed  {el:5.0f} s  ETA {eta:4.0f} s "
+        )
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            sys.stderr.write("\n")
+
+
+def run(args) -> int:
+    from ..fleet import run_task
+
+    try:
+        import pyarrow  # noqa: F401
+    except ModuleNotFoundError:
+        raise ConfigError("vdp batch needs pyarrow: pip install 'vdp[fleet]'") from None
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: exists and is not a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"--out {out}: cannot create it: {exc.strerror or exc}") from None
+    todo = tasks(args)
+    parts = read_parts(out)
+    pending = [t for t in todo if args.redo or not done(parts.get(t.key, []), t)]
+    skipped = len(todo) - len(pending)
+    print(f"{len(todo)} logs: {skipped} already done, {len(pending)} to run")
+    failed: list[tuple[str, str]] = []
+    if pending:
+        from distributed import as_completed
+
+        cl, cluster = client(args)
+        try:
+            print(f"dask: {len(cl.scheduler_info()['workers'])} workers at {cl.scheduler.address}")
+            futures = {cl.submit(run_task, t, key=f"vdp-{t.key}", pure=False): t for t in pending}
+            bar = Progress(len(pending), enabled=not args.no_progress)
+            for fut in as_completed(futures):
+                t = futures[fut]
+                try:
+                    rows = fut.result()
+                except Exception as exc:  # the worker died (KilledWorker), or Dask itself failed
+                    from ..fleet import error_row, file_stamp
+
+                    rows = [error_row(t, f"task failed on the cluster: {type(exc).__name__}: {exc}", file_stamp(t.log))]
+                fut.release()
+                write_part(out, t.key, rows)
+                parts[t.key] = rows
+                err = rows[0]["error"]
+                if err:
+                    failed.append((t.log, err))
+                bar.step(bool(err))
+            bar.close()
+        finally:
+            cl.close()
+            if cluster is not None:
+                cluster.close()
+    n_rows, n_veh = write_results(out, parts)
+    print(f"wrote {out / 'runs.parquet'} ({n_rows} rows) and {out / 'vehicles.parquet'} ({n_veh} rows)")
+    for path, err in failed:
+        print(f"failed: {path}: {err}")
+    if failed:
+        print(f"{len(failed)} of {len(pending)} logs failed (recorded in runs.parquet; a rerun tries them again)")
+        return 1
+    return 0

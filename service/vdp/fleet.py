@@ -1,0 +1,288 @@
+"""Fleet runs: one task per log, rows per log x parameter, drives combined per vehicle.
+
+``run_task`` is what a Dask worker runs (``vdp batch``): it replays one log
+exactly as ``vdp replay`` does and returns plain rows, or one error row if the
+log is missing, damaged or truncated.  ``combine`` merges a vehicle's valid
+drives by inverse-variance weighting and tests them for consistency (chi^2),
+flagging a drive that disagrees with the rest.  Everything here is plain
+Python and numpy: the CLI owns Dask and Parquet.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import math
+import time
+import traceback
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .errors import VdpError
+
+log = logging.getLogger(__name__)
+
+PARAMETERS = ("l_f", "h", "C_K", "C_alpha", "I_z", "I_x")
+Z_FLAG = 3.0  # |z| of a drive against the others' combination that flags it as disagreeing
+P_CONSISTENT = 0.01  # chi^2 p-value below which a vehicle's drives are called inconsistent
+
+# what a status means when the parameter has no number worth using (the README's table)
+REASONS = {
+    "uncertain": "std still above the convergence threshold",
+    "not_identifiable": "the data did not halve the prior std: the value is mostly the prior's",
+    "invalid": "non-finite or outside a sane range",
+}
+
+# runs.parquet, one row per log x parameter (an error: one row, parameter null)
+RUN_COLUMNS = {
+    "log": str,
+    "vehicle": str,
+    "profile": str,
+    "parameter": str,
+    "value": float,
+    "std": float,
+    "unit": str,
+    "status": str,
+    "reason": str,
+    "error": str,
+    "valid": bool,
+    "stage": int,
+    "window_s": float,  # bus time the parameter's stage spent learning (its windows)
+    "duration_s": float,  # bus time of the log
+    "frames": int,
+    "decode_errors": int,  # frames the decoder rejected (dlc, range, counter, checksum, ...)
+    "bad_lines": int,  # unreadable log lines skipped
+    "wall_s": float,
+    "log_size": int,  # of the file when it was run: a rerun redoes a log that changed
+    "log_mtime_ns": int,
+}
+
+
+@dataclass(frozen=True)
+class Task:
+    log: str
+    vehicle: str
+    profile: str
+
+    @property
+    def key(self) -> str:
+        """Stable name of this log x vehicle x profile (part file name, Dask key)."""
+        text = "\0".join((self.log, self.vehicle, self.profile))
+        return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+
+def file_stamp(path: str) -> tuple[int, int] | None:
+    """(size, mtime in ns) of a file, None if it is not there."""
+    try:
+        st = Path(path).stat()
+    except OSError:
+        return None
+    return st.st_size, st.st_mtime_ns
+
+
+_PROFILES: dict[str, Any] = {}  # per worker process: a profile is loaded (and its DBC parsed) once
+
+
+def _profile(path: str):
+    from .profile import load_profile
+
+    prof = _PROFILES.get(path)
+    if prof is None:
+        prof = _PROFILES[path] = load_profile(path)
+    return prof
+
+
+def replay_log(path: str, profile_path: str) -> dict:
+    """``vdp replay PATH --profile PROFILE --no-ekf --json``'s document (the UKF's
+    numbers do not depend on the EKF baseline running beside it)."""
+    from .core.estimator import EstimatorConfig
+    from .io.logs import open_log
+    from .pipeline import Pipeline
+    from .replay import replay
+
+    profile = _profile(profile_path)
+    source = open_log(path, channel=profile.bus_channel)
+    try:
+        return replay(source, Pipeline(profile, EstimatorConfig(baseline=False)))
+    finally:
+        source.close()
+
+
+def run_task(task: Task) -> list[dict]:
+    """Replay one log; its rows, or one error row.  Never raises for a bad log."""
+    stamp = file_stamp(task.log)
+    t0 = time.monotonic()
+    try:
+        doc = replay_log(task.log, task.profile)
+    except VdpError as exc:
+        return [error_row(task, str(exc), stamp)]
+    except Exception as exc:  # a bug, not the log: keep the rest of the fleet going, say where
+        log.error("%s: replay failed:\n%s", task.log, traceback.format_exc())
+        return [error_row(task, f"internal error: {type(exc).__name__}: {exc}", stamp)]
+    rows = rows_from_result(doc, task, stamp)
+    wall = time.monotonic() - t0
+    for r in rows:
+        r["wall_s"] = wall
+    return rows
+
+
+def error_row(task: Task, error: str, stamp: tuple[int, int] | None) -> dict:
+    row: dict[str, Any] = dict.fromkeys(RUN_COLUMNS)
+    row.update(log=task.log, vehicle=task.vehicle, profile=task.profile, status="error", error=error, valid=False)
+    if stamp is not None:
+        row["log_size"], row["log_mtime_ns"] = stamp
+    return row
+
+
+def rows_from_result(doc: Mapping[str, Any], task: Task, stamp: tuple[int, int] | None = None) -> list[dict]:
+    """One row per parameter from a ``vdp replay --json`` document."""
+    lg = doc.get("log") or {}
+    dec = lg.get("decode") or {}
+    duration = float(lg.get("duration_s") or 0.0)
+    by_kind = dec.get("errors_by_kind") or {}
+    decode_errors = sum(n for k, n in by_kind.items() if k not in {"unknown_id", "error_frame"})
+    caps = doc.get("capabilities") or {}
+    # bus time each stage spent in windows (an open window runs to the end of the log)
+    window = {1: 0.0, 2: 0.0}
+    for w in doc.get("windows") or ():
+        end = w["end"] if w.get("end") is not None else duration
+        window[w["stage"]] = window.get(w["stage"], 0.0) + max(end - w["start"], 0.0)
+    rows = []
+    for name in PARAMETERS:
+        e = (doc.get("parameters") or {}).get(name)
+        if e is None:
+            continue
+        status = e.get("status")
+        stage = e.get("stage")
+        reason = caps.get(str(stage)) if status == "not_run" else REASONS.get(status)
+        row: dict[str, Any] = dict.fromkeys(RUN_COLUMNS)
+        row.update(
+            log=task.log,
+            vehicle=task.vehicle,
+            profile=task.profile,
+            parameter=name,
+            value=_num(e.get("value")),
+            std=_num(e.get("std")),
+            unit=e.get("unit"),
+            status=status,
+            reason=reason,
+            valid=bool(e.get("valid")),
+            stage=stage,
+            window_s=window.get(stage, 0.0),
+            duration_s=duration,
+            frames=int(lg.get("frames") or 0),
+            decode_errors=int(decode_errors),
+            bad_lines=int(lg.get("bad_lines") or 0),
+            wall_s=float(lg.get("wall_s") or 0.0),
+        )
+        if stamp is not None:
+            row["log_size"], row["log_mtime_ns"] = stamp
+        rows.append(row)
+    return rows
+
+
+def _num(v: Any) -> float:
+    return math.nan if v is None else float(v)
+
+
+# -- combining a vehicle's drives -------------------------------------------
+
+
+def weighted(values: list[float], stds: list[float]) -> tuple[float, float]:
+    """Inverse-variance weighted mean and its std."""
+    w = [1.0 / (s * s) for s in stds]
+    sw = sum(w)
+    return sum(wi * x for wi, x in zip(w, values)) / sw, math.sqrt(1.0 / sw)
+
+
+def usable(row: Mapping[str, Any]) -> bool:
+    """A drive's parameter enters the combination only if vdp called it converged."""
+    v, s = row.get("value"), row.get("std")
+    return (
+        row.get("status") == "converged"
+        and v is not None
+        and s is not None
+        and math.isfinite(v)
+        and math.isfinite(s)
+        and s > 0
+    )
+
+
+def combine(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict], dict[tuple[str, str, str], float]]:
+    """Per vehicle x parameter: the combination of its converged drives, and each drive's z.
+
+    The drives are taken as independent measurements of one true value; then
+    chi^2 = sum((x_i - mean)^2 / s_i^2) over all of them follows chi^2 with n-1
+    degrees of freedom, and a small p-value says they do not agree within their
+    stds.  Which drive disagrees: each is compared with the combination of the
+    others, z_i = (x_i - mean_-i) / sqrt(s_i^2 + s_-i^2); the worst one beyond
+    Z_FLAG is flagged and left out, and the rest are tested again (one bad drive
+    pulls the others' means, so all are not judged at once).  With two drives left
+    their z are equal: both are flagged, neither is known to be the wrong one.
+
+    ``value``/``std`` combine the drives not flagged (both of an inconsistent pair);
+    ``chi2``/``p_value`` test all converged drives.  Returns the vehicle rows and
+    {(log, vehicle, parameter): z of that drive against the unflagged others}.
+    """
+    from scipy.stats import chi2 as chi2_dist
+
+    groups: dict[tuple[str, str], list[Mapping[str, Any]]] = {}
+    for r in rows:
+        if r.get("parameter") is None:
+            continue
+        groups.setdefault((r["vehicle"], r["parameter"]), []).append(r)
+    out: list[dict] = []
+    zs: dict[tuple[str, str, str], float] = {}
+    order = {p: i for i, p in enumerate(PARAMETERS)}
+    for (vehicle, param), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], order.get(kv[0][1], 99))):
+        good = [r for r in rs if usable(r)]
+        row: dict[str, Any] = {
+            "vehicle": vehicle,
+            "parameter": param,
+            "unit": next((r.get("unit") for r in rs if r.get("unit")), None),
+            "value": math.nan,
+            "std": math.nan,
+            "drives": len(good),
+            "runs": len(rs),
+            "chi2": math.nan,
+            "dof": max(len(good) - 1, 0),
+            "p_value": math.nan,
+            "consistent": None,
+            "scale": math.nan,
+            "flagged": [],
+        }
+        xs = [float(r["value"]) for r in good]
+        ss = [float(r["std"]) for r in good]
+        kept = list(range(len(good)))
+        if len(good) >= 2:
+            mean, _ = weighted(xs, ss)
+            chi2 = sum(((x - mean) / s) ** 2 for x, s in zip(xs, ss))
+            dof = len(good) - 1
+            p = float(chi2_dist.sf(chi2, dof))
+            row.update(chi2=chi2, p_value=p, consistent=p >= P_CONSISTENT, scale=max(1.0, math.sqrt(chi2 / dof)))
+            while len(kept) >= 2:
+                z = {i: _loo_z(xs, ss, kept, i) for i in kept}
+                worst = max(kept, key=lambda i: abs(z[i]))
+                if abs(z[worst]) <= Z_FLAG:
+                    break
+                if len(kept) == 2:  # a pair that disagrees: flag both, keep both
+                    row["flagged"] += [good[i]["log"] for i in kept]
+                    break
+                row["flagged"].append(good[worst]["log"])
+                kept.remove(worst)
+            for i, r in enumerate(good):
+                zs[(r["log"], vehicle, param)] = _loo_z(xs, ss, kept, i)
+        if good:
+            row["value"], row["std"] = weighted([xs[i] for i in kept], [ss[i] for i in kept])
+            row["drives"] = len(kept)
+        out.append(row)
+    return out, zs
+
+
+def _loo_z(xs: list[float], ss: list[float], kept: list[int], i: int) -> float:
+    """Drive i against the combination of the kept drives other than i."""
+    others = [j for j in kept if j != i]
+    m, s = weighted([xs[j] for j in others], [ss[j] for j in others])
+    return (xs[i] - m) / math.sqrt(ss[i] ** 2 + s**2)

@@ -1,0 +1,217 @@
+"""vdp batch: logs on a local Dask cluster into Parquet, drives combined per vehicle."""
+
+import gzip
+import json
+import math
+import os
+import subprocess
+import sys
+
+import pytest
+
+pq = pytest.importorskip("pyarrow.parquet", reason="vdp batch needs the 'fleet' extra")
+pytest.importorskip("distributed", reason="vdp batch needs the 'fleet' extra")
+
+from vdp.cli import main  # noqa: E402
+from vdp.cli.batch import read_manifest  # noqa: E402
+from vdp.errors import ConfigError  # noqa: E402
+from vdp.fleet import Z_FLAG, combine, weighted  # noqa: E402
+from vdp.sim.run import simulate, write_log  # noqa: E402
+
+
+def run_row(log, value, std, vehicle="car", parameter="l_f", status="converged"):
+    return {"log": log, "vehicle": vehicle, "parameter": parameter, "value": value, "std": std, "status": status}
+
+
+# -- the combiner ----------------------------------------------------------------
+
+
+def test_combination_is_the_inverse_variance_mean_and_agreeing_drives_pass():
+    rows = [run_row("a", 1.40, 0.002), run_row("b", 1.403, 0.003), run_row("c", 1.398, 0.002)]
+    (veh,), zs = combine(rows)
+    w = [1 / 0.002**2, 1 / 0.003**2, 1 / 0.002**2]
+    mean = (1.40 * w[0] + 1.403 * w[1] + 1.398 * w[2]) / sum(w)
+    assert veh["value"] == pytest.approx(mean, rel=1e-12)
+    assert veh["std"] == pytest.approx(sum(w) ** -0.5, rel=1e-12)
+    assert veh["drives"] == 3 and veh["dof"] == 2
+    assert veh["consistent"] and veh["flagged"] == []
+    assert all(abs(z) < Z_FLAG for z in zs.values()) and len(zs) == 3
+
+
+def test_a_disagreeing_drive_fails_the_chi2_test_and_is_flagged_alone():
+    rows = [run_row(f"d{i}", 1.40 + 0.001 * (-1) ** i, 0.002) for i in range(4)]
+    rows.append(run_row("odd", 1.43, 0.002))  # 15 sigma off the others
+    (veh,), zs = combine(rows)
+    assert not veh["consistent"] and veh["p_value"] < 1e-6
+    assert veh["flagged"] == ["odd"]
+    assert zs[("odd", "car", "l_f")] > Z_FLAG
+    assert all(abs(zs[(f"d{i}", "car", "l_f")]) < Z_FLAG for i in range(4))
+    assert veh["scale"] > 1  # the std the scatter supports is larger than the formal one
+    # the combination is of the four that agree
+    assert veh["drives"] == 4 and veh["value"] == pytest.approx(1.40, abs=1e-9)
+
+
+def test_two_drives_that_disagree_are_both_flagged():
+    (veh,), _ = combine([run_row("a", 1.40, 0.002), run_row("b", 1.45, 0.002)])
+    assert not veh["consistent"] and sorted(veh["flagged"]) == ["a", "b"] and veh["drives"] == 2
+
+
+def test_only_converged_drives_enter_and_vehicles_are_kept_apart():
+    rows = [
+        run_row("a", 1.40, 0.002),
+        run_row("b", 9.0, 0.3, status="not_identifiable"),  # the prior's number: left out
+        run_row("c", math.nan, math.nan, status="invalid"),
+        run_row("x", 1.20, 0.002, vehicle="other"),
+        {"log": "gone", "vehicle": "car", "parameter": None, "status": "error"},
+    ]
+    out, zs = combine(rows)
+    by = {v["vehicle"]: v for v in out}
+    assert by["car"]["drives"] == 1 and by["car"]["runs"] == 3 and by["car"]["value"] == 1.40
+    assert by["car"]["consistent"] is None and math.isnan(by["car"]["chi2"])  # one drive: nothing to test
+    assert by["other"]["value"] == 1.20
+    assert zs == {}
+
+
+def test_weighted_of_one_drive_is_that_drive():
+    assert weighted([2.0], [0.5]) == (2.0, 0.5)
+
+
+# -- inputs ------------------------------------------------------------------------
+
+
+def test_manifest_paths_are_relative_to_it_and_a_bad_header_is_one_clear_error(tmp_path):
+    m = tmp_path / "m.csv"
+    m.write_text("log,vehicle,profile\nruns/a.log,car1,\n/abs/b.log,car2,p.toml\n\n")
+    assert read_manifest(str(m)) == [
+        (str(tmp_path / "runs" / "a.log"), "car1", None),
+        ("/abs/b.log", "car2", str(tmp_path / "p.toml")),
+    ]
+    bad = tmp_path / "bad.csv"
+    bad.write_text("file,car\na.log,x\n")
+    with pytest.raises(ConfigError, match="log,vehicle,profile"):
+        read_manifest(str(bad))
+
+
+# -- end to end on a local cluster --------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory, repo_root):
+    d = tmp_path_factory.mktemp("fleet")
+    prof = repo_root / "profiles" / "paper.toml"
+    for seed in (1, 2):
+        frames, _ = simulate(prof, "stage1", seed=seed, noise="realistic", duration=20.0)
+        write_log(frames, d / f"car1-{seed}.log")
+    frames, _ = simulate(prof, "stage1", seed=3, noise="realistic", duration=20.0)
+    write_log(frames, d / "car2-3.log")
+    # damaged: a gzip cut in the middle of its stream
+    raw = (d / "car2-3.log").read_bytes()
+    (d / "cut.log.gz").write_bytes(gzip.compress(raw)[:20000])
+    (d / "manifest.csv").write_text(
+        "log,vehicle,profile\n"
+        f"car1-1.log,car1,{prof}\n"
+        f"car1-2.log,car1,{prof}\n"
+        f"car2-3.log,car2,{prof}\n"
+        f"cut.log.gz,car2,{prof}\n"
+        f"missing.log,car2,{prof}\n"
+    )
+    return d
+
+
+def batch(d, workers=2):
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+    return subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from vdp.cli import main; sys.exit(main())",
+            "batch",
+            "--manifest",
+            str(d / "manifest.csv"),
+            "--out",
+            str(d / "out"),
+            "--workers",
+            str(workers),
+            "--no-progress",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+
+
+@pytest.mark.slow
+def test_batch_runs_the_fleet_records_bad_logs_and_resumes(fleet, repo_root):
+    d = fleet
+    first = batch(d)
+    assert first.returncode == 1, first.stderr  # two logs failed, the rest went on
+    assert "5 logs: 0 already done, 5 to run" in first.stdout
+    runs = pq.read_table(d / "out" / "runs.parquet").to_pylist()
+    by_log = {}
+    for r in runs:
+        by_log.setdefault(os.path.basename(r["log"]), []).append(r)
+    assert set(by_log) == {"car1-1.log", "car1-2.log", "car2-3.log", "cut.log.gz", "missing.log"}
+    (miss,) = by_log["missing.log"]
+    assert miss["status"] == "error" and "no such file" in miss["error"] and miss["parameter"] is None
+    (cut,) = by_log["cut.log.gz"]
+    assert cut["status"] == "error" and "gzip" in cut["error"]
+    good = by_log["car1-1.log"]
+    assert [r["parameter"] for r in good] == ["l_f", "h", "C_K", "C_alpha", "I_z", "I_x"]
+    assert all(r["error"] is None and r["frames"] > 10000 and r["duration_s"] > 19 for r in good)
+
+    # the same numbers as vdp replay --json on the same log and profile
+    out = d / "one.json"
+    assert main(["replay", str(d / "car1-1.log"), "--profile", str(repo_root / "profiles" / "paper.toml"),
+                 "--json", str(out), "--no-progress"]) == 0  # fmt: skip
+    doc = json.loads(out.read_text())
+    for r in good:
+        p = doc["parameters"][r["parameter"]]
+        assert (r["value"], r["std"], r["status"], r["stage"]) == (p["value"], p["std"], p["status"], p["stage"])
+    assert good[0]["frames"] == doc["log"]["frames"]
+
+    veh = {(v["vehicle"], v["parameter"]): v for v in pq.read_table(d / "out" / "vehicles.parquet").to_pylist()}
+    lf = veh[("car1", "l_f")]
+    assert lf["drives"] == 2 and lf["runs"] == 2
+    xs = [r["value"] for r in runs if r["vehicle"] == "car1" and r["parameter"] == "l_f"]
+    assert min(xs) <= lf["value"] <= max(xs)
+    assert veh[("car2", "l_f")]["drives"] == 1 and veh[("car2", "l_f")]["runs"] == 1
+
+    # rerun: the three good logs are skipped, the two that failed are tried again;
+    # the missing one has turned up meanwhile
+    (d / "missing.log").write_bytes((d / "car1-2.log").read_bytes())
+    parts = {p.name: p.stat().st_mtime_ns for p in (d / "out" / "parts").glob("*.parquet")}
+    again = batch(d, workers=1)
+    assert again.returncode == 1, again.stderr  # the cut gzip still fails
+    assert "5 logs: 3 already done, 2 to run" in again.stdout, again.stdout + again.stderr
+    after = {p.name: p.stat().st_mtime_ns for p in (d / "out" / "parts").glob("*.parquet")}
+    assert sum(parts[k] == after[k] for k in parts) == 3
+    runs = pq.read_table(d / "out" / "runs.parquet").to_pylist()
+    assert {r["status"] for r in runs if r["log"].endswith("missing.log")} >= {"converged"}
+    assert sum(r["log"].endswith("missing.log") for r in runs) == 6
+    assert veh[("car1", "l_f")]["runs"] == 2  # the earlier vehicles.parquet
+    veh = {(v["vehicle"], v["parameter"]): v for v in pq.read_table(d / "out" / "vehicles.parquet").to_pylist()}
+    assert veh[("car2", "l_f")]["runs"] == 2  # car1-2's bytes, now also as car2's missing.log
+
+
+@pytest.mark.slow
+def test_local_cluster_listens_on_loopback_only():
+    psutil = pytest.importorskip("psutil")
+    import argparse
+
+    from vdp.cli.batch import client
+
+    cl, cluster = client(argparse.Namespace(scheduler=None, workers=1))
+    try:
+        me = psutil.Process()
+        addrs = [
+            c.laddr.ip
+            for p in [me, *me.children(recursive=True)]
+            for c in p.net_connections(kind="inet")
+            if c.status == psutil.CONN_LISTEN
+        ]
+        assert addrs and set(addrs) == {"127.0.0.1"}
+        assert cl.scheduler.address.startswith("tcp://127.0.0.1:")
+    finally:
+        cl.close()
+        cluster.close()
