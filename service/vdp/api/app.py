@@ -23,7 +23,7 @@ from .. import __version__
 from ..core.params import NAMES
 from ..errors import StoreError, VdpError
 from ..settings import Settings
-from . import models
+from . import dashboard, models
 
 log = logging.getLogger(__name__)
 
@@ -159,11 +159,14 @@ def create_app(settings: Settings, service=None) -> FastAPI:
         title="vdp",
         version=__version__,
         lifespan=lifespan,
+        docs_url=None,  # /docs and /redoc come from api.dashboard, with their assets served locally
+        redoc_url=None,
         description="Vehicle dynamic parameters estimated live from the CAN bus "
         "(two-stage UKF, Li et al. 2021). Unknown numbers are null with valid false.",
     )
     app.state.settings = settings
     app.state.service = service
+    dashboard.install(app)
     registry = CollectorRegistry(auto_describe=False)  # per app: two apps in one process never clash
     registry.register(_Metrics(app))
     app.state.registry = registry
