@@ -109,7 +109,7 @@ def test_export_endpoint(client):
     carla = client.get("/export", params={"format": "carla"}).json()
     assert carla["mass"] == 1600.0 and len(carla["wheels"]) == 4
     bad = client.get("/export", params={"format": "sumo"})
-    assert bad.status_code == 400 and "unknown export format" in bad.json()["detail"]
+    assert bad.status_code == 422 and "commonroad" in bad.text
 
 
 def test_estimates_carry_progress_and_hints(client):
