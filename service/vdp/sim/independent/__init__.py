@@ -1,0 +1,74 @@
+"""Vehicle models that vdp did not derive its estimator from: independent truth for benchmarks and tests.
+
+vdp's own simulator (:mod:`vdp.sim.vehicle`) shares the estimator's model, so agreeing
+with it proves little.  The models here share no code with the estimator's process
+models (``vdp.core``) nor with :mod:`vdp.sim.vehicle`:
+
+* ``brush`` (:mod:`.brush`): written here from first principles: four wheels, brush
+  tyres with combined slip and load-dependent stiffness, sprung mass rolling about a
+  roll axis and pitching about a pitch centre, instantaneous and elastic load
+  transfer, aerodynamic drag and rolling resistance.
+* ``mb`` (:mod:`.mb`): the multi-body model ``vehicle_dynamics_mb`` of the CommonRoad
+  vehicle models (package ``vehiclemodels``, BSD-3, installed with vdp's ``bench``
+  extra): Pacejka Magic-Formula tyres with combined slip, sprung and unsprung masses,
+  suspension roll and pitch, tyre vertical compliance, and the library's own cars.
+  vdp adds only what the library lacks: wheel torques from the driver, drag and
+  rolling resistance (see the module).
+
+Only the manoeuvre definition (:mod:`vdp.sim.scenario`), the driver
+(:mod:`vdp.sim.driver`, a speed and steering controller), the sensor noise model
+(:mod:`vdp.sim.sensors`) and the CAN encoding (:mod:`vdp.sim.encode`) are shared with
+vdp's simulator: the drive reaches the estimator through the same DBC -> candump ->
+``vdp replay`` path.
+
+What "truth" means on a model vdp did not write (written into every truth JSON under
+``definitions``; see :data:`DEFINITIONS`).
+"""
+
+from __future__ import annotations
+
+from ...errors import ConfigError
+
+DEFINITIONS = {
+    "l_f": "distance from the front axle to the CG of the whole car, from the static axle loads: "
+    "l_f = L * F_z,rear,static / (m g)",
+    "h": "the height that sets longitudinal load transfer: the slope of the rear axle's load against m a_x / L "
+    "on the model's own straight-line drive (least squares with a constant and v^2 for drag); it differs "
+    "from the geometric CG height by the static pitch shift and the unsprung masses",
+    "C_K": "small-slip longitudinal stiffness of the tyre law, dF_x/dkappa at kappa = 0, alpha = 0, zero camber, "
+    "divided by the axle load, per axle at the mean axle loads of the straight-line (stage 1) part of the drive; "
+    "the single value is the mean of front and rear (kappa = (omega r - v_wheel) / v_wheel)",
+    "C_alpha": "small-slip cornering stiffness per axle (both wheels), dF_y/dalpha at alpha = 0, kappa = 0, zero "
+    "camber, at the mean axle loads of the steering (stage 2) part of the drive; the single value is the mean of "
+    "front and rear [N/rad]",
+    "I_z": "yaw inertia of the whole car about the vertical axis through its reference point [kg m^2]",
+    "I_x": "roll inertia of the sprung mass about the roll axis: I_xx,sprung + m_s d^2, d = height of the sprung "
+    "CG above the roll axis; roll rate is the sprung body's [kg m^2]",
+}
+
+MODELS = ("brush", "mb")
+SCENARIOS = ("paper", "stage1", "stage2")  # the ones that stay above 5 m/s (see brush.py on the wheel modes)
+
+
+def cars(model: str) -> tuple[str, ...]:
+    """The car sets of a model."""
+    if model == "brush":
+        from .brush import CARS
+
+        return tuple(CARS)
+    if model == "mb":
+        from .mb import CARS
+
+        return tuple(CARS)
+    raise ConfigError(f"unknown model '{model}'; choose one of {', '.join(MODELS)}")
+
+
+def get_model(model: str, car: str | None = None):
+    """A fresh model instance: ``get_model("brush", "small")``, ``get_model("mb", "bmw_320i")``."""
+    names = cars(model)
+    car = car or names[0]
+    if model == "brush":
+        from .brush import model as make
+    else:
+        from .mb import model as make
+    return make(car)
