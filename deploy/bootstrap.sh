@@ -29,7 +29,7 @@ fi
 stamp=.venv/.vdp-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install -q --upgrade pip >/dev/null 2>&1 || true
-    .venv/bin/python -m pip install -q -e ".[test,opendbc,parquet,fleet]"
+    .venv/bin/python -m pip install -q -e ".[test,opendbc,parquet,fleet,bench]"
     touch "$stamp"
 fi
 export PATH="$PWD/.venv/bin:$PATH"

@@ -1,0 +1,227 @@
+"""The independent vehicle models (vdp.sim.independent): their own physics, then the estimator on them.
+
+The models' parameters are the truth.  Physics tests check each model against closed
+forms it must obey; the estimator tests drive the models through the paper's manoeuvres,
+encode the sensors through vdp's DBC, replay the log and compare with the truth file,
+which the estimator never sees.  Where the estimator is known to miss the target today
+(issue 11), the test states the target and is marked xfail(strict=False).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vdp import channels as ch
+from vdp.sim.independent import DEFINITIONS, get_model
+from vdp.sim.independent.brush import brush_force
+from vdp.sim.independent.common import AUX, IndependentSimulation, drive, truth_of
+from vdp.sim.scenario import Plan
+
+HAVE_MB = True
+try:
+    import vehiclemodels  # noqa: F401
+except ImportError:  # the bench extra; bootstrap installs it, so CI runs these
+    HAVE_MB = False
+need_mb = pytest.mark.skipif(not HAVE_MB, reason="needs the bench extra: pip install -e '.[bench]'")
+
+ROOT = Path(__file__).resolve().parents[1]
+VDP = [sys.executable, "-c", "import sys; from vdp.cli import main; sys.exit(main())"]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT / "service")}
+
+
+def _steady(model, v: float, delta: float, T: float = 6.0):
+    """Constant speed and steer: mean yaw rate and a_y over the last second."""
+    sc = Plan("steady", v).cruise(T, "steady", "other", steer=lambda t: delta).build()
+    tr = drive(model, sc)
+    last = tr.values[-1000:]
+    return float(last[:, ch.YAW].mean()), float(last[:, ch.AY].mean()), tr
+
+
+# -- tyres ------------------------------------------------------------------------------
+def test_brush_tyre_small_slip_slope_is_its_stiffness_and_bends_like_a_brush():
+    Fz, Cx, Cy, mu = 4000.0, 60000.0, 50000.0, 1.0
+    h = 1e-6
+    assert (brush_force(h, 0, Fz, Cx, Cy, mu)[0] - brush_force(-h, 0, Fz, Cx, Cy, mu)[0]) / (2 * h) == pytest.approx(
+        Cx, rel=1e-4
+    )
+    assert (brush_force(0, h, Fz, Cx, Cy, mu)[1] - brush_force(0, -h, Fz, Cx, Cy, mu)[1]) / (2 * h) == pytest.approx(
+        Cy, rel=1e-4
+    )
+    # at half the friction limit a brush tyre gives about 0.80 of its small-slip slope (secant)
+    alphas = np.linspace(1e-4, 0.3, 3000)
+    fy = np.array([brush_force(0, x, Fz, Cx, Cy, mu)[1] for x in alphas])
+    a_half = alphas[np.argmin(abs(fy - 0.5 * mu * Fz))]
+    secant = 0.5 * mu * Fz / math.tan(a_half)
+    assert secant / Cy == pytest.approx(0.808, abs=0.01)
+    # saturates at mu F_z, and combined slip shares the limit
+    assert brush_force(0, 0.5, Fz, Cx, Cy, mu)[1] == pytest.approx(mu * Fz)
+    fx, fy2 = brush_force(0.05, 0.05, Fz, Cx, Cy, mu)
+    assert math.hypot(fx, fy2) <= mu * Fz + 1e-9
+    assert fx < brush_force(0.05, 0.0, Fz, Cx, Cy, mu)[0]
+
+
+@need_mb
+def test_mb_truth_stiffness_is_the_magic_formula_slope():
+    m = get_model("mb", "bmw_320i")
+    tire = m.p.tire
+    for Fz in (2500.0, 4000.0):
+        kx = (m.fx(1e-6, Fz, "front") - m.fx(-1e-6, Fz, "front")) / 2e-6
+        ky = (m.fy(1e-6, Fz, "front") - m.fy(-1e-6, Fz, "front")) / 2e-6
+        assert kx == pytest.approx(tire.p_kx1 * Fz, rel=2e-3)  # K_x = p_kx1 F_z (the library's own law)
+        assert ky == pytest.approx(-tire.p_ky1 * Fz, rel=2e-3)
+        assert ky > 0  # vdp's sign: F_y > 0 for alpha > 0
+    # a Magic-Formula tyre bends less than a brush at half the limit (about 0.9 of its slope)
+    alphas = np.linspace(1e-4, 0.2, 2000)
+    fy = np.array([m.fy(a, 4000.0, "front") for a in alphas])
+    mu = fy.max() / 4000.0
+    a_half = alphas[np.argmin(abs(fy - 0.5 * mu * 4000.0))]
+    assert 0.5 * mu * 4000.0 / a_half / (-tire.p_ky1 * 4000.0) == pytest.approx(0.92, abs=0.04)
+
+
+# -- whole-car physics ------------------------------------------------------------------
+@pytest.mark.parametrize("car", ["saloon", "small"])
+def test_brush_static_axle_loads_give_l_f(car):
+    m = get_model("brush", car)
+    x = m.initial(0.0)
+    _, aux = m.deriv(x, 0.0, 0.0, 0.0)
+    zf, zr = aux[2], aux[3]
+    assert zf + zr == pytest.approx(m.mass * m.g, rel=1e-9)
+    assert m.wheelbase * zr / (m.mass * m.g) == pytest.approx(m.static_truth()["l_f"], rel=1e-9)
+    assert 0.3 * m.wheelbase < m.static_truth()["l_f"] < 0.6 * m.wheelbase
+
+
+@need_mb
+def test_mb_settles_on_its_static_axle_loads():
+    m = get_model("mb", "bmw_320i")
+    sc = Plan("slow", 6.0).cruise(2.0, "straight", "other").build()
+    tr = drive(m, sc)
+    zf, zr = tr.aux[-500:, 0].mean(), tr.aux[-500:, 1].mean()
+    # at 6 m/s drag moves the loads by < 0.1 %; the sprung mass settles within the 3 s pre-roll
+    assert zf + zr == pytest.approx(m.mass * 9.81, rel=2e-3)
+    assert m.wheelbase * zr / (zf + zr) == pytest.approx(m.static_truth()["l_f"], rel=5e-3)
+
+
+def test_brush_load_transfer_height_is_cg_height_plus_pitch_shift():
+    m = get_model("brush", "saloon")
+    tr = drive(m, "stage1", duration=25.0)
+    t = truth_of(m, tr)
+    # the regression on the drive against the quasi-static closed form (drag moves it a little)
+    assert t["parameters"]["h"] == pytest.approx(m.pitch_shift_height(), rel=0.01)
+    # and the rear axle really does gain load when accelerating
+    ax = tr.aux[:, AUX.index("a_x")]
+    assert np.corrcoef(ax, tr.aux[:, AUX.index("F_zr")])[0, 1] > 0.95
+
+
+@pytest.mark.parametrize("car", ["saloon", "small"])
+def test_brush_steady_cornering_matches_the_bicycle_closed_form(car):
+    m = get_model("brush", car)
+    v, delta = 15.0, math.radians(1.0)
+    r, ay, tr = _steady(m, v, delta)
+    t = truth_of(m, tr)
+    Cf, Cr = t["per_axle"]["C_alpha_front"], t["per_axle"]["C_alpha_rear"]
+    lf = t["parameters"]["l_f"]
+    lr = m.wheelbase - lf
+    K = m.mass / m.wheelbase * (lr / Cf - lf / Cr)  # understeer gradient [rad/(m/s^2)]
+    assert K > 0  # both cars understeer (front-heavy, stiffer front roll)
+    r_closed = v * delta / (m.wheelbase + K * v * v)
+    # small a_y (about 2 m/s^2): lateral load transfer and tyre curvature change it by a few per cent
+    assert r == pytest.approx(r_closed, rel=0.05)
+    assert ay == pytest.approx(v * r, rel=0.01)  # steady state: a_y = v r
+    # roll leans out of the turn, by the roll axis's closed form
+    phi = np.cumsum(tr.values[:, ch.ROLL]) * 1e-3
+    ms, d, g = m.c.m_s, m.d, m.c.g
+    assert phi[-1] == pytest.approx(ms * d * ay / (m.k_phi - ms * d * g), rel=0.05)
+
+
+@need_mb
+def test_mb_understeer_gradient_sign_and_size():
+    m = get_model("mb", "bmw_320i")
+    v, d1, d2 = 15.0, math.radians(0.5), math.radians(1.0)
+    sc = Plan("steps", v).cruise(3.0, "a", "other", steer=lambda t: d1).cruise(3.0, "b", "other", steer=lambda t: d2)
+    tr = drive(m, sc.build())
+    r1, ay1 = tr.values[2000:3000, ch.YAW].mean(), tr.values[2000:3000, ch.AY].mean()
+    r2, ay2 = tr.values[5000:6000, ch.YAW].mean(), tr.values[5000:6000, ch.AY].mean()
+    # delta = L r / v + K a_y: the slope of (delta - L r / v) against a_y is the understeer gradient
+    K = (d2 - d1 - m.wheelbase * (r2 - r1) / v) / (ay2 - ay1)
+    t = truth_of(m, tr)
+    Cf, Cr = t["per_axle"]["C_alpha_front"], t["per_axle"]["C_alpha_rear"]
+    lf = t["parameters"]["l_f"]
+    K_closed = m.mass / m.wheelbase * ((m.wheelbase - lf) / Cf - lf / Cr)
+    # the library's tyre has K_y = p_ky1 F_z, so C_f / C_r = F_zf / F_zr and the bicycle closed form is
+    # neutral (drag moves a little load rearwards); the whole car (camber, compliance, load transfer) must stay near neutral too:
+    # within 0.1 deg/g, where a typical saloon understeers by 1-3 deg/g
+    assert abs(K_closed) < math.radians(0.05) / 9.81
+    assert abs(K) < math.radians(0.1) / 9.81, f"K = {math.degrees(K) * 9.81:.3f} deg/g"
+    assert ay2 > 1.5 * ay1 > 0
+
+
+# -- onto the bus -----------------------------------------------------------------------
+def _short(model: str, car: str, seed: int = 3, noise: str = "realistic", duration: float = 6.0):
+    return IndependentSimulation(model, car, "stage1", seed, noise, duration=duration)
+
+
+def test_independent_frames_are_seeded_and_carry_the_drive():
+    a = _short("brush", "small")
+    b = IndependentSimulation(a.model, None, "stage1", 3, "realistic", trace=a.trace)
+    fa = [(m.timestamp, m.arbitration_id, bytes(m.data)) for m in a.frames()]
+    fb = [(m.timestamp, m.arbitration_id, bytes(m.data)) for m in b.frames()]
+    assert fa == fb and len(fa) > 1000
+    c = IndependentSimulation(a.model, None, "stage1", 4, "realistic", trace=a.trace)
+    assert [bytes(m.data) for m in c.frames()] != [d for _, _, d in fa]
+    # the truth file says what the truth means, and the estimator's profile holds none of it
+    assert set(a.truth["definitions"]) == set(DEFINITIONS)
+    text = a.profile_toml()
+    for name, value in a.truth["parameters"].items():
+        assert f"{value:.4g}" not in text, name
+    assert a.model.profile().priors["I_z"].value == a.model.priors["I_z"][0]
+
+
+def test_vdp_simulate_model_brush_then_replay(tmp_path):
+    out = tmp_path / "drive.log"
+    r = subprocess.run(
+        [*VDP, "simulate", "--model", "brush", "--car", "small", "--scenario", "stage1"]
+        + ["--duration", "12", "--seed", "2", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env=ENV,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+    prof, truth = tmp_path / "drive.profile.toml", tmp_path / "drive.truth.json"
+    assert prof.is_file() and truth.is_file()
+    r = subprocess.run(
+        [*VDP, "replay", str(out), "--profile", str(prof), "--truth", str(truth), "--json", str(tmp_path / "o.json")],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env=ENV,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+    res = json.loads((tmp_path / "o.json").read_text())
+    assert any(w["stage"] == 1 for w in res["windows"])
+    assert res["truth"] == pytest.approx(json.loads(truth.read_text())["parameters"])
+    # a car that is not the paper's: the profile's known constants are the model's own
+    assert "mass = 1100.0" in prof.read_text()
+
+
+def test_vdp_simulate_model_refuses_what_it_cannot_drive(tmp_path):
+    r = subprocess.run(
+        [*VDP, "simulate", "--model", "brush", "--scenario", "city", "--out", str(tmp_path / "x.log")],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env=ENV,
+        timeout=300,
+    )
+    assert r.returncode != 0
+    assert "paper, stage1, stage2" in r.stderr
