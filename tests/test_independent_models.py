@@ -145,8 +145,8 @@ def test_brush_steady_cornering_matches_the_bicycle_closed_form(car):
 def test_mb_understeer_gradient_sign_and_size():
     m = get_model("mb", "bmw_320i")
     v, d1, d2 = 15.0, math.radians(0.5), math.radians(1.0)
-    sc = Plan("steps", v).cruise(3.0, "a", "other", steer=lambda t: d1).cruise(3.0, "b", "other", steer=lambda t: d2)
-    tr = drive(m, sc.build())
+    sc = Plan("steps", v).cruise(3.0, "a", "other", steer=lambda t: d1)
+    tr = drive(m, sc.cruise(3.0, "b", "other", steer=lambda t: d2).build())
     r1, ay1 = tr.values[2000:3000, ch.YAW].mean(), tr.values[2000:3000, ch.AY].mean()
     r2, ay2 = tr.values[5000:6000, ch.YAW].mean(), tr.values[5000:6000, ch.AY].mean()
     # delta = L r / v + K a_y: the slope of (delta - L r / v) against a_y is the understeer gradient
