@@ -156,8 +156,8 @@ def test_mb_understeer_gradient_sign_and_size():
     lf = t["parameters"]["l_f"]
     K_closed = m.mass / m.wheelbase * ((m.wheelbase - lf) / Cf - lf / Cr)
     # the library's tyre has K_y = p_ky1 F_z, so C_f / C_r = F_zf / F_zr and the bicycle closed form is
-    # neutral (drag moves a little load rearwards); the whole car (camber, compliance, load transfer) must stay near neutral too:
-    # within 0.1 deg/g, where a typical saloon understeers by 1-3 deg/g
+    # neutral (drag moves a little load rearwards); the whole car (camber, compliance, load transfer)
+    # must stay near neutral too: within 0.1 deg/g, where a typical saloon understeers by 1-3 deg/g
     assert abs(K_closed) < math.radians(0.05) / 9.81
     assert abs(K) < math.radians(0.1) / 9.81, f"K = {math.degrees(K) * 9.81:.3f} deg/g"
     assert ay2 > 1.5 * ay1 > 0
