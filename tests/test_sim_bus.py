@@ -184,8 +184,9 @@ def test_every_shipped_profile_can_be_simulated(path):
         chk = prof.checks.get(name)
         if chk is not None and chk.counter:
             c = db.decode_message(msg.arbitration_id, msg.data, decode_choices=False)[chk.counter]
-            if msg.arbitration_id in counters:
-                assert c == (counters[msg.arbitration_id] + 1) % 16
+            if msg.arbitration_id in counters:  # wraps at the counter's bit width, as the decoder expects
+                bits = db.get_message_by_frame_id(msg.arbitration_id).get_signal_by_name(chk.counter).length
+                assert c == (counters[msg.arbitration_id] + 1) % (1 << bits)
             counters[msg.arbitration_id] = c
 
 

@@ -30,6 +30,7 @@ from cantools.database.errors import DecodeError as _CantoolsDecodeError
 from .. import channels
 from ..errors import ProfileError
 from ..profile import UNIT_FACTORS, ChannelMap, Profile
+from . import dbcfix
 from .checks import counter_ok, vdp_checksum
 from .logs import EXT_KEY as _EXT
 from .logs import channel_keys
@@ -263,6 +264,7 @@ class FrameDecoder:
         needs: dict[int, list[tuple[str, bool, bool]]] = {}
         outs: dict[int, list[tuple[int, str, float, float, str | None, ChannelMap | None, str | None]]] = {}
         msgs: dict[int, Any] = {}
+        ranges: dict[tuple[str, str], tuple[float, float]] = {}  # the profile's range overrides
         for cmap in prof.channels.values():
             for m, primary in ((cmap, None), (cmap.alt, cmap)):
                 if m is None:
@@ -276,6 +278,8 @@ class FrameDecoder:
                     _need(need, m.sign_signal, raw=False, check=False)
                 if m.fine:
                     _need(need, m.fine, raw=False, check=True)
+                if m.range is not None:
+                    ranges[(msg.name, m.signal)] = m.range
                 f = m.factor(prof.vehicle)
                 outs.setdefault(plan.key, []).append(
                     (channels.INDEX[cmap.channel], m.signal, f * m.scale, f * m.offset, m.sign_signal, primary, m.fine)
@@ -297,7 +301,7 @@ class FrameDecoder:
                 plan.cnt_pos = pos[chk.counter] if chk.counter else -1
                 plan.cs_pos = pos[chk.checksum] if chk.checksum and chk.checksum_kind == "vdp" else -1
                 plan.checked = plan.cnt_pos >= 0 or plan.cs_pos >= 0
-            plan.extract = compile_extractor(msg, need) or _cantools_extractor(msg, need)
+            plan.extract = compile_extractor(msg, need, ranges) or _cantools_extractor(msg, need, ranges)
             for idx, sig, mul, add, sign_sig, primary, fine in outs[key]:
                 prim_plan = self._plan(self.db.get_message_by_name(primary.message)) if primary else None
                 plan.outputs.append(
@@ -482,14 +486,7 @@ def load_dbc(profile: Profile) -> cantools.database.Database:
 
 
 def _load_one(profile: Profile, path: Path) -> cantools.database.Database:
-    try:
-        db = cantools.database.load_file(str(path), strict=False)
-    except Exception as exc:  # cantools raises parser-specific errors of many types
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ProfileError(f"{profile.path} [can]: cannot load DBC {path}: {first}") from None
-    if not isinstance(db, cantools.database.can.Database):
-        raise ProfileError(f"{profile.path} [can]: {path} is not a CAN database")
-    return db
+    return dbcfix.load(path, f"{profile.path} [can]")
 
 
 # -- signal extraction -----------------------------------------------------
@@ -577,7 +574,9 @@ def check_fine(where: str, msg: Any, coarse: Any, fine: Any) -> None:
         )
 
 
-def compile_extractor(msg: Any, need: Sequence[tuple[str, bool, bool]]) -> Callable[[Any], tuple] | None:
+def compile_extractor(
+    msg: Any, need: Sequence[tuple[str, bool, bool]], ranges: dict[tuple[str, str], tuple[float, float]] | None = None
+) -> Callable[[Any], tuple] | None:
     """A function ``data -> (error kind or None, value1, value2, ...)`` for ``need``'s signals.
 
     Values are physical (``raw*scale+offset``), or raw ints where ``need`` says raw.
@@ -615,7 +614,7 @@ def compile_extractor(msg: Any, need: Sequence[tuple[str, bool, bool]]) -> Calla
             expr = f"{expr} * {float(scale)!r} + {float(offset)!r}"
         lines.append(f"    v{i} = {expr}")
         if check and not raw:
-            lo, hi = limits(msg, sig)
+            lo, hi = _limits(msg, sig, ranges)
             if lo > -math.inf:
                 checks.append(f"v{i} >= {lo!r}")
             if hi < math.inf:
@@ -630,7 +629,18 @@ def compile_extractor(msg: Any, need: Sequence[tuple[str, bool, bool]]) -> Calla
     return scope["extract"]
 
 
-def _cantools_extractor(msg: Any, need: Sequence[tuple[str, bool, bool]]) -> Callable[[Any], tuple]:
+def _limits(msg: Any, sig: Any, ranges: dict[tuple[str, str], tuple[float, float]] | None) -> tuple[float, float]:
+    """limits(), unless the profile gives the signal its own range."""
+    r = ranges.get((msg.name, sig.name)) if ranges else None
+    if r is None:
+        return limits(msg, sig)
+    tol = abs(sig.conversion.scale) * 1e-3
+    return r[0] - tol, r[1] + tol
+
+
+def _cantools_extractor(
+    msg: Any, need: Sequence[tuple[str, bool, bool]], ranges: dict[tuple[str, str], tuple[float, float]] | None = None
+) -> Callable[[Any], tuple]:
     """Same contract as compile_extractor, through cantools (mux pages, float signals).
 
     A signal outside the frame's mux page comes back as None: the frame does not carry it.
@@ -638,7 +648,7 @@ def _cantools_extractor(msg: Any, need: Sequence[tuple[str, bool, bool]]) -> Cal
     specs = []
     for name, raw, check in need:
         sig = msg.get_signal_by_name(name)
-        lo, hi = limits(msg, sig) if check else (-math.inf, math.inf)
+        lo, hi = _limits(msg, sig, ranges) if check else (-math.inf, math.inf)
         specs.append((name, raw, check, lo, hi, sig.conversion.scale, sig.conversion.offset))
     decode = msg.decode
     isfinite = math.isfinite

@@ -19,10 +19,9 @@ import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cantools
-
 from ..errors import ProfileError
-from ..io.checks import COUNTER_MODULO, vdp_checksum
+from ..io import dbcfix
+from ..io.checks import vdp_checksum
 from ..io.decoder import check_fine
 from ..profile import ChannelMap, Profile
 
@@ -33,15 +32,16 @@ CONSTANTS = {"FIX_TYPE": 3, "NUM_SATS": 12}
 DEFAULT_CYCLE_MS = 10
 
 
-def signal_range(sig) -> tuple[float, float]:
-    """Physical range a signal can carry: its DBC [min|max] within what its bits can hold."""
+def signal_range(sig, dbc_range: bool = True) -> tuple[float, float]:
+    """Physical range a signal can carry: its DBC [min|max] (unless ``dbc_range`` is false)
+    within what its bits can hold."""
     lo, hi = float("-inf"), float("inf")
     if not sig.is_float:
         n = sig.length
         rmin, rmax = (-(1 << (n - 1)), (1 << (n - 1)) - 1) if sig.is_signed else (0, (1 << n) - 1)
         a, b = rmin * sig.scale + sig.offset, rmax * sig.scale + sig.offset
         lo, hi = min(a, b), max(a, b)
-    mn, mx = sig.minimum, sig.maximum
+    mn, mx = (sig.minimum, sig.maximum) if dbc_range else (None, None)
     tol = abs(sig.scale) * 1e-3
     if not sig.is_float and ((mn is not None and mn < lo - tol) or (mx is not None and mx > hi + tol)):
         return lo, hi  # a DBC range the bits cannot reach is not a physical range (as the decoder's limits())
@@ -102,7 +102,7 @@ class MessagePlan:
     base: dict  # constant values of unmapped signals
     signals: list[SignalPlan] = field(default_factory=list)
     counter: str | None = None
-    counter_modulo: int = COUNTER_MODULO
+    counter_modulo: int = 16
     checksum: bool = False  # vdp checksum in byte 7
     phase_ms: int = 0
     count: int = 0  # frames encoded so far (drives the counter)
@@ -113,12 +113,9 @@ class MessagePlan:
 
 
 def load_dbc(path: Path):
-    try:
-        return cantools.database.load_file(str(path), strict=False)
-    except FileNotFoundError:
-        raise ProfileError(f"{path}: DBC file does not exist") from None
-    except Exception as exc:  # cantools raises several parser error types
-        raise ProfileError(f"{path}: cannot load DBC: {exc}") from None
+    if not Path(path).is_file():
+        raise ProfileError(f"{path}: DBC file does not exist")
+    return dbcfix.load(path)
 
 
 class Encoder:
@@ -178,7 +175,9 @@ class Encoder:
                     msg.name,
                     DEFAULT_CYCLE_MS,
                 )
-            plan = MessagePlan(msg.name, msg.frame_id, msg.is_extended_frame, bool(msg.is_fd), int(period), msg, base)
+            # a payload over 8 bytes can only travel as CAN FD, whether or not the DBC says so
+            is_fd = bool(msg.is_fd) or msg.length > 8
+            plan = MessagePlan(msg.name, msg.frame_id, msg.is_extended_frame, is_fd, int(period), msg, base)
             by_name[msg.name] = plan
         try:
             sig = msg.get_signal_by_name(cm.signal)
@@ -189,6 +188,9 @@ class Encoder:
         if any(s.signal == cm.signal for s in plan.signals):
             return  # one signal feeding two channels (e.g. a shared wheel speed): encode once
         lo, hi = signal_range(sig)
+        if cm.range is not None:  # the profile's range replaces the DBC's, within what the bits carry
+            full = signal_range(sig, dbc_range=False)
+            lo, hi = max(cm.range[0], full[0]), min(cm.range[1], full[1])
         sp = SignalPlan(
             cm.signal, cm.channel, 1.0 / cm.factor(self.profile.vehicle), cm.scale, cm.offset, lo, hi, cm.sign_signal
         )
@@ -214,7 +216,7 @@ class Encoder:
                 if chk.counter not in sigs:
                     raise ProfileError(f"{where}: counter '{chk.counter}' is not in message '{name}'")
                 plan.counter = chk.counter
-                plan.counter_modulo = min(COUNTER_MODULO, 1 << sigs[chk.counter].length)
+                plan.counter_modulo = 1 << sigs[chk.counter].length  # as the decoder expects (io.decoder)
             if chk.checksum is not None and chk.checksum_kind == "vdp":
                 s = sigs.get(chk.checksum)
                 if s is None:
