@@ -1,0 +1,326 @@
+"""Accuracy of the estimator on vehicle models vdp did not write, beside vdp's own simulator.
+
+    python benchmarks/independent.py --seeds 5 --jobs 2 [--cases brush/small,mb/bmw_320i] [--json runs.json]
+
+Cases: ``brush/saloon``, ``brush/small`` (vdp.sim.independent.brush, first principles),
+``mb/bmw_320i``, ``mb/vw_vanagon`` (CommonRoad's multi-body car, the ``bench`` extra),
+and vdp's own simulator ``vdp/paper`` (Table 6) and ``vdp/small`` (the small car's
+known constants with vdp's own physics).  Each case drives the paper's manoeuvre
+once noise-free and with realistic noise for ``--seeds`` seeds; every drive goes
+DBC -> candump log -> the replay pipeline (UKF and the EKF baseline at once), and only
+the log and the profile reach the estimator.
+
+Per parameter, for the UKF and the EKF: the relative error (mean and worst |error|
+over the runs), how often truth lies within value +- 2 std, how many estimates
+reported valid have the truth more than 3 std away, how many ended converged, and the
+time to converge: from the first window of the parameter's stage to the moment its
+std fell below the convergence threshold for good (median over the runs that did).
+
+What "truth" means on a model vdp did not write is in vdp.sim.independent.DEFINITIONS
+(printed with the tables).  ``--prior-scale 0.6`` multiplies every prior mean.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import json
+import statistics
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "service"))
+
+CASES = ("brush/saloon", "brush/small", "mb/bmw_320i", "mb/vw_vanagon", "vdp/paper", "vdp/small")
+
+# vdp's own physics with the small car's known constants (issue 11: about 1,100 kg, wheelbase 2.58 m,
+# roll stiffness about 48,000 N m/rad) and realistic, imperfect priors
+VDP_SMALL = {
+    "vehicle": {
+        "mass": 1100.0,
+        "wheelbase": 2.58,
+        "wheel_radius": 0.29,
+        "wheel_inertia": 1.6,
+        "roll_stiffness": 48000.0,
+        "roll_damping": 3000.0,
+        "track": 1.45,
+    },
+    "truth": {"l_f": 1.02, "h": 0.54, "C_K": 12.0, "C_alpha": 73000.0, "I_z": 1650.0, "I_x": 486.0},
+    "priors": {
+        "l_f": (1.29, 0.3),
+        "h": (0.55, 0.2),
+        "C_K": (8.0, 4.0),
+        "C_alpha": (80000.0, 40000.0),
+        "I_z": (2200.0, 1100.0),
+        "I_x": (500.0, 250.0),
+    },
+}
+
+
+def _source_hash() -> str:
+    h = hashlib.sha256()
+    for p in sorted((ROOT / "service" / "vdp" / "sim" / "independent").glob("*.py")):
+        h.update(p.read_bytes())
+    return h.hexdigest()[:12]
+
+
+def trace_path(cache: Path, case: str, scenario: str) -> Path:
+    return cache / f"{case.replace('/', '-')}-{scenario}-{_source_hash()}.npz"
+
+
+def make_trace(job) -> tuple[str, float]:
+    """Record an independent model's drive once (the physics does not depend on the seed)."""
+    case, scenario, cache = job
+    from vdp.sim.independent import get_model
+    from vdp.sim.independent.common import drive
+
+    path = trace_path(cache, case, scenario)
+    if path.exists():
+        return case, 0.0
+    t0 = time.perf_counter()
+    name, car = case.split("/")
+    tr = drive(get_model(name, car), scenario)
+    tmp = path.with_suffix(".tmp.npz")
+    tr.save(tmp)
+    tmp.rename(path)
+    return case, time.perf_counter() - t0
+
+
+def _scaled(priors: dict, scale: float) -> dict:
+    from vdp.profile import Prior
+
+    return {k: Prior(p.value * scale, p.std) for k, p in priors.items()}
+
+
+def _simulation(case: str, scenario: str, seed: int, noise: str, cache: Path, prior_scale: float):
+    """(frames iterator, truth dict, profile) of one run; the profile is all the estimator gets."""
+    from vdp.profile import Prior, load_profile
+
+    name, car = case.split("/")
+    if name == "vdp":
+        from vdp.sim.run import Simulation
+
+        profile = load_profile(ROOT / "profiles" / "paper.toml")
+        params = None
+        if car == "small":
+            veh = dataclasses.replace(profile.vehicle, name="small", **VDP_SMALL["vehicle"])
+            priors = {k: Prior(*v) for k, v in VDP_SMALL["priors"].items()}
+            profile = dataclasses.replace(profile, vehicle=veh, priors=priors)
+            params = VDP_SMALL["truth"]
+        sim = Simulation(profile, scenario, seed, noise, params=params)
+        truth = sim.truth
+    else:
+        from vdp.sim.independent import get_model
+        from vdp.sim.independent.common import IndependentSimulation, Trace
+
+        tr = Trace.load(trace_path(cache, case, scenario))
+        sim = IndependentSimulation(get_model(name, car), None, scenario, seed, noise, trace=tr)
+        profile, truth = sim.profile, sim.truth
+    if prior_scale != 1.0:
+        profile = dataclasses.replace(profile, priors=_scaled(profile.priors, prior_scale))
+    return sim, truth, profile
+
+
+def truth_value(name: str, truth: dict) -> float | None:
+    """A parameter's truth; per-axle names (C_alpha_front or C_alpha_f, ...) from the per-axle table."""
+    if name in truth["parameters"]:
+        return truth["parameters"][name]
+    per = truth.get("per_axle", {})
+    if name in per:
+        return per[name]
+    for short, long in (("_f", "_front"), ("_r", "_rear")):
+        base = name[: -len(short)] if name.endswith(short) else name[: -len(long)] if name.endswith(long) else None
+        if base is None:
+            continue
+        if base + long in per:
+            return per[base + long]
+        if not per and base in truth["parameters"]:  # vdp's own physics: one value for both axles
+            return truth["parameters"][base]
+    return None
+
+
+def run_one(job) -> dict:
+    case, scenario, seed, noise, cache, prior_scale = job
+    import logging
+
+    from vdp.core.estimator import EstimatorConfig
+    from vdp.core.params import BY_NAME
+    from vdp.io.logs import open_log
+    from vdp.pipeline import Pipeline
+    from vdp.replay import replay
+    from vdp.sim.run import write_log
+
+    logging.getLogger("vdp").setLevel(logging.ERROR)
+    sim, truth, profile = _simulation(case, scenario, seed, noise, cache, prior_scale)
+    with tempfile.TemporaryDirectory() as tmp:
+        log = Path(tmp) / "drive.log"
+        write_log(sim.frames(), log, sim.bus_channel)
+        pipe = Pipeline(profile, EstimatorConfig())
+        t0 = time.perf_counter()
+        res = replay(open_log(log, channel=profile.bus_channel), pipe)
+        wall = time.perf_counter() - t0
+    est = pipe.estimator
+    out = {"case": case, "seed": seed, "noise": noise, "wall": wall, "frames": res["log"]["frames"]}
+    out["windows"] = {s: sum(1 for w in res["windows"] if w["stage"] == s) for s in (1, 2)}
+    first = {s: min((w["start"] for w in res["windows"] if w["stage"] == s), default=None) for s in (1, 2)}
+    for kind, key in (("ukf", "parameters"), ("ekf", "baseline_ekf")):
+        snap = res.get(key) or {}
+        names = list(est.s1[kind].names) + list(est.s2[kind].names) if kind in est.s1 else []
+        rows = {}
+        for name, e in snap.items():
+            tv = truth_value(name, truth)
+            v, sd = e.get("value"), e.get("std")
+            d = {"truth": tv, "value": v, "std": sd, "status": e.get("status"), "valid": bool(e.get("valid"))}
+            if tv is not None and v is not None:
+                d["err"] = (v - tv) / tv
+                d["z"] = abs(v - tv) / sd if sd else float("inf")
+            # time to converge: from its stage's first window to the last time its std crossed the threshold
+            spec = BY_NAME.get(name)
+            d["t_conv"] = None
+            if spec is not None and name in names and first[spec.stage] is not None:
+                i = names.index(name)
+                t_in = None
+                for row in est.trace:
+                    val, s = row[2 + list(est.s1).index(kind)][i]
+                    ok = val is not None and s is not None and val != 0 and s / abs(val) < spec.converged_rel
+                    if ok and t_in is None:
+                        t_in = row[0]
+                    elif not ok:
+                        t_in = None
+                if t_in is not None:
+                    d["t_conv"] = max(0.0, t_in - first[spec.stage])
+            rows[name] = d
+        out[kind] = rows
+    return out
+
+
+def _pct(x: float | None) -> str:
+    return "–" if x is None else f"{100 * x:+.1f} %"
+
+
+def summarise(runs: list[dict], case: str, noise: str) -> list[str]:
+    rs = [r for r in runs if r["case"] == case and r["noise"] == noise]
+    if not rs:
+        return []
+    names = list(rs[0]["ukf"])
+    lines = []
+    for name in names:
+        cells = [f"`{name}`", f"{rs[0]['ukf'][name]['truth']:.4g}" if rs[0]["ukf"][name]["truth"] else "–", noise]
+        for kind in ("ukf", "ekf"):
+            ds = [r[kind][name] for r in rs if name in r.get(kind, {})]
+            errs = [d["err"] for d in ds if d.get("err") is not None]
+            if not ds:
+                cells += ["–"] * 5
+                continue
+            mean = statistics.fmean(abs(e) for e in errs) if errs else None
+            worst = max(errs, key=abs) if errs else None
+            cov = sum(1 for d in ds if d.get("z") is not None and d["z"] <= 2.0)
+            bad = sum(1 for d in ds if d["valid"] and d.get("z") is not None and d["z"] > 3.0)
+            valid = sum(1 for d in ds if d["valid"])
+            tc = [d["t_conv"] for d in ds if d.get("t_conv") is not None]
+            err_cell = _pct(errs[0]) if len(errs) == 1 else f"{100 * mean:.1f} % ({_pct(worst)})" if errs else "–"
+            cells += [
+                err_cell,
+                f"{cov}/{len(ds)}",
+                f"{valid}/{len(ds)}",
+                f"**{bad}**" if bad else "0",
+                f"{statistics.median(tc):.1f} s ({len(tc)})" if tc else "never",
+            ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+HEADER = (
+    "| parameter | truth | noise | UKF error | UKF ±2σ covers | UKF valid | UKF valid, truth > 3σ | UKF t_conv "
+    "| EKF error | EKF ±2σ covers | EKF valid | EKF valid, truth > 3σ | EKF t_conv |\n"
+    "|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+)
+
+
+def report(runs: list[dict], cases: list[str], seeds: int, scale: float) -> str:
+    from vdp.sim.independent import DEFINITIONS
+
+    out = []
+    for case in cases:
+        rs = [r for r in runs if r["case"] == case]
+        s2 = sum(1 for r in rs if r["windows"][2])
+        out += [
+            f"#### `{case}`: paper drive, noise-free and {seeds} seeds of realistic noise"
+            + (f", prior means ×{scale:g}" if scale != 1.0 else ""),
+            "",
+            HEADER,
+        ]
+        out += summarise(runs, case, "none") + summarise(runs, case, "realistic")
+        out += ["", f"Stage 2 opened a window on {s2}/{len(rs)} runs.", ""]
+    # across every case
+    out += ["#### All cases together", "", "| parameter | UKF ±2σ covers | UKF valid, truth > 3σ | EKF ±2σ covers "]
+    out[-1] += "| EKF valid, truth > 3σ |"
+    out.append("|---|---|---|---|---|")
+    names = list(runs[0]["ukf"])
+    for name in names:
+        cells = [f"`{name}`"]
+        for kind in ("ukf", "ekf"):
+            ds = [r[kind][name] for r in runs if name in r.get(kind, {})]
+            cov = sum(1 for d in ds if d.get("z") is not None and d["z"] <= 2.0)
+            bad = sum(1 for d in ds if d["valid"] and d.get("z") is not None and d["z"] > 3.0)
+            cells += [f"{cov}/{len(ds)} ({100 * cov / max(len(ds), 1):.0f} %)", str(bad)]
+        out.append("| " + " | ".join(cells) + " |")
+    out += ["", "Truth, as defined beside the models (vdp.sim.independent.DEFINITIONS):", ""]
+    out += [f"- `{k}`: {v}" for k, v in DEFINITIONS.items()]
+    return "\n".join(out)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cases", default=",".join(CASES), help=f"comma-separated, from {', '.join(CASES)}")
+    ap.add_argument("--scenario", default="paper", choices=("paper",))
+    ap.add_argument("--seeds", type=int, default=5, help="seeds of realistic noise per case (plus one noise-free)")
+    ap.add_argument("--first-seed", type=int, default=1)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--prior-scale", type=float, default=1.0, help="multiply every prior mean (0.6, 1.6)")
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "vdp-independent-traces")
+    ap.add_argument("--json", type=Path, help="write every run's figures here")
+    ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
+    a = ap.parse_args()
+    cases = [c.strip() for c in a.cases.split(",") if c.strip()]
+    for c in cases:
+        if c not in CASES:
+            ap.error(f"unknown case {c}; choose from {', '.join(CASES)}")
+    a.cache.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=a.jobs) as ex:
+        indep = [c for c in cases if not c.startswith("vdp/")]
+        for case, wall in ex.map(make_trace, [(c, a.scenario, a.cache) for c in indep]):
+            if wall:
+                print(f"recorded {case} {a.scenario} in {wall:.0f} s", file=sys.stderr)
+        jobs = []
+        for c in cases:
+            jobs.append((c, a.scenario, 0, "none", a.cache, a.prior_scale))
+            jobs += [
+                (c, a.scenario, s, "realistic", a.cache, a.prior_scale)
+                for s in range(a.first_seed, a.first_seed + a.seeds)
+            ]
+        runs = list(ex.map(run_one, jobs))
+    if a.verbose:
+        for r in runs:
+            errs = " ".join(f"{n}={_pct(d.get('err'))}[{d['status']}]" for n, d in r["ukf"].items())
+            print(f"{r['case']} {r['noise']} seed {r['seed']}: {errs} windows={r['windows']}", file=sys.stderr)
+    if a.json:
+        a.json.write_text(json.dumps(runs, indent=1, default=str) + "\n")
+    print(report(runs, cases, a.seeds, a.prior_scale))
+    frames = sum(r["frames"] for r in runs)
+    wall = sum(r["wall"] for r in runs)
+    print(
+        f"\nReplay (read log + decode + UKF + EKF): {frames / wall:,.0f} frames/s; whole benchmark "
+        f"{time.perf_counter() - t0:.0f} s on {a.jobs} processes."
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
