@@ -152,3 +152,40 @@ def test_simulate_says_when_duration_is_capped(tmp_path, capsys):
     assert main(["simulate", "--scenario", "stage1", "--duration", "9999", "--out", str(out)]) == 0
     err = capsys.readouterr().err
     assert "--duration 9999 s is longer than scenario 'stage1'" in err
+
+
+def test_plot_reads_at_a_glance(drive, repo_root):
+    """The paper's Figs 5 and 7: a panel per parameter, truth line, windows in the legend, and
+    axes set by the estimate once the data narrowed it, not by the prior's band."""
+    import matplotlib.pyplot as plt
+
+    from vdp import report
+    from vdp.core.estimator import EstimatorConfig
+    from vdp.io.logs import open_log
+    from vdp.pipeline import Pipeline
+    from vdp.profile import load_profile
+    from vdp.replay import replay
+
+    d, log = drive
+    profile = load_profile(repo_root / "profiles" / "paper.toml")
+    pipe = Pipeline(profile, EstimatorConfig())
+    truth = report.load_truth(d / "drive.truth.json")
+    res = replay(open_log(log, channel=profile.bus_channel), pipe, truth=truth)
+    fig = report.figure(pipe.estimator.trace, res["windows"], truth, "t", res["parameters"], profile.priors)
+    try:
+        axes = fig.axes
+        assert len(axes) == 6
+        labels = [t.get_text() for t in fig.legends[0].get_texts()]
+        for want in ("real value", "UKF", "UKF ±2σ", "EKF", "prior", "stage-1 window", "stage-2 window"):
+            assert want in labels
+        by_label = {ax.get_ylabel().split(" ")[0]: ax for ax in axes}
+        for name, sym in (("l_f", "$l_f$"), ("C_K", "$C_K$"), ("h", "$h$")):
+            ax = by_label[sym]
+            lo, hi = ax.get_ylim()
+            t = truth["parameters"][name]
+            assert lo < t < hi  # the real value is on the axes
+            # converged: the axes span a few of its stds, far less than the prior's ±2σ
+            assert hi - lo < 0.5 * 4 * profile.priors[name].std, (name, lo, hi)
+            assert any(abs(line.get_ydata()[0] - t) < 1e-12 for line in ax.get_lines() if len(line.get_ydata()) == 2)
+    finally:
+        plt.close(fig)

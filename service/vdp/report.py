@@ -112,58 +112,199 @@ def write_json(report: dict, path: str | Path) -> None:
     Path(path).write_text(json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n", encoding="utf-8")
 
 
-def plot(
-    trace, windows, path: str | Path, truth: dict | None = None, title: str = "", params: dict | None = None
-) -> None:
-    """Each parameter over time with its +-2 sigma band, UKF and EKF, truth if known.
+# The paper's figures: Fig. 5 is stage 1 (C_K, h, l_f), Fig. 7 stage 2 (C_alpha, I_x, I_z);
+# each panel is one parameter over time, the real value as a line, UKF and EKF.
+FIGURE_PANELS = ((5, ("C_K", "h", "l_f")), (7, ("C_alpha", "I_x", "I_z")))
+_WINDOW_COLOR = {1: "tab:green", 2: "tab:orange"}
+_SYMBOL = {"C_K": "$C_K$", "h": "$h$", "l_f": "$l_f$", "C_alpha": r"$C_\alpha$", "I_x": "$I_x$", "I_z": "$I_z$"}
 
-    ``params`` (the result's UKF parameters) labels each panel with its final status.
+
+def _column(rows, col: int, i: int):
+    import numpy as np
+
+    val = np.array([np.nan if r[col][i][0] is None else r[col][i][0] for r in rows])
+    sd = np.array([np.nan if r[col][i][1] is None else r[col][i][1] for r in rows])
+    return val, sd
+
+
+def _limits(val, sd, ref, prior_std):
+    """y limits: the estimate's whole path (from the prior's value on, as in the paper's figures),
+    the reference, and the ±2σ band only where the data has made it narrow (std below a quarter
+    of the prior's); the wide early band is clipped rather than allowed to set the axes."""
+    import numpy as np
+
+    ok = np.isfinite(val)
+    narrow = ok & np.isfinite(sd) & (sd < 0.25 * prior_std)
+    pool = [val[ok], val[narrow] - 2 * sd[narrow], val[narrow] + 2 * sd[narrow]]
+    if ref is not None:
+        pool.append(np.array([ref]))
+    flat = np.concatenate(pool)
+    if not len(flat):
+        return None
+    lo, hi = float(flat.min()), float(flat.max())
+    pad = max(0.12 * (hi - lo), 0.01 * max(abs(hi), abs(lo)) + 1e-12)
+    return lo - pad, hi + pad
+
+
+def plot(
+    trace,
+    windows,
+    path: str | Path,
+    truth: dict | None = None,
+    title: str = "",
+    params: dict | None = None,
+    priors: dict | None = None,
+) -> None:
+    """Write :func:`figure` to ``path`` (PNG, PDF or SVG by suffix)."""
+    import matplotlib.pyplot as plt
+
+    fig = figure(trace, windows, truth, title, params, priors)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def figure(
+    trace,
+    windows,
+    truth: dict | None = None,
+    title: str = "",
+    params: dict | None = None,
+    priors: dict | None = None,
+):
+    """The paper's Figures 5 and 7 side by side: per parameter, the real value (when a truth or
+    reference file gives it), the UKF with its ±2σ band and the EKF baseline over time, the
+    gating windows shaded, the prior marked where it falls.
+
+    ``trace`` rows are (t, stage, UKF ((value, std) per parameter), [EKF ...]) in NAMES order;
+    ``params`` (the result's UKF parameters) puts each final value and status in its panel;
+    ``priors`` (name -> object with value, std) marks the prior.
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
 
     rows = list(trace)
-    fig, axes = plt.subplots(3, 2, figsize=(12, 10), sharex=True)
-    if rows:
-        t = np.array([r[0] for r in rows])
-        kinds = [("UKF", 2, "tab:blue")] + ([("EKF", 3, "tab:red")] if len(rows[0]) > 3 else [])
-        for i, name in enumerate(NAMES):
-            ax = axes.flat[i]
-            ukf_val = None
-            for label, col, color in kinds:
-                val = np.array([np.nan if r[col][i][0] is None else r[col][i][0] for r in rows])
-                sd = np.array([np.nan if r[col][i][1] is None else r[col][i][1] for r in rows])
-                ax.plot(t, val, color=color, lw=1.2, label=label)
-                if label == "UKF":
-                    ukf_val = val
-                    ax.fill_between(t, val - 2 * sd, val + 2 * sd, color=color, alpha=0.18, lw=0, label="UKF ±2σ")
-            if truth and truth.get("parameters", {}).get(name) is not None:
-                ax.axhline(truth["parameters"][name], color="k", ls="--", lw=1, label="truth")
-            for w in windows:
-                end = w["end"] if w["end"] is not None else t[-1]
-                ax.axvspan(w["start"], end, color="tab:green" if w["stage"] == 1 else "tab:orange", alpha=0.07, lw=0)
+    ref_all = (truth or {}).get("parameters", {})
+    fig, axes = plt.subplots(3, 2, figsize=(12, 10), sharex="col")
+    t = np.array([r[0] for r in rows]) if rows else np.array([0.0])
+    t_end = float(t[-1]) if rows else 1.0
+    has_ekf = bool(rows) and len(rows[0]) > 3
+    for c, (fig_no, names) in enumerate(FIGURE_PANELS):
+        stage = c + 1
+        starts = [w["start"] for w in windows if w["stage"] == stage]
+        # stage 2 runs after the hand-over: its column starts a little before its first window
+        t0 = 0.0 if stage == 1 or not starts else max(min(starts) - 0.1 * (t_end - min(starts)), 0.0)
+        for r_i, name in enumerate(names):
+            ax = axes[r_i, c]
+            i = NAMES.index(name)
             spec = BY_NAME[name]
-            status = (params or {}).get(name, {}).get("status")
-            ax.set_title(
-                f"{name} [{spec.unit}] (stage {spec.stage})" + (f": {status.replace('_', ' ')}" if status else ""),
-                fontsize=10,
-            )
-            # keep the axis on the estimate, not on a wide early band
-            finite = ukf_val[np.isfinite(ukf_val)]
-            ref = [truth["parameters"][name]] if truth and truth.get("parameters", {}).get(name) else []
-            pool = np.concatenate([finite[len(finite) // 3 :], ref]) if len(finite) else np.array(ref)
-            if len(pool):
-                lo, hi = float(np.min(pool)), float(np.max(pool))
-                pad = max(0.15 * (hi - lo), 0.05 * abs(hi) + 1e-9)
-                ax.set_ylim(lo - 3 * pad, hi + 3 * pad)
+            ref = ref_all.get(name)
+            prior = (priors or {}).get(name)
+            prior_std = prior.std if prior is not None else np.inf
+            for w in windows:
+                end = w["end"] if w["end"] is not None else t_end
+                if end >= t0:
+                    ax.axvspan(max(w["start"], t0), end, color=_WINDOW_COLOR[w["stage"]], alpha=0.10, lw=0)
+            ran = any(w["stage"] == stage for w in windows)
+            if rows and ran:
+                sel = t >= t0
+                val, sd = _column(rows, 2, i)
+                # the band at full strength only where the data has narrowed it; while it is still
+                # the prior's width it is drawn faintly (clipped by the axes, it would flood them)
+                informed = sel & (sd < 0.5 * prior_std)
+                for part, alpha in ((sel & ~informed, 0.06), (informed, 0.22)):
+                    ax.fill_between(
+                        t, val - 2 * sd, val + 2 * sd, where=part, color="tab:blue", alpha=alpha, lw=0, zorder=2
+                    )
+                ax.plot(t[sel], val[sel], color="tab:blue", lw=1.6, zorder=4)
+                if has_ekf:
+                    ev, _ = _column(rows, 3, i)
+                    ax.plot(t[sel], ev[sel], color="tab:red", lw=1.1, ls="--", zorder=3)
+                lim = _limits(val[sel], sd[sel], ref, prior_std)
+            elif prior is not None:  # nothing learnt: the prior's ±2σ frames the real value, if known
+                pool = [prior.value - 2 * prior.std, prior.value + 2 * prior.std] + ([ref] if ref is not None else [])
+                lim = (min(pool), max(pool))
+            else:
+                lim = None
+            if ref is not None:
+                ax.axhline(ref, color="k", lw=1.3, zorder=5)
+            if lim is not None:
+                ax.set_ylim(*lim)
+            if prior is not None and lim is not None:
+                if lim[0] <= prior.value <= lim[1]:
+                    ax.axhline(prior.value, color="0.45", lw=0.9, ls=":", zorder=1)
+                else:  # off the axes: say where, don't stretch them
+                    above = prior.value > lim[1]
+                    ax.annotate(
+                        f"prior {prior.value:.4g} {'↑' if above else '↓'}",
+                        xy=(0.01, 0.97 if above else 0.03),
+                        xycoords="axes fraction",
+                        va="top" if above else "bottom",
+                        fontsize=8,
+                        color="0.4",
+                    )
+            ax.set_xlim(t0, t_end)
+            ax.set_ylabel(f"{_SYMBOL[name]} [{spec.unit.replace('*', '·')}]")
             ax.grid(alpha=0.3)
-        axes.flat[0].legend(fontsize=8, loc="best")
-    for ax in axes[-1]:
-        ax.set_xlabel("time since start of log [s]")
-    fig.suptitle(title or "vdp estimates (shaded: green stage-1 windows, orange stage-2 windows)", fontsize=11)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+            p = (params or {}).get(name) or {}
+            if not ran:
+                why = "stage 1 never ran" if stage == 1 else "stage 2 never ran (it starts once stage 1 has converged)"
+                ax.text(
+                    0.5,
+                    0.5,
+                    why,
+                    transform=ax.transAxes,
+                    ha="center",
+                    va="center",
+                    fontsize=9,
+                    color="0.3",
+                    bbox={"boxstyle": "round,pad=0.3", "fc": "white", "ec": "0.8"},
+                    zorder=6,
+                )
+            head = f"({'abc'[r_i]}) {spec.description}"
+            ax.set_title(head, fontsize=10, loc="left")
+            if p.get("value") is not None:
+                text = f"{p['value']:.4g} ± {p['std']:.2g}  {p.get('status', '').replace('_', ' ')}"
+                if ref is not None:
+                    text += f"\nreal {ref:.4g} ({100 * (p['value'] - ref) / ref:+.1f} %)"
+                ax.text(
+                    0.99,
+                    0.04,
+                    text,
+                    transform=ax.transAxes,
+                    ha="right",
+                    va="bottom",
+                    fontsize=8,
+                    bbox={"boxstyle": "round,pad=0.25", "fc": "white", "ec": "0.8", "alpha": 0.9},
+                    zorder=6,
+                )
+        axes[0, c].annotate(
+            f"stage {stage} (cf. the paper's Figure {fig_no})",
+            xy=(0.5, 1.18),
+            xycoords="axes fraction",
+            ha="center",
+            fontsize=11,
+            weight="bold",
+        )
+        axes[-1, c].set_xlabel("time since start of log [s]")
+    legend = [
+        Line2D([], [], color="k", lw=1.3, label="real value" if truth else "real value (pass --truth)"),
+        Line2D([], [], color="tab:blue", lw=1.6, label="UKF"),
+        Patch(color="tab:blue", alpha=0.2, label="UKF ±2σ"),
+    ]
+    if has_ekf:
+        legend.append(Line2D([], [], color="tab:red", lw=1.1, ls="--", label="EKF"))
+    if priors:
+        legend.append(Line2D([], [], color="0.45", lw=0.9, ls=":", label="prior"))
+    legend += [
+        Patch(color=_WINDOW_COLOR[1], alpha=0.25, label="stage-1 window"),
+        Patch(color=_WINDOW_COLOR[2], alpha=0.25, label="stage-2 window"),
+    ]
+    fig.legend(handles=legend, loc="lower center", ncol=len(legend), fontsize=9, frameon=False)
+    fig.suptitle(title or "vdp estimates", fontsize=12)
+    fig.tight_layout(rect=(0, 0.04, 1, 0.97))
+    return fig

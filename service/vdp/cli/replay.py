@@ -144,6 +144,7 @@ def run(args) -> int:
             truth,
             title=f"{Path(args.log).name}: {profile.vehicle.name}",
             params=result["parameters"],
+            priors=profile.priors,
         )
         print(f"wrote {args.plot}")
     return 0
