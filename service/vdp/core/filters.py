@@ -131,6 +131,10 @@ class JointFilter:
             raise FilterError(f"{self.kind}: non-finite state or covariance")
         if np.diagonal(f.P).min() <= 0.0:
             raise FilterError(f"{self.kind}: covariance lost positive definiteness")
+        try:  # a positive diagonal is not enough (the EKF's update keeps it while P turns indefinite)
+            np.linalg.cholesky(f.P)
+        except np.linalg.LinAlgError:
+            raise FilterError(f"{self.kind}: covariance lost positive definiteness") from None
 
     def update(self, z, mask, u, R=None) -> None:
         """Measurement update with the rows in ``mask`` (a sensor may be missing or not new)."""

@@ -19,13 +19,15 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .. import channels as ch
 from ..errors import FilterError
-from . import lateral, longitudinal
+from . import batch, lateral, longitudinal
+from .bounds import Bounds
 from .filters import EKF, UKF
 from .params import BY_NAME, STAGE1, STAGE2
 
@@ -45,6 +47,13 @@ YAW_WALK = 0.02  # rad/s per sqrt(s)
 PHI_WALK = 1e-4  # rad per sqrt(s)
 PHI_D_WALK = 0.005  # rad/s per sqrt(s)
 L_F_STD_MIN = 1e-4  # m: stage 1's l_f is never taken as exact (keeps the covariance positive definite)
+
+# Stage 1's batch check (core.batch): the blocks kept, how often the batch optimum is
+# solved, and how far (squared Mahalanobis distance, 3 parameters) the filter may sit
+# from it before it is re-seeded there (chi-square, 3 dof, 0.999: 16.3)
+BATCH_BLOCKS = 3000  # 5 min of stage-1 windows in 0.1 s blocks
+BATCH_EVERY = 20  # blocks (2 s of window)
+RESEED_M2 = 16.3
 
 
 @dataclass(frozen=True)
@@ -140,6 +149,7 @@ class StageLearner:
         self.t_last: float | None = None
         self._good = (self.theta.copy(), self.theta_P.copy(), None)
         self._n, self._p = n, p
+        self.bounds = self._bounds()
 
     def handle(self, t: float, s) -> None:
         try:
@@ -164,9 +174,14 @@ class StageLearner:
         self.filter = None
         self.t_last = None
 
+    def filter_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The open filter's (x, P) in the model's SI units (the filter estimates bounded transforms)."""
+        t = self.filter.x
+        return self.bounds.to_si(t), self.bounds.cov_to_si(t, self.filter.P)
+
     def snapshot(self) -> dict[str, Estimate]:
         if self.filter is not None:
-            x, P = self.filter.x, self.filter.P
+            x, P = self.filter_state()
             theta, cov = x[self._p], P[self._p, self._p]
         else:
             theta, cov = self.theta, self.theta_P
@@ -193,7 +208,7 @@ class StageLearner:
     def values(self) -> tuple:
         """((value, std), ...) of the parameters: the trace's cheap view of snapshot()."""
         if self.filter is not None:
-            x, P = self.filter.x, self.filter.P
+            x, P = self.filter_state()
             theta, var = x[self._p], np.diagonal(P)[self._p]
         else:
             theta, var = self.theta, np.diagonal(self.theta_P)
@@ -204,7 +219,7 @@ class StageLearner:
 
     # -- machinery -----------------------------------------------------
     def _keep_params(self) -> None:
-        x, P = self.filter.x, self.filter.P
+        x, P = self.filter_state()
         self.theta = x[self._p].copy()
         self.theta_P = P[self._p, self._p].copy()
         self.cross = self._cross(P)
@@ -223,7 +238,7 @@ class StageLearner:
         self.t_last = None
 
     def _save_good(self) -> None:
-        x, P = self.filter.x, self.filter.P
+        x, P = self.filter_state()
         theta, cov = x[self._p], P[self._p, self._p]
         in_range = all(BY_NAME[n].lo <= v <= BY_NAME[n].hi for n, v in zip(self.names, theta))
         if in_range and np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov) > 0):
@@ -232,14 +247,23 @@ class StageLearner:
     def _q_rate(self) -> np.ndarray:
         raise NotImplementedError
 
+    def _bounds(self) -> Bounds:
+        raise NotImplementedError
+
     def _new_filter(self, x0, P0, R):
-        m = self.model
-        Q = self._q_rate()
-        fx = self._fx
-        hx = self._hx
+        """A filter over the bounded transform of the state (core.bounds), started at SI x0, P0."""
+        m, b = self.model, self.bounds
+        x0 = np.asarray(x0, dtype=float)
+        t0 = b.from_si(x0)
+        d = b.grad(t0)
+        P0 = np.asarray(P0, dtype=float) / np.outer(d, d)
+        Q = self._q_rate() / np.outer(d, d)  # the walk stated in SI, at the start's slope
+        scale = np.where(b.transformed, 1.0, m.SCALE)
+        fx, hx = b.wrap_fx(self._fx), b.wrap_hx(self._hx)
         if self.kind == "ukf":
-            return UKF(x0, P0, Q, R, m.SCALE, fx, hx, m.CONSIDER)
-        return EKF(x0, P0, Q, R, m.SCALE, fx, hx, self._jac_f, self._jac_h, m.CONSIDER)
+            return UKF(t0, P0, Q, R, scale, fx, hx, m.CONSIDER)
+        jf, jh = b.wrap_jac_f(self._jac_f), b.wrap_jac_h(self._jac_h)
+        return EKF(t0, P0, Q, R, scale, fx, hx, jf, jh, m.CONSIDER)
 
     def _param_q(self) -> np.ndarray:
         return (self.cfg.param_walk * self.prior_std) ** 2
@@ -257,7 +281,16 @@ class Stage1(StageLearner):
         self.known = longitudinal.Known(m=v.mass, L=v.wheelbase, r=v.wheel_radius, J=v.wheel_inertia, g=v.g)
         super().reset()
         self._acc: list = []
+        self._blocks: deque = deque(maxlen=BATCH_BLOCKS)  # (u, z, R) of each block the filter took
+        self._since_batch = 0
+        self.fit: batch.Fit | None = None
+        self.reseeds = 0
         self.filter = self._new_filter(self.theta, self.theta_P, self._R0())
+
+    def _bounds(self) -> Bounds:
+        # 0 < l_f < L, h > 0, C_K > 0
+        L_F, H, C_K = longitudinal.L_F, longitudinal.H, longitudinal.C_K
+        return Bounds(3, log=(H, C_K), logit={L_F: (0.0, self.vehicle.wheelbase)})
 
     def _fx(self, x, dt, u):
         return longitudinal.fx(x, dt, u, self.known)
@@ -280,7 +313,7 @@ class Stage1(StageLearner):
 
     def _R(self, u):
         """Wheel noise plus the speed's error, common to both axles (rank-one term)."""
-        c = longitudinal.speed_sensitivity(self.filter.x, u, self.known)
+        c = longitudinal.speed_sensitivity(self.bounds.to_si(self.filter.x), u, self.known)
         n = self.cfg.block
         # averaging n samples shrinks the wheel noise, not the slowly varying speed
         # error; speed_corr is stated per 10 ms of data, so the block's span counts
@@ -330,9 +363,45 @@ class Stage1(StageLearner):
         if self.filter is None:
             self.filter = self._new_filter(self.theta, self.theta_P, self._R0())
         self.filter.predict(dt, u)
-        self.filter.update(z, _BOTH_AXLES, u, R=self._R(u))
+        R = self._R(u)
+        self.filter.update(z, _BOTH_AXLES, u, R=R)
+        self._blocks.append((u, z, R))
+        self._since_batch += 1
+        if self._since_batch >= BATCH_EVERY:
+            self.check_batch()
         if self.samples % self.cfg.save_every < self.cfg.block:
             self._save_good()
+
+    def check_batch(self) -> batch.Fit | None:
+        """Solve the batch problem of the blocks kept; re-seed the filter if it sits off the optimum."""
+        self._since_batch = 0
+        if len(self._blocks) < 2 * BATCH_EVERY or self.filter is None:
+            return None
+        U = np.array([b[0] for b in self._blocks])
+        Z = np.array([b[1] for b in self._blocks])
+        R = np.array([b[2] for b in self._blocks])
+        b, k = self.bounds, self.known
+        prior = np.array([self.priors[n].value for n in self.names])
+        t0 = b.from_si(prior)
+        P0 = np.diag(np.square(self.prior_std / b.grad(t0)))
+        starts = [self.filter.x.copy(), t0]
+        lin = batch.linear_start(U, Z, k)
+        if lin is not None:
+            starts.append(b.from_si(lin))
+        fit = batch.solve(lambda t, u: longitudinal.hx(b.to_si(t), u, k), U, Z, R, t0, P0, starts)
+        if fit is None:
+            return None
+        self.fit = fit
+        d = self.filter.x - fit.t
+        try:
+            m2 = float(d @ np.linalg.solve(fit.cov, d))
+        except np.linalg.LinAlgError:
+            return fit
+        if m2 > RESEED_M2:
+            self.reseeds += 1
+            log.info("stage 1 %s sat %.1f sigma off its batch optimum; re-seeded there", self.kind, math.sqrt(m2))
+            self.filter.set_state(fit.t, fit.cov)
+        return fit
 
 
 class Stage2(StageLearner):
@@ -382,13 +451,16 @@ class Stage2(StageLearner):
         """Correlation of (C_alpha, I_z, I_x) with the considered l_f: the open window's, else
         the kept one; None before any window."""
         if self.filter is not None:
-            P, p, c = self.filter.P, self._p, lateral.L_F
+            P, p, c = self.filter_state()[1], self._p, lateral.L_F
             cov, sd, var = P[p, c], math.sqrt(P[c, c]), np.diagonal(P)[p]
         elif self.cross is not None:
             (cov, sd), var = self.cross, np.diagonal(self.theta_P)
         else:
             return None
         return cov / (sd * np.sqrt(var))
+
+    def _bounds(self) -> Bounds:
+        return Bounds(lateral.N_X, log=(lateral.C_A, lateral.I_Z, lateral.I_X))  # stiffness, inertias > 0
 
     def _fx(self, x, dt, u):
         return lateral.fx(x, dt, u, self.known)
