@@ -25,9 +25,9 @@ STAGE_PARAMS = {1: STAGE1, 2: STAGE2}
 # What each stage needs, said to a driver (Table 2 of the paper, and the supervisor's gates).
 DRIVE = {
     1: "on a straight, level road, accelerate firmly and brake, again and again "
-    "(say 40 to 80 km/h and back), keeping the wheel straight",
-    2: "at a steady speed (40 to 70 km/h) on a wide, empty road or lot, weave: steer left and "
-    "right continuously, one swing every 2 to 4 s",
+    "(say 40 to 90 km/h and back every 10 s or so), keeping the wheel straight",
+    2: "at a steady 30 to 50 km/h on a wide, empty road or lot, weave: swing the steering wheel "
+    "left and right continuously (about a quarter turn each way), one swing every 3 to 10 s",
 }
 
 # The supervisor's reasons (core.supervisor) turned into what to change.
