@@ -98,16 +98,13 @@ def replay_log(path: str, profile_path: str) -> dict:
     """``vdp replay PATH --profile PROFILE --no-ekf --json``'s document (the UKF's
     numbers do not depend on the EKF baseline running beside it)."""
     from .core.estimator import EstimatorConfig
-    from .io.logs import open_log
+    from .io.bulk import replay_log as replay_file
     from .pipeline import Pipeline
-    from .replay import replay
 
     profile = _profile(profile_path)
-    source = open_log(path, channel=profile.bus_channel)
-    try:
-        return replay(source, Pipeline(profile, EstimatorConfig(baseline=False)))
-    finally:
-        source.close()
+    cfg = EstimatorConfig(baseline=False)
+    doc, _ = replay_file(path, lambda: Pipeline(profile, cfg), channel=profile.bus_channel)
+    return doc
 
 
 def run_task(task: Task) -> list[dict]:

@@ -17,15 +17,19 @@ def replay(source, pipeline, truth: dict | None = None, progress: Callable[[int,
     keep_ids = getattr(source, "keep_ids", None)
     if keep_ids is not None:  # lines of ids the profile does not decode never become Messages
         keep_ids(pipeline.decoder.ids)
-    feed = pipeline.feed
-    n = 0
-    for msg in source:
-        feed(msg)
-        n += 1
-        if first is None:
-            first = msg.timestamp
-        if progress is not None and n % PROGRESS_EVERY == 0:
-            progress(source.position, n)
+    feed_into = getattr(source, "feed_into", None)
+    if feed_into is not None:  # a bulk source (vdp.io.bulk) feeds the pipeline itself
+        n, first = feed_into(pipeline, progress)
+    else:
+        feed = pipeline.feed
+        n = 0
+        for msg in source:
+            feed(msg)
+            n += 1
+            if first is None:
+                first = msg.timestamp
+            if progress is not None and n % PROGRESS_EVERY == 0:
+                progress(source.position, n)
     passed = getattr(source.stats, "passed_over", None)
     if passed:
         pipeline.pass_over(passed)

@@ -38,6 +38,11 @@ def add_parser(sub):
     p.add_argument("--strict", action="store_true", help="stop at the first malformed log line")
     p.add_argument("--no-ekf", action="store_true", help="skip the EKF baseline (faster)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--per-frame",
+        action="store_true",
+        help="read a candump log frame by frame instead of in blocks (slower, same result)",
+    )
     return p
 
 
@@ -81,10 +86,9 @@ class Progress:
 def run(args) -> int:
     from .. import report
     from ..core.estimator import EstimatorConfig
-    from ..io.logs import open_log
+    from ..io.bulk import replay_log
     from ..pipeline import Pipeline
     from ..profile import load_profile
-    from ..replay import replay
     from ..series import SUFFIXES, ChannelTap, SeriesRecorder, write_table
 
     # every output is checked before the replay: a bad path never costs a long run
@@ -99,12 +103,32 @@ def run(args) -> int:
     profile = load_profile(args.profile or default_profile())
     truth = report.load_truth(args.truth) if args.truth else None
     cfg = EstimatorConfig(baseline=not args.no_ekf)
-    source = open_log(args.log, strict=args.strict, channel=profile.bus_channel)
-    progress = Progress(source.size, enabled=not args.no_progress)
-    pipeline = Pipeline(profile, cfg)
-    recorder = SeriesRecorder(pipeline) if args.series else None
-    tap = ChannelTap(pipeline) if args.channels else None
-    result = replay(recorder.wrap(source) if recorder else source, pipeline, truth=truth, progress=progress.update)
+    try:
+        size = Path(args.log).stat().st_size
+    except OSError:
+        size = 0  # replay_log says what is wrong with it
+    progress = Progress(size, enabled=not args.no_progress)
+    made: dict = {}
+
+    def make_pipeline():
+        # a fresh pipeline (and recorders on it) for each attempt: a candump log that the
+        # block reader hands back is replayed again frame by frame
+        pipe = made["pipeline"] = Pipeline(profile, cfg)
+        made["recorder"] = SeriesRecorder(pipe) if args.series else None
+        made["tap"] = ChannelTap(pipe) if args.channels else None
+        return pipe
+
+    result, pipeline = replay_log(
+        args.log,
+        make_pipeline,
+        strict=args.strict,
+        channel=profile.bus_channel,
+        progress=progress.update,
+        bulk=not (args.per_frame or args.series),  # the series samples the estimates frame by frame
+        truth=truth,
+        wrap=lambda src: made["recorder"].wrap(src) if made["recorder"] else src,
+    )
+    recorder, tap = made["recorder"], made["tap"]
     progress.close()
     result["vehicle"] = _constants(profile)
 

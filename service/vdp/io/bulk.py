@@ -1,0 +1,694 @@
+"""Bulk replay of candump -L logs: whole blocks parsed and decoded with numpy.
+
+The per-frame path (``open_log`` -> ``can.Message`` -> ``FrameDecoder.decode``)
+costs a few microseconds of Python per line.  Here a block of lines (2 MB) is
+split, checked and parsed at once over its bytes; lines of ids the profile does
+not decode are counted by id and dropped before anything else; the rest are
+decoded one message at a time, every signal of every frame in one numpy
+expression (same shifts, masks, scale and offset as the decoder's generated
+extractors, so the same floats).  Only the aligner and the estimator see the
+frames one by one.
+
+The result is the per-frame path's, to the last bit: same frames, same decoder
+counters (plans' counters, checksums, good-frame counts, error kinds), same
+samples.  Whatever this path does not reproduce exactly goes the per-frame way:
+
+- a block with a frame the vectorised decoder does not cover (multiplexed or
+  float signals, an alternative source, a counter or checksum failure, a message
+  flagged invalid) is decoded frame by frame through ``FrameDecoder.decode``;
+- a log with anything but plain, in-order data frames (a bad line, a remote, FD
+  or error frame, time going backwards, odd spacing) is replayed again from the
+  start by the per-frame reader (``replay_log``), whose rules for damaged logs
+  are the reference.  Clean logs, the usual case, never pay for that.
+"""
+
+from __future__ import annotations
+
+import gzip
+import logging
+import math
+import zlib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+
+from .decoder import compile_extractor, limits
+from .logs import EXT_KEY, LogStats, channel_keys, open_log
+
+log = logging.getLogger(__name__)
+
+BLOCK = 1 << 21  # bytes read and parsed at once: memory stays flat whatever the log's length
+_MAX_TS = 1e10  # later stamps are the per-frame reader's to judge
+_JUMP = 3600.0  # s: a forward jump this large is the per-frame reader's to judge
+_MAX_EXACT = float(1 << 53)  # N / 10**k is the correctly rounded decimal only below this
+
+_HEX = np.full(256, 255, np.uint8)
+for _i, _c in enumerate(b"0123456789"):
+    _HEX[_c] = _i
+for _i, _c in enumerate(b"abcdef"):
+    _HEX[_c] = 10 + _i
+    _HEX[_c - 32] = 10 + _i
+_TX = {b"T", b"t"}
+
+
+class Irregular(Exception):
+    """The log has something only the per-frame reader handles exactly."""
+
+
+def usable(path: str | Path) -> bool:
+    """Bulk replay covers candump -L logs, plain or gzipped."""
+    suffixes = [s.lower() for s in Path(path).suffixes]
+    if suffixes and suffixes[-1] == ".gz":
+        suffixes = suffixes[:-1]
+    return bool(suffixes) and suffixes[-1] == ".log"
+
+
+def replay_log(
+    path: str | Path,
+    make_pipeline: Callable[[], Any],
+    strict: bool = False,
+    channel: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    bulk: bool = True,
+    truth: dict | None = None,
+    wrap: Callable[[Any], Any] | None = None,
+) -> tuple[dict, Any]:
+    """``replay()``'s document for a log, and the pipeline it ran on.
+
+    candump logs go the bulk way (unless ``bulk`` is false); if the log turns out to
+    need the per-frame reader's rules, it is replayed again that way on a fresh
+    pipeline.  ``wrap``: applied to a per-frame source (a recorder that needs every frame).
+    """
+    from ..replay import replay
+
+    if bulk and usable(path):
+        src = BulkSource(path, strict=strict, channel=channel)
+        pipe = make_pipeline()
+        try:
+            return replay(src, pipe, truth=truth, progress=progress), pipe
+        except Irregular as why:
+            log.info("%s: %s; replaying it frame by frame", path, why)
+        finally:
+            src.close()
+    source = open_log(path, strict=strict, channel=channel)
+    pipe = make_pipeline()
+    try:
+        return replay(wrap(source) if wrap else source, pipe, truth=truth, progress=progress), pipe
+    finally:
+        source.close()
+
+
+class _Plan:
+    """Vectorised extraction of one decoder plan's signals (None where not covered)."""
+
+    def __init__(self, dplan: Any, msg: Any, need: list[tuple[str, bool, bool]]):
+        self.p = dplan
+        self.length = msg.length
+        self.fid = dplan.frame_id
+        self.fields = []  # per needed signal: (little endian, shift, mask, half or 0, scale, offset, scaled, lo, hi)
+        for name, raw, check in need:
+            sig = msg.get_signal_by_name(name)
+            if sig.byte_order == "little_endian":
+                le, shift = True, sig.start
+            else:
+                le, shift = False, (msg.length - 1 - sig.start // 8) * 8 + sig.start % 8 - sig.length + 1
+            scale, offset = sig.conversion.scale, sig.conversion.offset
+            scaled = not raw and (scale != 1 or offset != 0)
+            lo, hi = limits(msg, sig) if check and not raw else (-math.inf, math.inf)
+            half = 1 << (sig.length - 1) if sig.is_signed else 0
+            self.fields.append((le, shift, (1 << sig.length) - 1, half, float(scale), float(offset), scaled, lo, hi))
+
+    def extract(self, b: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+        """Values of the needed signals (slot i+1 of the decoder's tuple) and a range-error mask."""
+        n = self.length
+        w = b[:, :n].astype(np.uint64)
+        le = be = None
+        out, bad = [], np.zeros(len(b), bool)
+        for little, shift, mask, half, scale, offset, scaled, lo, hi in self.fields:
+            if little:
+                if le is None:
+                    le = np.zeros(len(b), np.uint64)
+                    for i in range(n):
+                        le |= w[:, i] << np.uint64(8 * i)
+                src = le
+            else:
+                if be is None:
+                    be = np.zeros(len(b), np.uint64)
+                    for i in range(n):
+                        be |= w[:, i] << np.uint64(8 * (n - 1 - i))
+                src = be
+            v = ((src >> np.uint64(shift)) & np.uint64(mask)).astype(np.int64)
+            if half:
+                v = (v ^ half) - half
+            if scaled:
+                v = v.astype(np.float64) * scale + offset
+            if lo > -math.inf:
+                bad |= ~(v >= lo)
+            if hi < math.inf:
+                bad |= ~(v <= hi)
+            out.append(v)
+        return out, bad
+
+
+class BulkSource:
+    """A candump log for ``replay()``: it feeds the pipeline itself, a block at a time.
+
+    Same attributes as :class:`vdp.io.logs.LogSource` that ``replay()`` reads
+    (``path``, ``size``, ``position``, ``stats``, ``keep_ids``), plus
+    ``feed_into(pipeline, progress)``.  Raises :class:`Irregular` when the log
+    needs the per-frame reader (see the module's doc).
+    """
+
+    def __init__(self, path: str | Path, strict: bool = False, channel: str | None = None):
+        self.path = Path(path)
+        # the per-frame reader's checks of the file itself: missing, empty, binary, bad gzip
+        probe = open_log(self.path, strict=strict, channel=channel)
+        self.size, self.compressed = probe.size, probe.compressed
+        probe.close()
+        self._raw = open(self.path, "rb")
+        self._stream: Any = gzip.GzipFile(fileobj=self._raw, mode="rb") if self.compressed else self._raw
+        self._want = channel_keys(channel) if channel is not None else None
+        self.stats = LogStats(unit="line")
+        self._keep: frozenset[int] | None = None
+
+    @property
+    def position(self) -> int:
+        try:
+            return self._raw.tell()
+        except (ValueError, OSError):
+            return self.size
+
+    def keep_ids(self, keys) -> None:
+        self._keep = frozenset(keys)
+
+    def close(self) -> None:
+        for f in (self._stream, self._raw):
+            try:
+                f.close()
+            except Exception:  # a half-read gzip stream may complain on close; nothing to save
+                pass
+
+    def __iter__(self):
+        raise TypeError("BulkSource feeds a pipeline (feed_into); open_log() gives frames one by one")
+
+    # -- the work ----------------------------------------------------------------
+    def feed_into(self, pipe: Any, progress: Callable[[int, int], None] | None = None) -> tuple[int, float | None]:
+        """Feed the whole log to ``pipe``; (frames handed to it, first frame's time)."""
+        dec = pipe.decoder
+        keep = frozenset(dec.ids) if self._keep is None else self._keep
+        plans = self._plans(dec)
+        st = self.stats
+        state = {
+            "last": 0.0,
+            "seen": set(),  # id keys already handed out once (as the per-frame reader's id cache)
+            "chans": {},  # channel token -> (channel value, wanted)
+            "first": None,
+            "n": 0,
+        }
+        keep_arr = np.array(sorted(keep), dtype=np.int64)
+        tail = b""
+        lineno = 0
+        while True:
+            try:
+                block = self._stream.read(BLOCK)
+            except (OSError, EOFError, zlib.error) as exc:
+                raise Irregular(f"unreadable after line {lineno}: {type(exc).__name__}") from None
+            if not block:
+                if tail:
+                    lineno = self._block(tail + b"\n", lineno, pipe, plans, keep_arr, state)
+                break
+            block = tail + block
+            cut = block.rfind(b"\n") + 1
+            tail = block[cut:]
+            if cut:
+                lineno = self._block(block[:cut], lineno, pipe, plans, keep_arr, state)
+            if progress is not None:
+                progress(self.position, state["n"])
+        st.lines = lineno
+        if st.frames == 0 and st.skipped == 0:
+            raise Irregular("no frames")
+        return state["n"], state["first"]
+
+    def _plans(self, dec: Any) -> dict[int, _Plan | None]:
+        out: dict[int, _Plan | None] = {}
+        for key, p in dec._plans.items():
+            msg = dec.db.get_message_by_name(p.name)
+            need = _needs(dec, p, msg)
+            ok = (
+                need is not None
+                and compile_extractor(msg, need) is not None
+                and all(o[5] is None for o in p.outputs)  # an alternative source depends on another's state
+            )
+            out[key] = _Plan(p, msg, need) if ok else None
+        return out
+
+    def _block(self, buf: bytes, lineno: int, pipe: Any, plans: dict, keep_arr: np.ndarray, state: dict) -> int:
+        st = self.stats
+        a = np.frombuffer(buf, np.uint8)
+        nl = np.flatnonzero(a == 10)
+        n_lines = len(nl)
+        starts = np.empty(n_lines, np.int64)
+        starts[0] = 0
+        starts[1:] = nl[:-1] + 1
+        ends = nl.astype(np.int64)
+        has_cr = (ends > starts) & (a[np.maximum(ends - 1, 0)] == 13)
+        ends = ends - has_cr
+        nonempty = ends > starts
+        if not nonempty.all():
+            if (has_cr & ~nonempty).any():
+                raise Irregular("a line with only a carriage return")
+            starts, ends = starts[nonempty], ends[nonempty]
+        lines_no = np.flatnonzero(nonempty) + lineno + 1
+        if not len(starts):
+            return lineno + n_lines
+        if (a == 9).any() or (a == 11).any() or (a == 12).any():
+            raise Irregular("tabs or other whitespace between fields")
+        # fields: "(ts) channel id#data [R|T]", single spaces
+        sp = np.flatnonzero(a == 32)
+        i1 = np.searchsorted(sp, starts)
+        n_sp = np.searchsorted(sp, ends) - i1
+        if not ((n_sp == 2) | (n_sp == 3)).all():
+            raise Irregular("a line without 3 or 4 fields")
+        sp_ext = np.append(sp, [len(a), len(a)])
+        s1, s2, s3 = sp_ext[i1], sp_ext[i1 + 1], np.where(n_sp == 3, sp_ext[i1 + 2], ends)
+        if n_sp.max() == 3:
+            d = n_sp == 3
+            if not (ends[d] - s3[d] == 2).all() or not np.isin(a[s3[d] + 1], np.frombuffer(b"RrTt", np.uint8)).all():
+                raise Irregular("a 4th field that is not a direction")
+        if not ((a[starts] == 40) & (a[s1 - 1] == 41) & (s2 > s1 + 1) & (s3 > s2 + 1)).all():
+            raise Irregular("a line not '(time) channel id#data'")
+        # timestamp: digits '.' digits
+        dots = np.flatnonzero(a == 46)
+        dp = np.append(dots, len(a))[np.searchsorted(dots, starts)]
+        if not (dp < s1 - 1).all():
+            raise Irregular("a timestamp without a decimal point")
+        li, lf = dp - starts - 1, s1 - 2 - dp
+        if not ((li >= 1) & (li + lf <= 18) & (lf >= 0)).all():
+            raise Irregular("a timestamp that is not plain digits")
+        apad = np.concatenate((a, np.zeros(32, np.uint8)))
+        ts = np.empty(len(starts))
+        for gi, gf in set(zip(li.tolist(), lf.tolist())):
+            sel = np.flatnonzero((li == gi) & (lf == gf))
+            pos = np.concatenate([starts[sel, None] + 1 + np.arange(gi), dp[sel, None] + 1 + np.arange(gf)], axis=1)
+            digits = apad[pos].astype(np.int64) - 48
+            if ((digits < 0) | (digits > 9)).any():
+                raise Irregular("a timestamp that is not plain digits")
+            num = digits @ (10 ** np.arange(gi + gf - 1, -1, -1, dtype=np.int64))
+            if (num >= _MAX_EXACT).any():
+                raise Irregular("a timestamp with too many digits")
+            ts[sel] = num.astype(np.float64) / float(10**gf)
+        # id#data
+        hashes = np.flatnonzero(a == 35)
+        h = np.append(hashes, len(a))[np.searchsorted(hashes, s2)]
+        id_len, dlen = h - s2 - 1, s3 - h - 1
+        if not ((h < s3) & ((id_len == 3) | (id_len == 8)) & (dlen % 2 == 0) & (dlen <= 16)).all():
+            raise Irregular("a frame that is not a plain data frame (remote, FD, raw DLC or bad hex)")
+        idn = _HEX[apad[(s2 + 1)[:, None] + np.arange(8)]].astype(np.int64)
+        idn[np.arange(8)[None, :] >= id_len[:, None]] = 0
+        nib = _HEX[apad[(h + 1)[:, None] + np.arange(16)]]
+        nib[np.arange(16)[None, :] >= dlen[:, None]] = 0
+        if (idn > 15).any() or (nib > 15).any():
+            raise Irregular("a frame that is not a plain data frame (remote, FD, raw DLC or bad hex)")
+        aid = np.zeros(len(starts), np.int64)
+        for i in range(8):
+            aid = np.where(i < id_len, aid * 16 + idn[:, i], aid)
+        ext = id_len == 8
+        if ((~ext & (aid > 0x7FF)) | (ext & (aid > 0x1FFFFFFF))).any():
+            raise Irregular("an error frame or an id out of range")
+        key = np.where(ext, aid | EXT_KEY, aid)
+        data = (nib[:, 0::2] << 4) | nib[:, 1::2]
+        dlc = dlen // 2
+        # channels
+        ch_len = s2 - s1 - 1
+        if ch_len.max() > 8:
+            raise Irregular("a channel name longer than 8 characters")
+        cb = apad[(s1 + 1)[:, None] + np.arange(8)].astype(np.uint64)
+        cb[np.arange(8)[None, :] >= ch_len[:, None]] = 0
+        ch_code = (cb << (np.arange(8, dtype=np.uint64) * np.uint64(8))).sum(axis=1)
+        uniq, inv = np.unique(ch_code, return_inverse=True)
+        chans = state["chans"]
+        wanted_u, value_u = [], []
+        for code, first in zip(uniq.tolist(), [int(np.argmax(inv == i)) for i in range(len(uniq))]):
+            if code not in chans:
+                name = bytes(buf[s1[first] + 1 : s2[first]]).decode("ascii", "replace")
+                self.stats.channels.add(name)
+                value: Any = int(name) if name.isdigit() else name
+                chans[code] = (value, self._want is None or value in self._want)
+            value_u.append(chans[code][0])
+            wanted_u.append(chans[code][1])
+        wanted = np.array(wanted_u)[inv]
+        st.skipped += int((~wanted).sum())
+        # ids nobody decodes: the first of each is handed out (as the per-frame reader does), the rest counted
+        kept = np.isin(key, keep_arr) & wanted
+        other = wanted & ~kept
+        seen = state["seen"]
+        hand = kept.copy()
+        if other.any():
+            ok, first_at = np.unique(key[other], return_index=True)
+            idx_other = np.flatnonzero(other)
+            for k, j in zip(ok.tolist(), first_at.tolist()):
+                if k not in seen:
+                    seen.add(k)
+                    hand[idx_other[j]] = True
+            passed = other & ~hand
+            if passed.any():
+                pk, pc = np.unique(key[passed], return_counts=True)
+                over = st.passed_over
+                for k, c in zip(pk.tolist(), pc.tolist()):
+                    over[k] = over.get(k, 0) + c
+        sel = np.flatnonzero(hand)
+        if not len(sel):
+            return lineno + n_lines
+        t = ts[sel]
+        if t[0] < state["last"] or (len(t) > 1 and (np.diff(t) < 0).any()):
+            raise Irregular("time goes backwards")
+        jumped = len(t) > 1 and np.diff(t).max() > _JUMP
+        if t[-1] > _MAX_TS or jumped or (state["n"] and t[0] - state["last"] > _JUMP):
+            raise Irregular("a clock jump")
+        state["last"] = float(t[-1])
+        if state["first"] is None:
+            state["first"] = float(t[0])
+        st.frames += len(sel)
+        state["n"] += len(sel)
+        self._decode(pipe, plans, sel, t, key[sel], data[sel], dlc[sel], inv[sel], value_u, lines_no[sel])
+        return lineno + n_lines
+
+    def _decode(self, pipe, plans, sel, t, key, data, dlc, ch_idx, ch_values, lines) -> None:
+        dec = pipe.decoder
+        dst = dec.stats
+        ukeys, first_at = np.unique(key, return_index=True)
+        work = []  # (plan, rows)
+        per_frame = False
+        for k in ukeys[np.argsort(first_at)].tolist():  # first seen first, as the per-frame decoder counts them
+            rows = np.flatnonzero(key == k)
+            vp = plans.get(k, "unknown")
+            if vp == "unknown":
+                unk = dst.unknown
+                unk[k] = unk.get(k, 0) + len(rows)
+                dst.frames += len(rows)
+                pipe.frames += len(rows)
+                continue
+            if vp is None or vp.p.invalid:
+                per_frame = True
+            work.append((k, vp, rows))
+        if per_frame:
+            return self._per_frame(pipe, [(k, r) for k, _, r in work], t, key, data, dlc, ch_idx, ch_values)
+        done = []
+        for k, vp, rows in work:
+            r = self._vector(vp, t[rows], data[rows], dlc[rows])
+            if r is None:
+                return self._per_frame(pipe, [(k, r) for k, _, r in work], t, key, data, dlc, ch_idx, ch_values)
+            done.append((k, vp, rows, r))
+        # commit: plan state and counters as FrameDecoder.decode leaves them, then the frames in order
+        got = []  # (rows of good frames, channel indices, their values)
+        for k, vp, rows, (good, n_dlc, n_range, last_count, out_idx, out_vals) in done:
+            p = vp.p
+            tr = t[rows]
+            if not p.fixed_period:
+                for ti in tr.tolist():
+                    last = p.last_seen
+                    if last is not None and ti > last:
+                        p.period += 0.05 * (min(ti - last, 2.0 * p.period) - p.period)
+                    p.last_seen = ti
+            p.last_seen = float(tr[-1])
+            n = len(rows)
+            dst.frames += n
+            pipe.frames += n
+            if n_dlc:
+                dst.errors[(k, "dlc")] = dst.errors.get((k, "dlc"), 0) + n_dlc
+            if n_range:
+                dst.errors[(k, "range")] = dst.errors.get((k, "range"), 0) + n_range
+            if last_count is not None:
+                p.prev_count = last_count
+            ng = int(good.sum())
+            if ng:
+                dst.decoded += ng
+                p.good += ng
+                p.bad_run = 0
+                gi = np.flatnonzero(good)
+                p.last_good = float(tr[gi[-1]])
+                if p.plain is None:
+                    counted = dst._counted
+                    for idx in out_idx:
+                        counted[idx] += ng
+                got.append((rows[gi], out_idx, out_vals))
+        if not got:
+            return None
+        rows_all = np.concatenate([g[0] for g in got])
+        order = np.argsort(rows_all, kind="stable")
+        frame_of = np.empty(len(rows_all), np.int64)
+        frame_of[order] = np.arange(len(rows_all))  # position of each good frame in time order
+        times = t[rows_all[order]]
+        per_channel: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        at = 0
+        for rows_g, out_idx, out_vals in got:
+            fidx = frame_of[at : at + len(rows_g)]
+            at += len(rows_g)
+            for col, idx in enumerate(out_idx):
+                if idx in per_channel:  # two messages feed one channel: merge in frame order
+                    fi, fv = per_channel[idx]
+                    fi, fv = np.concatenate((fi, fidx)), np.concatenate((fv, out_vals[:, col]))
+                    o = np.argsort(fi, kind="stable")
+                    per_channel[idx] = (fi[o], fv[o])
+                else:
+                    per_channel[idx] = (fidx, out_vals[:, col])
+        ring, handle = pipe.ring.append, pipe.estimator.handle
+        samples = align(pipe.aligner, times, per_channel)
+        for s in samples:
+            ring(s)
+            handle(s.t, s)
+        pipe.samples += len(samples)
+        pipe.last_bus_time = float(times[-1])
+        return None
+
+    def _vector(self, vp: _Plan, t, data, dlc):
+        """Decode one plan's frames of a block, or None if it needs the per-frame decoder."""
+        p = vp.p
+        ok_dlc = dlc == vp.length
+        n_dlc = int((~ok_dlc).sum())
+        b = data[ok_dlc]
+        vals, bad_range = vp.extract(b) if len(b) else ([np.zeros(0, np.int64)] * len(vp.fields), np.zeros(0, bool))
+        last_count = None
+        if p.checked and len(b):
+            if p.cs_pos >= 0:
+                s = b[:, :7].astype(np.int64).sum(axis=1) + (vp.fid & 0xFF) + ((vp.fid >> 8) & 0xFF)
+                if (vals[p.cs_pos - 1] != 0xFF - (s & 0xFF)).any():
+                    return None  # a checksum failure: counters and validity need the frame-by-frame rules
+            if p.cnt_pos >= 0:
+                c = vals[p.cnt_pos - 1]
+                prev = np.empty(len(c), np.int64)
+                prev[1:] = c[:-1]
+                expect = (prev + 1) % p.cnt_mod
+                bad = c != expect
+                if p.prev_count is None:
+                    bad[0] = False
+                else:
+                    bad[0] = c[0] != (p.prev_count + 1) % p.cnt_mod
+                if bad.any():
+                    return None
+                last_count = int(c[-1])
+        good_sub = ~bad_range
+        good = np.zeros(len(t), bool)
+        good[np.flatnonzero(ok_dlc)[good_sub]] = True
+        n_range = int(bad_range.sum())
+        idxs, cols = [], []
+        for idx, pos, mul, add, sign_pos, _primary, fine_pos in p.outputs:
+            v = vals[pos - 1][good_sub]
+            if fine_pos >= 0:
+                v = v + vals[fine_pos - 1][good_sub]
+            v = v * mul + add
+            if sign_pos >= 0:
+                v = np.where(vals[sign_pos - 1][good_sub] != 0, -v, v)
+            idxs.append(idx)
+            cols.append(v.astype(np.float64))
+        out_vals = np.column_stack(cols) if cols else np.zeros((int(good.sum()), 0))
+        return good, n_dlc, n_range, last_count, idxs, out_vals
+
+    def _per_frame(self, pipe, work, t, key, data, dlc, ch_idx, ch_values) -> None:
+        """The block's decodable frames through FrameDecoder.decode, one by one (exact by construction)."""
+        rows = np.sort(np.concatenate([r for _, r in work])) if work else np.zeros(0, np.int64)
+        feed = pipe.feed
+        msg_cls = can.Message
+        tl, kl, dl, cl = t.tolist(), key.tolist(), dlc.tolist(), ch_idx.tolist()
+        for i in rows.tolist():
+            k = kl[i]
+            ext = bool(k & EXT_KEY)
+            aid = k & 0x1FFFFFFF if ext else k
+            payload = bytes(data[i, : dl[i]])
+            feed(msg_cls(tl[i], aid, ext, False, False, ch_values[cl[i]], dl[i], payload, False, True))
+
+
+def _needs(dec: Any, p: Any, msg: Any) -> list[tuple[str, bool, bool]] | None:
+    """The decoder's list of needed signals for a plan, rebuilt in its slot order."""
+    names: dict[int, tuple[str, bool, bool]] = {}
+    prof = dec.profile
+    for cmap in prof.channels.values():
+        for m in (cmap, cmap.alt):
+            if m is None or m.message != p.name:
+                continue
+            for sig, raw, check in ((m.signal, False, True), (m.sign_signal, False, False), (m.fine, False, True)):
+                if sig:
+                    _add(names, sig, raw, check)
+    chk = prof.checks.get(p.name)
+    if chk is not None and chk.check:
+        if chk.counter:
+            _add(names, chk.counter, True, False)
+        if chk.checksum and chk.checksum_kind == "vdp":
+            _add(names, chk.checksum, True, False)
+    return list(names.values()) if names else None
+
+
+def _add(names: dict, sig: str, raw: bool, check: bool) -> None:
+    old = names.get(sig)
+    names[sig] = (sig, raw, check) if old is None else (sig, old[1] and raw, old[2] or check)
+
+
+# -- the aligner, a block at a time -----------------------------------------------
+
+
+def _sample_factory():
+    """Sample(t, values, fresh, age, gap) in the form the estimator reads today."""
+    from .. import buffer
+
+    cls = buffer.Sample
+    if "vals" in getattr(cls, "__dataclass_fields__", {}):
+
+        def make(t, values, fresh, age, gap):
+            return cls(t, np.array(values), np.array(fresh), np.array(age), gap, vals=values)
+
+        return make
+
+    def make_tuple(t, values, fresh, age, gap):
+        return cls(t, tuple(values), tuple(fresh), tuple(age), gap)
+
+    return make_tuple
+
+
+def align(al: Any, t: np.ndarray, per_channel: dict[int, tuple[np.ndarray, np.ndarray]]) -> list:
+    """What ``Aligner.push`` would return over these frames, and the state it would leave.
+
+    ``t``: the decoded frames' bus times in order (never decreasing); ``per_channel``:
+    channel -> (frame indices, values) in frame order.  The aligner's rules, as arrays:
+    tick n (at n * tick) is emitted by the first frame at or after n * tick + delay,
+    from the values of the frames before that one (the last _DEPTH per channel); a
+    frame more than max_gap after the previous restarts the grid.
+    """
+    from .. import buffer
+
+    depth, eps = buffer._DEPTH, buffer._EPS
+    n_ch = len(al._t)
+    out: list = []
+    m = len(t)
+    if not m:
+        return out
+    # segments between grid restarts: a frame more than max_gap after the one before it
+    prev = np.empty(m)
+    prev[0] = al.last_time
+    prev[1:] = t[:-1]
+    restart = (t - prev) > al.max_gap
+    if al.next_tick is None:
+        restart[0] = True
+    cuts = np.flatnonzero(restart).tolist()
+    bounds = sorted({0, *cuts, m})
+    make = _sample_factory()
+    stale = np.array(al._stale)
+    for j0, j1 in zip(bounds[:-1], bounds[1:]):
+        if restart[j0]:
+            if al.next_tick is not None:
+                al.clock_jumps += 1
+                log.info("bus time jumped %.3f s forward; restarting the sample grid", t[j0] - al.last_time)
+            al.reset_history()
+            al._n = math.ceil(float(t[j0]) / al.tick - eps)
+            al.next_tick = al._n * al.tick
+            al.gap = True
+            emit_from = j0 + 1  # the restarting frame emits nothing
+        else:
+            emit_from = j0
+        seg_t = t[j0:j1]
+        # ticks emitted in this segment and the frame that emits each
+        n0 = al._n
+        t_last = float(seg_t[-1])
+        if emit_from < j1:
+            n_max = n0
+            # the largest n with n * tick + delay <= t_last, found as the aligner would step
+            guess = math.floor((t_last - al.delay) / al.tick) + 2
+            ns = np.arange(n0, max(guess, n0) + 1)
+            due = ns.astype(np.float64) * al.tick + al.delay
+            ns, due = ns[due <= t_last], due[due <= t_last]
+            n_max = int(ns[-1]) + 1 if len(ns) else n0
+        else:
+            ns, due, n_max = np.zeros(0, np.int64), np.zeros(0), n0
+        trig = np.searchsorted(t[emit_from:j1], due, "left") + emit_from  # global frame index
+        T = ns.astype(np.float64) * al.tick
+        k_ticks = len(ns)
+        vals = np.full((k_ticks, n_ch), np.nan)
+        ages = np.full((k_ticks, n_ch), np.inf)
+        fresh = np.zeros((k_ticks, n_ch), bool)
+        new_t, new_v, new_emitted = [], [], []
+        for c in range(n_ch):
+            ht = [x for x in al._t[c] if x != -math.inf]
+            hv = al._v[c][depth - len(ht) :]
+            fi, fv = per_channel.get(c, (None, None))
+            if fi is not None:
+                sel = (fi >= j0) & (fi < j1)
+                fi_c, fv_c = fi[sel], fv[sel]
+            else:
+                fi_c, fv_c = np.zeros(0, np.int64), np.zeros(0)
+            te = np.concatenate((np.array(ht, float), t[fi_c]))
+            ve = np.concatenate((np.array(hv, float), fv_c))
+            fe = np.concatenate((np.full(len(ht), -1, np.int64), fi_c))
+            if k_ticks and len(te):
+                mm = np.searchsorted(fe, trig, "left")  # entries pushed before the emitting frame
+                lo = np.maximum(mm - depth, 0)
+                has = mm > lo
+                cnt = np.clip(np.searchsorted(te, T + eps, "right"), lo, mm) - lo
+                pads = depth - (mm - lo)
+                k = pads + cnt
+                hold = has & (k == depth)
+                early = has & ~hold & (cnt == 0)
+                interp = has & ~hold & ~early
+                v = np.full(k_ticks, np.nan)
+                age = np.full(k_ticks, np.inf)
+                before = np.full(k_ticks, -np.inf)
+                ih = np.maximum(mm - 1, 0)
+                v[hold] = ve[ih[hold]]
+                age[hold] = T[hold] - te[ih[hold]]
+                before[hold] = te[ih[hold]]
+                v[early] = ve[lo[early]]
+                age[early] = 0.0
+                i1 = np.minimum(lo + cnt, len(te) - 1)
+                i0 = np.maximum(i1 - 1, 0)
+                t0, t1, v0, v1 = te[i0], te[i1], ve[i0], ve[i1]
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    lin = np.where(t1 > t0, v0 + (T - t0) / (t1 - t0) * (v1 - v0), v1)
+                v[interp] = lin[interp]
+                age[interp] = T[interp] - t0[interp]
+                before[interp] = t0[interp]
+                v[age > stale[c]] = np.nan
+                vals[:, c], ages[:, c] = v, age
+                run = np.maximum.accumulate(np.concatenate(([al._emitted[c]], before)))
+                fr = has & (before > run[:-1])
+                fresh[:, c] = fr
+                emitted = float(run[-1])
+            else:
+                emitted = al._emitted[c]
+            new_emitted.append(emitted)
+            # the history the aligner keeps: the last _DEPTH values of the segment
+            keep_t = te[-depth:].tolist()
+            keep_v = ve[-depth:].tolist()
+            new_t.append([-math.inf] * (depth - len(keep_t)) + keep_t)
+            new_v.append([math.nan] * (depth - len(keep_v)) + keep_v)
+        gap = al.gap
+        for i, (tt, row, fr, ag) in enumerate(zip(T.tolist(), vals.tolist(), fresh.tolist(), ages.tolist())):
+            out.append(make(tt, row, fr, ag, gap if i == 0 else False))
+        if k_ticks:
+            al.gap = False
+        al._t, al._v, al._emitted = new_t, new_v, new_emitted
+        al._n = n_max
+        al.next_tick = al._n * al.tick
+        al.last_time = t_last
+        al._behind = 0
+    return out
