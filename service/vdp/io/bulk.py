@@ -394,14 +394,18 @@ class BulkSource:
             if vp is None or vp.p.invalid:
                 per_frame = True
             work.append((k, vp, rows))
-        if per_frame:
-            return self._per_frame(pipe, [(k, r) for k, _, r in work], t, key, data, dlc, ch_idx, ch_values)
+        why = "a message the block decoder does not cover, or one flagged invalid" if per_frame else ""
         done = []
         for k, vp, rows in work:
+            if why:
+                break
             r = self._vector(vp, t[rows], data[rows], dlc[rows])
             if r is None:
-                return self._per_frame(pipe, [(k, r) for k, _, r in work], t, key, data, dlc, ch_idx, ch_values)
+                why = f"a counter or checksum failure in {vp.p.name}"
             done.append((k, vp, rows, r))
+        if why:
+            log.debug("%s: block at line %d decoded frame by frame: %s", self.path, int(lines[0]), why)
+            return self._per_frame(pipe, [(k, r) for k, _, r in work], t, key, data, dlc, ch_idx, ch_values)
         # commit: plan state and counters as FrameDecoder.decode leaves them, then the frames in order
         got = []  # (rows of good frames, channel indices, their values)
         for k, vp, rows, (good, n_dlc, n_range, last_count, out_idx, out_vals) in done:
