@@ -84,9 +84,10 @@ def table(report: dict) -> str:
     for name in NAMES:
         p = params[name]
         e = ekf.get(name, {})
+        status = p["status"] + ("!" if p.get("invalid_reason") else "")  # not valid: the profile check failed
         row = (
             f"{name:8} {_fmt(p['value']):>10} {_fmt(p['std'], 2):>10} {p['unit']:7} "
-            f"{p['status']:17} {_fmt(e.get('value')):>10}"
+            f"{status:17} {_fmt(e.get('value')):>10}"
         )
         if cmp_:
             c, ce = cmp_[name], cmp_ekf.get(name, {})
@@ -94,6 +95,8 @@ def table(report: dict) -> str:
             err_e = "-" if ce.get("rel_error") is None else f"{100 * ce['rel_error']:+.2f}%"
             row += f" {_fmt(c['truth']):>10} {err:>8} {err_e:>8}"
         lines.append(row)
+    if any(params[n].get("invalid_reason") for n in NAMES):
+        lines.append("! not valid: the profile check found a mismatch it rests on (see above)")
     return "\n".join(lines)
 
 

@@ -15,7 +15,7 @@ import sys
 from .. import __version__
 from ..errors import VdpError
 
-SUBCOMMANDS = ("simulate", "replay", "serve", "export", "batch")
+SUBCOMMANDS = ("simulate", "replay", "serve", "export", "batch", "profile")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -84,7 +84,7 @@ class Progress:
 
 
 def run(args) -> int:
-    from .. import report
+    from .. import profilecheck, report
     from ..core.estimator import EstimatorConfig
     from ..io.bulk import replay_log
     from ..pipeline import Pipeline
@@ -101,6 +101,10 @@ def run(args) -> int:
         if path:
             check_output(path, flag, suffixes)
     profile = load_profile(args.profile or default_profile())
+    # the profile self-check reads the log's first minutes; a log of another car stops here
+    check, _ = profilecheck.check_log(args.log, profile)
+    for line in profilecheck.lines(check):
+        print(line)
     truth = report.load_truth(args.truth) if args.truth else None
     cfg = EstimatorConfig(baseline=not args.no_ekf)
     try:
@@ -131,6 +135,10 @@ def run(args) -> int:
     recorder, tap = made["recorder"], made["tap"]
     progress.close()
     result["vehicle"] = _constants(profile)
+    result["profile_check"] = check.as_dict()
+    for key in ("parameters", "baseline_ekf"):
+        if result.get(key):
+            profilecheck.mark_invalid(result[key], check)
 
     print(
         f"{args.log}: {result['log']['frames']} frames, {result['log'].get('duration_s', 0):.1f} s of bus time, "

@@ -1,0 +1,61 @@
+"""vdp profile: check a vehicle profile against a log of the car.
+
+vdp profile check drive.log --profile profiles/mycar.toml [--json out.json] [--seconds 300]
+
+Exit status 0 when the profile fits the log, 1 when a check found a mismatch (each
+printed with the channel and the likely fix), 2 on an error (a log that holds too few of
+the profile's messages is one).
+"""
+
+from __future__ import annotations
+
+import json
+
+from .paths import check_output
+
+
+def add_parser(sub):
+    p = sub.add_parser(
+        "profile",
+        help="check a vehicle profile against a log",
+        description="Check that a profile reads the car's bus the way the physics says it must: "
+        "signs, units, steering flag, mass, priors against geometry.",
+    )
+    s = p.add_subparsers(dest="action", metavar="ACTION")
+    s.required = True
+    c = s.add_parser("check", help="check a profile against a CAN log of the car")
+    c.add_argument("log", help="a CAN log of the car, driven with some acceleration, braking and turns")
+    c.add_argument("--profile", required=True, help="the vehicle profile TOML")
+    c.add_argument("--seconds", type=float, default=300.0, help="bus time read from the log's start (default 300)")
+    c.add_argument("--json", dest="json_out", metavar="PATH", help="write the findings as JSON")
+    return p
+
+
+def run(args) -> int:
+    from ..errors import ConfigError
+    from ..profile import load_profile
+    from ..profilecheck import check_log, lines
+
+    if not args.seconds > 0:
+        raise ConfigError(f"--seconds must be positive, got {args.seconds}")
+    if args.json_out:
+        check_output(args.json_out, "--json", (".json",))
+    profile = load_profile(args.profile)
+    rep, cov = check_log(args.log, profile, seconds=args.seconds)
+    print(f"{args.log}: {cov.message()}; checked {rep.seconds:.1f} s of bus time")
+    for name, v in rep.measured.items():
+        print(f"  {name} = {v:.4g}")
+    for name, why in rep.skipped.items():
+        print(f"  not checked: {name}: {why}")
+    out = lines(rep)
+    for line in out:
+        print(line)
+    if not out:
+        print("profile check: no mismatch found")
+    if args.json_out:
+        doc = rep.as_dict()
+        doc["coverage"] = {"messages": cov.wanted, "other_ids": cov.other[:20]}
+        with open(args.json_out, "w", encoding="utf-8") as f:
+            json.dump(doc, f, indent=2)
+        print(f"wrote {args.json_out}")
+    return 1 if out else 0

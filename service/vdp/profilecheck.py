@@ -1,0 +1,441 @@
+"""Profile self-check: does the profile read this car's bus the way the physics says it must?
+
+A wrong sign, unit or steering flag gives "converged" estimates with tight stds that
+are wrong (a_x flipped: l_f +65 %; the steering-wheel angle read as the road-wheel
+angle: C_alpha -61 %; wheel speeds /3.6: l_f +90 %).  Each of these breaks a relation
+that holds on any car, whatever its parameters:
+
+- ``a_y = v * r`` in a steady turn (no sideslip change), and its sign;
+- ``a_x = dv/dt`` (eq 1), and its sign;
+- the wheel speeds times the wheel radius equal the ground speed (a few % of slip);
+- the steering angle and the yaw rate have the same sign (ISO 8855: both positive left);
+- ``delta = L * r / v`` within an understeer margin at moderate a_y (the kinematic
+  bicycle): a road-wheel angle 15x too large or small is the steering-wheel flag;
+- ``(T_f + T_r) / r = (m + 2 J / r^2) * a_x`` plus road loads (eq 1-2, both axles'
+  wheel inertia), fitted for ``m``;
+- the l_f prior lies inside the wheelbase.
+
+:func:`check_samples` takes aligned samples (arrays); :func:`check_log` decodes the
+first minutes of a log through the profile first.  Each mismatch is a :class:`Finding`
+naming the channel (or profile key), the likely fix and the parameters that rest on it,
+which :func:`mark_invalid` then reports as not valid.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import channels as ch
+from .errors import ProfileError
+from .profile import PARAMETERS, Profile
+
+log = logging.getLogger(__name__)
+
+STAGE1 = ("l_f", "h", "C_K")
+STAGE2 = ("C_alpha", "I_z", "I_x")
+# Stage 2 takes stage 1's l_f, h and C_K as known: a fault under stage 1 spoils both.
+DEPENDS: dict[str, tuple[str, ...]] = {
+    "wheel_speed": PARAMETERS,
+    "wheel_torque": PARAMETERS,
+    "accel_x": PARAMETERS,
+    "speed": PARAMETERS,
+    "mass": PARAMETERS,
+    "l_f": PARAMETERS,
+    "steering_angle": STAGE2,
+    "accel_y": STAGE2,
+    "yaw_rate": STAGE2,
+}
+TICK = 0.02  # s between aligned samples
+CHECK_SECONDS = 300.0  # of bus time read from the start of a log
+MIN_SAMPLES = 50  # samples a relation needs before it is judged (1 s at 50 Hz)
+KNOWN_FACTORS = {  # a ratio near one of these names the unit mistake
+    3.6: "km/h read as m/s",
+    1 / 3.6: "m/s read as km/h",
+    2.23694: "mph read as m/s",
+    1 / 2.23694: "m/s read as mph",
+    1.609344: "km/h read as mph",
+    1 / 1.609344: "mph read as km/h",
+    9.80665: "g read as m/s^2",
+    1 / 9.80665: "m/s^2 read as g",
+    180 / math.pi: "deg read as rad",
+    math.pi / 180: "rad read as deg",
+}
+
+
+@dataclass(frozen=True)
+class Finding:
+    check: str  # e.g. "accel_x_sign"
+    subject: str  # the channel or profile key at fault: "accel_x", "vehicle.mass", "priors.l_f"
+    message: str  # one line, with the likely fix
+    params: tuple[str, ...]  # parameters that rest on it: not reported valid
+
+    def as_dict(self) -> dict:
+        return {"check": self.check, "subject": self.subject, "message": self.message, "params": list(self.params)}
+
+
+@dataclass
+class Report:
+    findings: list[Finding] = field(default_factory=list)
+    measured: dict[str, float] = field(default_factory=dict)  # the figures each check found
+    skipped: dict[str, str] = field(default_factory=dict)  # check -> why it could not be judged
+    seconds: float = 0.0  # bus time looked at
+
+    def add(self, check: str, subject: str, message: str, params: tuple[str, ...]) -> None:
+        self.findings.append(Finding(check, subject, message, params))
+
+    @property
+    def invalid(self) -> dict[str, str]:
+        """Parameter -> why it is not valid (the first finding that concerns it)."""
+        out: dict[str, str] = {}
+        for f in self.findings:
+            for p in f.params:
+                out.setdefault(p, f"profile check: {f.message}")
+        return out
+
+    def as_dict(self) -> dict:
+        return {
+            "findings": [f.as_dict() for f in self.findings],
+            "measured": {k: round(v, 4) for k, v in self.measured.items()},
+            "skipped": dict(self.skipped),
+            "seconds": round(self.seconds, 1),
+        }
+
+
+def mark_invalid(params: dict, report: Report) -> None:
+    """Set ``valid = False`` and ``invalid_reason`` on every parameter a finding concerns."""
+    for name, why in report.invalid.items():
+        p = params.get(name)
+        if isinstance(p, dict):
+            p["valid"] = False
+            p["invalid_reason"] = why
+
+
+def _factor_name(ratio: float) -> str | None:
+    for f, name in KNOWN_FACTORS.items():
+        if abs(ratio / f - 1.0) < 0.08:
+            return name
+    return None
+
+
+def _smooth(x: np.ndarray, n: int) -> np.ndarray:
+    if len(x) < n or n < 2:
+        return x
+    k = np.ones(n) / n
+    return np.convolve(x, k, mode="same")
+
+
+def _fit(x: np.ndarray, y: np.ndarray) -> float:
+    """Least-squares slope of y = k x through the origin."""
+    d = float(np.dot(x, x))
+    return float(np.dot(x, y) / d) if d > 0 else math.nan
+
+
+def check_profile(profile: Profile, report: Report | None = None) -> Report:
+    """The checks that need no data: priors against geometry."""
+    rep = report or Report()
+    veh, pri = profile.vehicle, profile.priors
+    lf = pri["l_f"].value
+    if not 0.0 < lf < veh.wheelbase:
+        rep.add(
+            "prior_l_f",
+            "priors.l_f",
+            f"the l_f prior ({lf:g} m) is not inside the wheelbase ({veh.wheelbase:g} m): "
+            f"l_f is the distance from the front axle to the centre of gravity; set it between 0 and the wheelbase "
+            f"(about {0.45 * veh.wheelbase:.2f} m for a front-engined car)",
+            DEPENDS["l_f"],
+        )
+    h = pri["h"].value
+    if h > veh.track:
+        rep.add(
+            "prior_h",
+            "priors.h",
+            f"the h prior ({h:g} m) is above the track ({veh.track:g} m): no road car's centre of gravity is that high",
+            ("h",),
+        )
+    return rep
+
+
+def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report | None = None) -> Report:
+    """Check the profile against aligned samples: ``y[i, channel index]`` in SI (NaN where missing)."""
+    rep = check_profile(profile, report)
+    veh = profile.vehicle
+    have = set(profile.channels)
+    n = len(t)
+    rep.seconds = float(t[-1] - t[0]) if n > 1 else 0.0
+    if n < MIN_SAMPLES:
+        rep.skipped["all"] = f"only {n} aligned samples ({rep.seconds:.1f} s): too little data to check the profile"
+        return rep
+    win = max(int(round(0.5 / TICK)), 1)  # 0.5 s smoothing for derivatives
+    wheels = [c for c in ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr") if c in have]
+    v_wheel = None
+    if wheels:
+        v_wheel = np.nanmean(np.stack([y[:, ch.INDEX[c]] for c in wheels]), axis=0) * veh.wheel_radius
+    v_ref = y[:, ch.SPEED] if "speed" in have else None
+
+    # 1. wheel speeds against the ground speed
+    if v_wheel is not None and v_ref is not None:
+        ok = np.isfinite(v_wheel) & np.isfinite(v_ref) & (v_ref > 3.0)
+        if ok.sum() >= MIN_SAMPLES:
+            ratio = float(np.median(v_wheel[ok] / v_ref[ok]))
+            rep.measured["wheel_speed_scale"] = ratio
+            if not 0.94 < ratio < 1.06:  # slip and tyre growth stay within a few per cent
+                why = _factor_name(ratio)
+                rep.add(
+                    "wheel_speed_scale",
+                    "wheel_speed",
+                    f"the wheel speeds times wheel_radius come out {ratio:.3g}x the ground speed"
+                    + (
+                        f" ({why}): fix the wheel speeds' unit" if why else ": check their unit, scale and wheel_radius"
+                    ),
+                    DEPENDS["wheel_speed"],
+                )
+        else:
+            rep.skipped["wheel_speed_scale"] = "no driving above 3 m/s with both wheel and ground speed"
+    v = v_ref if v_ref is not None else v_wheel
+    wheel_bad = any(f.check == "wheel_speed_scale" for f in rep.findings)
+    if v is not None and v_ref is None:
+        v = v_wheel  # the only speed there is; its scale is checked through a_y = v r below
+
+    # 2. a_x against dv/dt
+    if v is not None and "accel_x" in have:
+        dv = np.gradient(_smooth(v, win), t)
+        ax = _smooth(y[:, ch.AX], win)
+        ok = np.isfinite(dv) & np.isfinite(ax) & (v > 1.0)
+        ok[:win] = ok[-win:] = False
+        strong = ok & (np.abs(dv) > 0.3)
+        if strong.sum() >= MIN_SAMPLES and np.std(dv[ok]) > 0.2:
+            k = _fit(dv[ok], ax[ok])
+            rep.measured["accel_x_per_dv_dt"] = k
+            if k < -0.5:
+                rep.add(
+                    "accel_x_sign",
+                    "accel_x",
+                    f"accel_x looks sign-flipped (a_x = {k:.2f} x dv/dt): set sign = -1 in [channels.accel_x]",
+                    DEPENDS["accel_x"],
+                )
+            elif not 0.8 < abs(k) < 1.25:
+                why = _factor_name(abs(k))
+                subject = "accel_x" if v_ref is not None or wheel_bad else "accel_x or wheel_speed"
+                rep.add(
+                    "accel_x_scale",
+                    "accel_x",
+                    f"accel_x is {k:.3g}x dv/dt of the {'ground' if v_ref is not None else 'wheel'} speed"
+                    + (f" ({why})" if why else "")
+                    + f": check the unit of {subject}",
+                    DEPENDS["accel_x"],
+                )
+        else:
+            rep.skipped["accel_x"] = "no acceleration or braking above 0.3 m/s^2 to compare a_x with dv/dt"
+
+    # 3. steady turns: a_y = v r, steering sign, steering ratio
+    yaw = y[:, ch.YAW] if "yaw_rate" in have else None
+    turn = None
+    if yaw is not None and v is not None:
+        r_s = _smooth(yaw, win)
+        dr = np.gradient(r_s, t)
+        turn = np.isfinite(r_s) & np.isfinite(v) & (np.abs(r_s) > 0.04) & (v > 3.0) & (np.abs(dr) < 0.2)
+        turn[:win] = turn[-win:] = False
+        if turn.sum() < MIN_SAMPLES:
+            rep.skipped["turns"] = "no steady turn (yaw rate above 0.04 rad/s at over 3 m/s)"
+            turn = None
+    steer_sign = None
+    if turn is not None and "steering_angle" in have:
+        d = _smooth(y[:, ch.DELTA], win)
+        okd = turn & np.isfinite(d)
+        if okd.sum() >= MIN_SAMPLES:
+            steer_sign = float(np.sign(np.dot(d[okd], yaw[okd])))
+    ay_k = None
+    if turn is not None and "accel_y" in have:
+        ay = _smooth(y[:, ch.AY], win)
+        ok = turn & np.isfinite(ay)
+        if ok.sum() >= MIN_SAMPLES:
+            ay_k = _fit(v[ok] * yaw[ok], ay[ok])
+            rep.measured["accel_y_per_v_r"] = ay_k
+    if ay_k is not None and ay_k < -0.5:
+        if steer_sign is not None and steer_sign < 0:
+            rep.add(
+                "yaw_rate_sign",
+                "yaw_rate",
+                "yaw_rate looks sign-flipped (against both a_y = v r and the steering angle): "
+                "set sign = -1 in [channels.yaw_rate]",
+                DEPENDS["yaw_rate"],
+            )
+        elif steer_sign is not None:
+            rep.add(
+                "accel_y_sign",
+                "accel_y",
+                "accel_y looks sign-flipped (a_y has the opposite sign of v r, while the steering angle and the "
+                "yaw rate agree): set sign = -1 in [channels.accel_y]",
+                DEPENDS["accel_y"],
+            )
+        else:
+            rep.add(
+                "accel_y_sign",
+                "accel_y",
+                "accel_y and yaw_rate disagree in sign (a_y = -v r): one of them needs sign = -1; "
+                "map steering_angle to tell which",
+                DEPENDS["accel_y"],
+            )
+    elif ay_k is not None and not 0.8 < ay_k < 1.25:
+        why = _factor_name(ay_k)
+        if v_ref is None and not wheel_bad:
+            subject, hint = "wheel_speed", "the wheel speeds' unit (or accel_y's, or yaw_rate's)"
+        else:
+            subject, hint = "accel_y", "accel_y's unit (or yaw_rate's)"
+        rep.add(
+            "accel_y_scale",
+            subject,
+            f"a_y is {ay_k:.3g}x v r in steady turns" + (f" ({why})" if why else "") + f": check {hint}",
+            DEPENDS["accel_y"] if subject == "accel_y" else DEPENDS["wheel_speed"],
+        )
+    if steer_sign is not None and steer_sign < 0 and not any(f.check == "yaw_rate_sign" for f in rep.findings):
+        rep.add(
+            "steering_sign",
+            "steering_angle",
+            "steering_angle has the opposite sign of the yaw rate (positive must be left for both): "
+            "set sign = -1 in [channels.steering_angle]",
+            DEPENDS["steering_angle"],
+        )
+    if turn is not None and "steering_angle" in have:
+        d = _smooth(y[:, ch.DELTA], win)
+        ay = y[:, ch.AY] if "accel_y" in have else v * yaw
+        ok = turn & np.isfinite(d) & (np.abs(np.nan_to_num(ay)) < 4.0)
+        if ok.sum() >= MIN_SAMPLES:
+            kin = veh.wheelbase * yaw[ok] / v[ok]  # the kinematic road-wheel angle
+            q = float(np.median(np.abs(d[ok]) / np.abs(kin)))
+            rep.measured["steer_per_kinematic"] = q
+            sr = veh.steering_ratio
+            if abs(q / sr - 1.0) < 0.5:
+                rep.add(
+                    "steering_wheel",
+                    "steering_angle",
+                    f"steering_angle is {q:.1f}x the road-wheel angle the yaw rate implies, about the steering "
+                    f"ratio ({sr:g}): it is the steering-wheel angle; set steering_wheel = true",
+                    DEPENDS["steering_angle"],
+                )
+            elif abs(q * sr - 1.0) < 0.5:
+                rep.add(
+                    "steering_wheel",
+                    "steering_angle",
+                    f"steering_angle is 1/{1 / q:.1f} of the road-wheel angle the yaw rate implies, about "
+                    f"1/steering ratio: it is the road-wheel angle already; set steering_wheel = false",
+                    DEPENDS["steering_angle"],
+                )
+            elif not 0.7 < q < 2.5:
+                rep.add(
+                    "steering_ratio",
+                    "vehicle.steering_ratio",
+                    f"steering_angle is {q:.2f}x the kinematic road-wheel angle L r / v (expected 1 to 2 with "
+                    f"understeer): check vehicle.steering_ratio ({sr:g}) and the channel's unit",
+                    DEPENDS["steering_angle"],
+                )
+
+    # 4. mass against torque / acceleration (eq 1-2 summed over both axles)
+    if "wheel_torque_front" in have and "wheel_torque_rear" in have and "accel_x" in have and v is not None:
+        if any(f.subject in ("accel_x", "wheel_speed") for f in rep.findings):
+            rep.skipped["mass"] = "not judged: accel_x or the wheel speeds are wrong themselves"
+        else:
+            force = _smooth((y[:, ch.T_F] + y[:, ch.T_R]) / veh.wheel_radius, win)
+            ax = _smooth(y[:, ch.AX], win)
+            ok = np.isfinite(force) & np.isfinite(ax) & np.isfinite(v) & (v > 1.0)
+            ok[:win] = ok[-win:] = False
+            strong = ok & (np.abs(ax) > 0.5)
+            if strong.sum() >= MIN_SAMPLES:
+                # road loads: a constant (rolling resistance, grade) and a v^2 term (drag)
+                A = np.column_stack([ax[ok], np.ones(ok.sum()), v[ok] ** 2])
+                coef, *_ = np.linalg.lstsq(A, force[ok], rcond=None)
+                m_eff = float(coef[0])
+                m_fit = m_eff - 2.0 * veh.wheel_inertia / veh.wheel_radius**2
+                rep.measured["mass_fit"] = m_fit
+                if not 0.92 < m_fit / veh.mass < 1.08:
+                    rep.add(
+                        "mass",
+                        "vehicle.mass",
+                        f"vehicle.mass is {veh.mass:g} kg, but the wheel torques and a_x imply {m_fit:.0f} kg "
+                        f"({100 * (veh.mass / m_fit - 1):+.0f} %): set the mass as driven (kerb weight plus "
+                        f"occupants and load), or check the torque channels' unit and wheel_radius",
+                        DEPENDS["mass"],
+                    )
+            else:
+                rep.skipped["mass"] = "no acceleration or braking above 0.5 m/s^2 with both axle torques"
+    return rep
+
+
+@dataclass
+class Coverage:
+    """How many of the profile's messages a log holds."""
+
+    wanted: dict[str, int]  # message name -> frames decoded
+    other: list[tuple[str, int]]  # the log's most frequent ids the profile does not decode
+
+    @property
+    def seen(self) -> int:
+        return sum(1 for n in self.wanted.values() if n)
+
+    def message(self) -> str:
+        missing = [m for m, n in self.wanted.items() if not n]
+        top = ", ".join(f"{i} ({n})" for i, n in self.other[:8]) or "none"
+        return (
+            f"{self.seen} of {len(self.wanted)} of the profile's messages seen"
+            + (f" (missing: {', '.join(missing)})" if missing else "")
+            + f"; the ids the log holds most: {top}"
+        )
+
+
+def check_log(
+    path: str | Path, profile: Profile, seconds: float = CHECK_SECONDS, strict_coverage: bool = True
+) -> tuple[Report, Coverage]:
+    """Decode the first ``seconds`` of bus time of a log and check the profile against it.
+
+    A log that holds none of the profile's messages, or fewer than half, is a ProfileError
+    with the counts and the ids the log does hold (unless ``strict_coverage`` is false).
+    """
+    from .buffer import Aligner
+    from .io.decoder import FrameDecoder
+    from .io.logs import open_log
+
+    dec = FrameDecoder(profile)
+    stale = np.full(ch.N, 0.5)
+    al = Aligner(stale_after=stale, tick=TICK)
+    ts: list[float] = []
+    rows: list[np.ndarray] = []
+    t0 = None
+    with open_log(path, channel=profile.bus_channel) as src:
+        for msg in src:
+            if t0 is None:
+                t0 = msg.timestamp
+            if msg.timestamp - t0 > seconds:
+                break
+            pairs = dec.decode(msg)
+            if pairs:
+                for s in al.push(msg.timestamp, pairs):
+                    ts.append(s.t)
+                    rows.append(s.values.copy())
+    cov = coverage(dec)
+    if strict_coverage and cov.seen * 2 < len(cov.wanted):
+        raise ProfileError(f"{path}: the log does not fit profile {profile.path}: {cov.message()}")
+    rep = Report()
+    if rows:
+        check_samples(profile, np.asarray(ts), np.vstack(rows), rep)
+    else:
+        check_profile(profile, rep)
+    return rep, cov
+
+
+def coverage(dec) -> Coverage:
+    from .io.decoder import _hex
+
+    primaries = {cm.message for cm in dec.profile.channels.values()}
+    wanted = {plan.name: plan.good for plan in dec._plans.values() if plan.name in primaries}
+    other = sorted(dec.stats.unknown.items(), key=lambda kv: -kv[1])
+    return Coverage(wanted, [(_hex(k), n) for k, n in other])
+
+
+def lines(rep: Report) -> list[str]:
+    """What the CLI prints: one warning line per finding."""
+    return [f"profile check: {f.message} (not valid: {', '.join(f.params)})" for f in rep.findings]

@@ -1,0 +1,130 @@
+"""The profile self-check catches the mistakes a user makes in the first hour, on a simulated
+drive: each gives a warning naming the channel (or profile key) and the fix, and the
+parameters resting on it are not reported valid."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from vdp.cli import main
+from vdp.errors import ProfileError
+from vdp.profile import Prior, load_profile
+from vdp.profilecheck import PARAMETERS, STAGE2, check_log
+from vdp.sim.run import Simulation, write_log
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = load_profile(ROOT / "profiles" / "paper.toml")
+WHEELS = ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr")
+
+
+def chan(p, name, **kw):
+    c = dict(p.channels)
+    c[name] = dataclasses.replace(c[name], **kw)
+    return dataclasses.replace(p, channels=c)
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    """70 s of the paper's drive: accelerations, brakings, then a weave (realistic noise)."""
+    path = tmp_path_factory.mktemp("check") / "paper.log"
+    write_log(Simulation(PAPER, "paper", seed=2, duration=70.0).frames(), path)
+    return path
+
+
+def test_the_right_profile_passes(drive):
+    rep, cov = check_log(drive, PAPER)
+    assert rep.findings == [] and cov.seen == len(cov.wanted) == 7
+    m = rep.measured
+    assert abs(m["accel_x_per_dv_dt"] - 1) < 0.1 and abs(m["accel_y_per_v_r"] - 1) < 0.1
+    assert abs(m["wheel_speed_scale"] - 1) < 0.03 and abs(m["mass_fit"] / 1600 - 1) < 0.05
+
+
+def one(rep):
+    assert len(rep.findings) == 1, [f.message for f in rep.findings]
+    return rep.findings[0]
+
+
+def test_accel_x_sign_flipped(drive):
+    f = one(check_log(drive, chan(PAPER, "accel_x", sign=-1.0))[0])
+    assert f.subject == "accel_x" and "sign-flipped" in f.message and "sign = -1" in f.message
+    assert set(f.params) == set(PARAMETERS)
+
+
+def test_steering_wheel_angle_declared_as_road_wheel_angle(drive):
+    f = one(check_log(drive, chan(PAPER, "steering_angle", steering_wheel=False))[0])
+    assert f.subject == "steering_angle" and "set steering_wheel = true" in f.message
+    assert set(f.params) == set(STAGE2)
+
+
+def test_road_wheel_angle_declared_as_steering_wheel_angle(tmp_path):
+    road = chan(PAPER, "steering_angle", steering_wheel=False)  # the bus carries the road-wheel angle
+    path = tmp_path / "road.log"
+    write_log(Simulation(road, "paper", seed=2, duration=70.0).frames(), path)
+    assert check_log(path, road)[0].findings == []
+    f = one(check_log(path, PAPER)[0])
+    assert f.subject == "steering_angle" and "set steering_wheel = false" in f.message
+
+
+def test_wheel_speeds_in_the_wrong_unit(drive):
+    # the signals are read as 3.6x smaller than they are (m/s taken for km/h)
+    p = PAPER
+    for w in WHEELS:
+        p = chan(p, w, scale=1 / 3.6)
+    f = one(check_log(drive, p)[0])
+    assert f.subject == "wheel_speed" and "m/s read as km/h" in f.message
+    assert set(f.params) == set(PARAMETERS)
+
+
+def test_mass_13_percent_low(drive):
+    p = dataclasses.replace(PAPER, vehicle=dataclasses.replace(PAPER.vehicle, mass=0.87 * PAPER.vehicle.mass))
+    f = one(check_log(drive, p)[0])
+    assert f.subject == "vehicle.mass" and "set the mass" in f.message
+    implied = float(re.search(r"imply (\d+) kg", f.message).group(1))
+    assert abs(implied / PAPER.vehicle.mass - 1) < 0.03  # the true mass, from torques and a_x
+
+
+def test_l_f_prior_beyond_the_wheelbase(drive):
+    pri = dict(PAPER.priors)
+    pri["l_f"] = Prior(2.8, 0.3)
+    f = one(check_log(drive, dataclasses.replace(PAPER, priors=pri))[0])
+    assert f.subject == "priors.l_f" and "wheelbase" in f.message
+
+
+@pytest.mark.parametrize(
+    "name, subject", [("yaw_rate", "yaw_rate"), ("accel_y", "accel_y"), ("steering_angle", "steering_angle")]
+)
+def test_lateral_signs(drive, name, subject):
+    f = one(check_log(drive, chan(PAPER, name, sign=-1.0))[0])
+    assert f.subject == subject and "sign = -1" in f.message and set(f.params) == set(STAGE2)
+
+
+def test_a_log_of_another_car_is_a_clear_error(drive):
+    prof = load_profile(ROOT / "tests" / "data" / "extra.toml")
+    with pytest.raises(ProfileError) as exc:
+        check_log(drive, prof)
+    msg = str(exc.value)
+    assert re.search(r"0 of \d of the profile.s messages seen", msg) and "0x0B1 (7000)" in msg and "\n" not in msg
+
+
+def test_replay_warns_and_marks_the_parameters_not_valid(drive, tmp_path, capsys):
+    text = (ROOT / "profiles" / "paper.toml").read_text()
+    text = text.replace('signal = "ACCEL_X", unit = "m/s^2" }', 'signal = "ACCEL_X", unit = "m/s^2", sign = -1 }')
+    text = text.replace('dbc = "../dbc/vdp.dbc"', f'dbc = "{ROOT / "dbc" / "vdp.dbc"}"')
+    prof = tmp_path / "flipped.toml"
+    prof.write_text(text)
+    out = tmp_path / "r.json"
+    assert main(["replay", str(drive), "--profile", str(prof), "--json", str(out), "--no-progress", "--no-ekf"]) == 0
+    printed = capsys.readouterr().out
+    assert "accel_x looks sign-flipped" in printed
+    res = json.loads(out.read_text())
+    assert res["profile_check"]["findings"][0]["subject"] == "accel_x"
+    for p in res["parameters"].values():
+        assert p["valid"] is False and "accel_x" in p["invalid_reason"]
+    assert main(["profile", "check", str(drive), "--profile", str(prof)]) == 1
+    assert "set sign = -1" in capsys.readouterr().out
+    assert main(["profile", "check", str(drive), "--profile", str(ROOT / "profiles" / "paper.toml")]) == 0
