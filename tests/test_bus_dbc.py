@@ -4,11 +4,13 @@ through their own log."""
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 
 import pytest
 
+from vdp.cli import main
 from vdp.errors import ProfileError
 from vdp.io import dbcfix
 from vdp.io.decoder import FrameDecoder
@@ -120,6 +122,11 @@ def test_canfd_car_round_trips_through_its_own_log(tmp_path):
     # 900 frames per message: the 8-bit counters wrapped, and the decoder agrees with every step
     assert st["decoded"] == st["frames"] == n and st["errors"] == {}
     assert min(steer) < -0.01 < 0.01 < max(steer)  # right turns pass the profile's range
+    # vdp replay (its bulk reader) decodes the same log with the same range override
+    out = tmp_path / "r.json"
+    assert main(["replay", str(path), "--profile", str(IONIQ5), "--json", str(out), "--no-progress", "--no-ekf"]) == 0
+    dec2 = json.loads(out.read_text())["log"]["decode"]
+    assert dec2["errors"] == {} and dec2["decoded"] == n
 
 
 def test_counters_wrap_at_their_bit_width():

@@ -35,7 +35,8 @@ from typing import Any
 import can
 import numpy as np
 
-from .decoder import compile_extractor, limits
+from .decoder import _limits as limits  # with the profile's range overrides
+from .decoder import compile_extractor
 from .logs import EXT_KEY, LogStats, channel_keys, open_log
 
 log = logging.getLogger(__name__)
@@ -104,7 +105,7 @@ def replay_log(
 class _Plan:
     """Vectorised extraction of one decoder plan's signals (None where not covered)."""
 
-    def __init__(self, dplan: Any, msg: Any, need: list[tuple[str, bool, bool]]):
+    def __init__(self, dplan: Any, msg: Any, need: list[tuple[str, bool, bool]], ranges: dict | None = None):
         self.p = dplan
         self.length = msg.length
         self.fid = dplan.frame_id
@@ -117,7 +118,7 @@ class _Plan:
                 le, shift = False, (msg.length - 1 - sig.start // 8) * 8 + sig.start % 8 - sig.length + 1
             scale, offset = sig.conversion.scale, sig.conversion.offset
             scaled = not raw and (scale != 1 or offset != 0)
-            lo, hi = limits(msg, sig) if check and not raw else (-math.inf, math.inf)
+            lo, hi = limits(msg, sig, ranges) if check and not raw else (-math.inf, math.inf)
             half = 1 << (sig.length - 1) if sig.is_signed else 0
             self.fields.append((le, shift, (1 << sig.length) - 1, half, float(scale), float(offset), scaled, lo, hi))
 
@@ -242,7 +243,7 @@ class BulkSource:
                 and compile_extractor(msg, need) is not None
                 and all(o[5] is None for o in p.outputs)  # an alternative source depends on another's state
             )
-            out[key] = _Plan(p, msg, need) if ok else None
+            out[key] = _Plan(p, msg, need, getattr(dec, "ranges", None)) if ok else None
         return out
 
     def _block(self, buf: bytes, lineno: int, pipe: Any, plans: dict, keep_arr: np.ndarray, state: dict) -> int:

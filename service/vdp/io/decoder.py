@@ -178,6 +178,7 @@ class FrameDecoder:
         self._want = channel_keys(profile.bus_channel) if profile.bus_channel else None
         self._validate()
         self._plans: dict[int, _Plan] = {}
+        self.ranges: dict[tuple[str, str], tuple[float, float]] = {}
         self._build()
         self.stats = DecodeStats(
             {k: p.name for k, p in self._plans.items()}, [p for p in self._plans.values() if p.plain is not None]
@@ -264,7 +265,7 @@ class FrameDecoder:
         needs: dict[int, list[tuple[str, bool, bool]]] = {}
         outs: dict[int, list[tuple[int, str, float, float, str | None, ChannelMap | None, str | None]]] = {}
         msgs: dict[int, Any] = {}
-        ranges: dict[tuple[str, str], tuple[float, float]] = {}  # the profile's range overrides
+        ranges = self.ranges  # the profile's range overrides, (message, signal) -> (lo, hi)
         for cmap in prof.channels.values():
             for m, primary in ((cmap, None), (cmap.alt, cmap)):
                 if m is None:
