@@ -8,6 +8,7 @@ import json
 import logging
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from vdp.cli import main
@@ -152,3 +153,49 @@ def test_range_override_replaces_the_dbcs(tmp_path):
     bad.write_text(IONIQ5.read_text().replace("range = [-800, 800]", "range = [800, -800]"))
     with pytest.raises(ProfileError, match=r"steering_angle\]: 'range' must be \[minimum, maximum\]"):
         load_profile(bad)
+
+
+def test_status_signals_keep_invalid_samples_from_the_estimator():
+    """The ESC's start-up values (saturated, status non-zero) never become samples; counted."""
+    from vdp.pipeline import Pipeline
+
+    prof = load_profile(IONIQ5)
+    sim = Simulation(prof, "stage2", seed=3, duration=3.0, noise="none")
+    esc = prof.channels["yaw_rate"].message
+    db = sim.encoder.db
+    msg_def = db.get_message_by_name(esc)
+    pipe = Pipeline(prof)
+    bad = 0
+    for msg in sim.frames():
+        if msg.arbitration_id == msg_def.frame_id and msg.timestamp - 1700000000.0 < 1.0:
+            vals = msg_def.decode(msg.data, decode_choices=False)
+            vals.update(ESC_YawSigSta=1, ESC_YawRtVal=163.83, ESC_LatAccelSigSta=2, ESC_LatAccelVal=4.1)
+            msg.data = bytearray(msg_def.encode(vals, strict=False))
+            bad += 1
+        pipe.feed(msg)
+    st = pipe.decoder.stats.as_dict()
+    assert bad > 50
+    assert st["invalid_samples"] == {
+        "yaw_rate": {"status ESC_YawSigSta=1": bad},
+        "accel_y": {"status ESC_LatAccelSigSta=2": bad},
+    }
+    assert st["samples"]["yaw_rate"] == st["samples"]["accel_x"] - bad  # accel_x's status stayed 0
+    _, ys = pipe.ring.latest()
+    assert abs(ys[:, 9][~np.isnan(ys[:, 9])]).max() < 1.0  # no 163.8 deg/s reached a sample
+
+
+def test_validity_keys_are_checked(tmp_path):
+    base = IONIQ5.read_text()
+    for bad, match in (
+        ('valid_when = { signal = "ESC_YawSigSta", values = [0] }', None),
+        ('valid_when = { signal = "ESC_YawSigSta", values = "0" }', "'valid_when' must be"),
+        ('valid_when = { signal = "NOPE", values = [0] }', "status signal 'NOPE' is not in message"),
+        ("plausible = [2, 1]", "'plausible' must be"),
+    ):
+        p = tmp_path / "v.toml"
+        p.write_text(base.replace('valid_when = { signal = "ESC_YawSigSta", values = [0] }', bad))
+        if match is None:
+            FrameDecoder(load_profile(p))
+            continue
+        with pytest.raises(ProfileError, match=match):
+            FrameDecoder(load_profile(p))

@@ -140,6 +140,9 @@ class ChannelMap:
     fine: str | None = None  # a finer signal of the same message, added to ``signal``
     alt: ChannelMap | None = None
     range: tuple[float, float] | None = None  # replaces the DBC's [min|max] of ``signal`` (its unit)
+    # a status signal of the same message: (signal, values, True if those values mean valid)
+    status: tuple[str, frozenset[int], bool] | None = None
+    plausible: tuple[float, float] | None = None  # [min, max] of the SI value; outside is invalid
     where: str = ""  # "profile.toml [channels.x]" for error messages
 
     def factor(self, vehicle: Vehicle) -> float:
@@ -271,6 +274,9 @@ _MAP_KEYS = {
     "fine",
     "alt",
     "range",
+    "valid_when",
+    "invalid_when",
+    "plausible",
 }
 
 
@@ -322,6 +328,36 @@ def _channel(where: str, name: str, raw: Any, nested: bool = False) -> ChannelMa
         if not lo < hi:
             raise ProfileError(f"{w}: 'range' must be [minimum, maximum] with minimum < maximum, got {r}")
         rng = (lo, hi)
+    status = None
+    for key, ok in (("valid_when", True), ("invalid_when", False)):
+        if key not in raw:
+            continue
+        if status is not None:
+            raise ProfileError(f"{w}: give 'valid_when' or 'invalid_when', not both")
+        v = raw[key]
+        vals = v.get("values") if isinstance(v, dict) else None
+        if (
+            not isinstance(v, dict)
+            or set(v) != {"signal", "values"}
+            or not isinstance(v["signal"], str)
+            or not isinstance(vals, list)
+            or not vals
+            or not all(isinstance(x, int) and not isinstance(x, bool) for x in vals)
+        ):
+            raise ProfileError(
+                f"{w}: '{key}' must be {{ signal = \"STATUS_SIGNAL\", values = [0] }} "
+                f"(a status signal of the same message and its raw integer values)"
+            )
+        status = (v["signal"], frozenset(vals), ok)
+    plaus = None
+    if "plausible" in raw:
+        r = raw["plausible"]
+        if not isinstance(r, list) or len(r) != 2:
+            raise ProfileError(f"{w}: 'plausible' must be [minimum, maximum] in {channels.UNITS[name]}")
+        lo, hi = _num(w, "plausible", r[0]), _num(w, "plausible", r[1])
+        if not lo < hi:
+            raise ProfileError(f"{w}: 'plausible' must be [minimum, maximum] with minimum < maximum, got {r}")
+        plaus = (lo, hi)
     alt = None
     if "alt" in raw:
         if nested:
@@ -340,6 +376,8 @@ def _channel(where: str, name: str, raw: Any, nested: bool = False) -> ChannelMa
         fine=fine,
         alt=alt,
         range=rng,
+        status=status,
+        plausible=plaus,
         where=w,
     )
 

@@ -242,6 +242,7 @@ class BulkSource:
                 need is not None
                 and compile_extractor(msg, need) is not None
                 and all(o[5] is None for o in p.outputs)  # an alternative source depends on another's state
+                and all(o[7] is None for o in p.outputs)  # status and plausibility: the per-frame path
             )
             out[key] = _Plan(p, msg, need, getattr(dec, "ranges", None)) if ok else None
         return out
@@ -500,7 +501,7 @@ class BulkSource:
         good[np.flatnonzero(ok_dlc)[good_sub]] = True
         n_range = int(bad_range.sum())
         idxs, cols = [], []
-        for idx, pos, mul, add, sign_pos, _primary, fine_pos in p.outputs:
+        for idx, pos, mul, add, sign_pos, _primary, fine_pos, _valid in p.outputs:
             v = vals[pos - 1][good_sub]
             if fine_pos >= 0:
                 v = v + vals[fine_pos - 1][good_sub]

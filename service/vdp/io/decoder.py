@@ -29,7 +29,7 @@ from cantools.database.errors import DecodeError as _CantoolsDecodeError
 
 from .. import channels
 from ..errors import ProfileError
-from ..profile import UNIT_FACTORS, ChannelMap, Profile
+from ..profile import UNIT_FACTORS, Profile
 from . import dbcfix
 from .checks import counter_ok, vdp_checksum
 from .logs import EXT_KEY as _EXT
@@ -59,6 +59,7 @@ class DecodeStats:
         self._counted = [0] * channels.N  # samples of plans with conditional outputs
         self._plain = plain  # plans that emit every output of every good frame: counted per frame
         self.invalid: tuple[str, ...] = ()  # channels flagged invalid right now
+        self.invalid_samples: dict[tuple[str, str], int] = {}  # (channel, reason) -> values dropped
         self._names = names  # plan key -> DBC message name
 
     @property
@@ -105,7 +106,15 @@ class DecodeStats:
             "messages": {_hex(k): self._names[k] for k, _ in errors if k in self._names},
             "samples": {name: n for name, n in zip(channels.NAMES, self.samples) if n},
             "invalid_channels": list(self.invalid),
+            "invalid_samples": _by_channel(self.invalid_samples.copy()),
         }
+
+
+def _by_channel(counts: dict[tuple[str, str], int]) -> dict[str, dict[str, int]]:
+    out: dict[str, dict[str, int]] = {}
+    for (chan, why), n in sorted(counts.items()):
+        out.setdefault(chan, {})[why] = n
+    return out
 
 
 def _hex(key: int) -> str:
@@ -142,7 +151,7 @@ class _Plan:
         self.key, self.name, self.frame_id, self.length = key, name, frame_id, length
         self.extract: Callable[[Any], tuple] = _nothing
         # (channel, value slot, mul, add, sign slot, primary plan if an alt, fine slot); -1: none
-        self.outputs: list[tuple[int, int, float, float, int, _Plan | None, int]] = []
+        self.outputs: list[tuple[int, int, float, float, int, _Plan | None, int, tuple | None]] = []
         self.cnt_pos = self.cs_pos = -1
         self.cnt_mod = 16
         self.prev_count: int | None = None
@@ -223,6 +232,8 @@ class FrameDecoder:
                 sig = self._signal(m.where, msg, m.signal)
                 if m.sign_signal:
                     self._signal(m.where, msg, m.sign_signal, "sign_signal")
+                if m.status:
+                    self._signal(m.where, msg, m.status[0], "status signal")
                 if m.fine:
                     check_fine(m.where, msg, sig, self._signal(m.where, msg, m.fine, "fine signal"))
                 if (
@@ -263,7 +274,7 @@ class FrameDecoder:
         prof = self.profile
         # Per message: ordered list of needed signals (name, raw, range-checked).
         needs: dict[int, list[tuple[str, bool, bool]]] = {}
-        outs: dict[int, list[tuple[int, str, float, float, str | None, ChannelMap | None, str | None]]] = {}
+        outs: dict[int, list[tuple]] = {}
         msgs: dict[int, Any] = {}
         ranges = self.ranges  # the profile's range overrides, (message, signal) -> (lo, hi)
         for cmap in prof.channels.values():
@@ -281,9 +292,21 @@ class FrameDecoder:
                     _need(need, m.fine, raw=False, check=True)
                 if m.range is not None:
                     ranges[(msg.name, m.signal)] = m.range
+                if m.status is not None:
+                    _need(need, m.status[0], raw=True, check=False)
                 f = m.factor(prof.vehicle)
                 outs.setdefault(plan.key, []).append(
-                    (channels.INDEX[cmap.channel], m.signal, f * m.scale, f * m.offset, m.sign_signal, primary, m.fine)
+                    (
+                        channels.INDEX[cmap.channel],
+                        m.signal,
+                        f * m.scale,
+                        f * m.offset,
+                        m.sign_signal,
+                        primary,
+                        m.fine,
+                        m.status,
+                        m.plausible,
+                    )
                 )
                 if primary is None:
                     plan.channels.append(cmap.channel)
@@ -303,12 +326,30 @@ class FrameDecoder:
                 plan.cs_pos = pos[chk.checksum] if chk.checksum and chk.checksum_kind == "vdp" else -1
                 plan.checked = plan.cnt_pos >= 0 or plan.cs_pos >= 0
             plan.extract = compile_extractor(msg, need, ranges) or _cantools_extractor(msg, need, ranges)
-            for idx, sig, mul, add, sign_sig, primary, fine in outs[key]:
+            for idx, sig, mul, add, sign_sig, primary, fine, status, plaus in outs[key]:
                 prim_plan = self._plan(self.db.get_message_by_name(primary.message)) if primary else None
+                valid = None  # (status slot or -1, values, values mean valid, plausible lo, hi)
+                if status is not None or plaus is not None:
+                    lo, hi = plaus if plaus is not None else (-math.inf, math.inf)
+                    if status is not None:
+                        valid = (pos[status[0]], status[1], status[2], lo, hi, f"{status[0]}")
+                    else:
+                        valid = (-1, frozenset(), True, lo, hi, "")
                 plan.outputs.append(
-                    (idx, pos[sig], mul, add, pos[sign_sig] if sign_sig else -1, prim_plan, pos[fine] if fine else -1)
+                    (
+                        idx,
+                        pos[sig],
+                        mul,
+                        add,
+                        pos[sign_sig] if sign_sig else -1,
+                        prim_plan,
+                        pos[fine] if fine else -1,
+                        valid,
+                    )
                 )
-            if not msg.is_multiplexed() and all(o[4] < 0 and o[5] is None and o[6] < 0 for o in plan.outputs):
+            if not msg.is_multiplexed() and all(
+                o[4] < 0 and o[5] is None and o[6] < 0 and o[7] is None for o in plan.outputs
+            ):
                 plan.plain = [o[:4] for o in plan.outputs]
 
     # -- decoding ----------------------------------------------------------
@@ -388,7 +429,7 @@ class FrameDecoder:
             return [(idx, vals[pos] * mul + add) for idx, pos, mul, add in plain]
         out = []
         samples = st._counted
-        for idx, pos, mul, add, sign_pos, primary, fine_pos in plan.outputs:
+        for idx, pos, mul, add, sign_pos, primary, fine_pos, valid in plan.outputs:
             v = vals[pos]
             if v is None or (primary is not None and not primary.stale(t)):
                 continue  # not in this mux page, or the primary source is current
@@ -400,6 +441,12 @@ class FrameDecoder:
             v = v * mul + add
             if sign_pos >= 0 and vals[sign_pos]:
                 v = -v
+            if valid is not None:
+                why = _invalid(valid, vals, v)
+                if why is not None:  # never becomes a sample; counted per channel and reason
+                    k = (channels.NAMES[idx], why)
+                    st.invalid_samples[k] = st.invalid_samples.get(k, 0) + 1
+                    continue
             out.append((idx, v))
             samples[idx] += 1
         return out
@@ -444,6 +491,18 @@ class FrameDecoder:
 
     def is_valid(self, channel: str) -> bool:
         return channel not in self.invalid_channels
+
+
+def _invalid(valid: tuple, vals: tuple, v: float) -> str | None:
+    """Why a value is invalid by its status signal or plausible range (None: it is valid)."""
+    status_pos, values, ok_if_in, lo, hi, name = valid
+    if status_pos >= 0:
+        s = vals[status_pos]
+        if s is not None and (s in values) != ok_if_in:
+            return f"status {name}={s}"
+    if not lo <= v <= hi:
+        return "implausible"
+    return None
 
 
 def _key_of(db: Any, name: str) -> int:
