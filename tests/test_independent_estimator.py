@@ -1,0 +1,148 @@
+"""The estimator on cars it was not derived from (issue 11's targets, on short seeded drives).
+
+Each case drives the paper's manoeuvre (cut to DURATION s: all of stage 1, the transition
+and the start of stage 2) on an independent model, encodes it through vdp's DBC into a
+candump log and replays that log; the estimator gets the car's profile (known constants,
+imperfect priors) and never the truth file.
+
+The assertions without a mark hold today.  The targets of issue 11 that today's
+estimator misses are stated as they are meant and marked xfail(strict=False): when the
+estimator meets one, it shows as XPASS; then drop its mark.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from vdp.core.estimator import EstimatorConfig
+from vdp.io.logs import open_log
+from vdp.pipeline import Pipeline
+from vdp.replay import replay
+from vdp.sim.independent.common import IndependentSimulation
+from vdp.sim.run import write_log
+
+try:
+    import vehiclemodels  # noqa: F401
+
+    HAVE_MB = True
+except ImportError:  # the bench extra; bootstrap installs it, so CI runs these
+    HAVE_MB = False
+
+DURATION = 85.0
+CASES = ["brush/small", pytest.param("mb/bmw_320i", marks=pytest.mark.skipif(not HAVE_MB, reason="bench extra"))]
+
+pytestmark = pytest.mark.slow
+
+_cache: dict[str, tuple[dict, dict]] = {}
+
+
+def _run(case: str, tmp_path_factory) -> tuple[dict, dict]:
+    """(replay result, truth) of one seeded drive, made once per session."""
+    if case not in _cache:
+        model, car = case.split("/")
+        sim = IndependentSimulation(model, car, "paper", seed=1, noise="realistic", duration=DURATION)
+        log = tmp_path_factory.mktemp(case.replace("/", "-")) / "drive.log"
+        write_log(sim.frames(), log, sim.bus_channel)
+        pipe = Pipeline(sim.profile, EstimatorConfig())
+        _cache[case] = (replay(open_log(log, channel=sim.profile.bus_channel), pipe), sim.truth)
+    return _cache[case]
+
+
+def _est(res: dict, name: str, kind: str = "parameters") -> tuple[float, float, bool]:
+    e = res[kind][name]
+    return e["value"], e["std"], bool(e["valid"])
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_stage_1_runs_and_l_f_is_near(case, tmp_path_factory):
+    res, truth = _run(case, tmp_path_factory)
+    assert any(w["stage"] == 1 for w in res["windows"])
+    for kind in ("parameters", "baseline_ekf"):
+        v, sd, _ = _est(res, "l_f", kind)
+        # loose: the static load split is the best-observed quantity even with a real tyre (EKF today < 2 %)
+        assert v == pytest.approx(truth["parameters"]["l_f"], rel=0.05), kind
+        assert sd > 0
+    # issue 11's target for l_f (3 %), which the UKF meets today on these two cars
+    assert _est(res, "l_f")[0] == pytest.approx(truth["parameters"]["l_f"], rel=0.03)
+
+
+# -- issue 11's targets ---------------------------------------------------------------
+TODAY = "issue 11: today's estimator is confidently wrong on a real tyre law (est is fixing it)"
+# (case, what) that today's estimator misses on these drives (measured at 1ea427f)
+MISSES = {
+    ("brush/small", "C_K"),
+    ("brush/small", "C_alpha"),
+    ("mb/bmw_320i", "C_alpha"),
+    ("brush/small", "I_z"),
+    ("mb/bmw_320i", "I_z"),
+    ("brush/small", "C_alpha_front"),
+    ("mb/bmw_320i", "C_alpha_front"),
+    ("brush/small", "C_alpha_rear"),
+    ("mb/bmw_320i", "C_alpha_rear"),
+    ("mb/bmw_320i", "h"),
+    ("brush/small", "I_x"),
+    ("brush/small", "parameters"),
+    ("mb/bmw_320i", "parameters"),
+    ("brush/small", "baseline_ekf"),
+    ("mb/bmw_320i", "baseline_ekf"),
+}
+
+
+def _cases(*what):
+    """Every (case, *what) as a test parameter; xfail(strict=False) where it misses today."""
+    out = []
+    for c in CASES:
+        marks = list(c.marks) if hasattr(c, "marks") else []
+        case = c.values[0] if hasattr(c, "values") else c
+        for w in what:
+            key = w if isinstance(w, tuple) else (w,)
+            m = marks + ([pytest.mark.xfail(strict=False, reason=TODAY)] if (case, key[0]) in MISSES else [])
+            out.append(pytest.param(case, *key, marks=m, id=f"{case}-{key[0]}"))
+    return out
+
+
+@pytest.mark.parametrize(("case", "name", "tol"), _cases(("C_K", 0.10), ("C_alpha", 0.10), ("I_z", 0.10)))
+def test_target_accuracy(case, name, tol, tmp_path_factory):
+    res, truth = _run(case, tmp_path_factory)
+    v, _, _ = _est(res, name)
+    assert v is not None
+    assert v == pytest.approx(truth["parameters"][name], rel=tol)
+
+
+@pytest.mark.parametrize(("case", "name"), _cases("C_alpha_front", "C_alpha_rear"))
+def test_target_per_axle_cornering_stiffness(case, name, tmp_path_factory):
+    res, truth = _run(case, tmp_path_factory)
+    want = truth["per_axle"][name]
+    short = name.replace("_front", "_f").replace("_rear", "_r")
+    got = res["parameters"].get(name) or res["parameters"].get(short)
+    assert got, f"the estimator reports no {name} (or {short})"
+    assert got["value"] == pytest.approx(want, rel=0.10)
+
+
+@pytest.mark.parametrize(("case", "name", "tol"), _cases(("h", 0.10), ("I_x", 0.20)))
+def test_target_accurate_or_honestly_not_valid(case, name, tol, tmp_path_factory):
+    res, truth = _run(case, tmp_path_factory)
+    v, sd, valid = _est(res, name)
+    t = truth["parameters"][name]
+    assert v is not None
+    if valid:
+        assert v == pytest.approx(t, rel=tol)
+    else:
+        assert abs(v - t) <= 2 * sd
+
+
+@pytest.mark.parametrize(("case", "kind"), _cases("parameters", "baseline_ekf"))
+def test_target_nothing_valid_with_truth_beyond_3_sigma(case, kind, tmp_path_factory):
+    res, truth = _run(case, tmp_path_factory)
+    bad = []
+    for name, t in truth["parameters"].items():
+        v, sd, valid = _est(res, name, kind)
+        if valid and abs(v - t) > 3 * sd:
+            bad.append(f"{name}: {v:.4g} ± {sd:.2g}, truth {t:.4g}")
+    assert not bad, "; ".join(bad)
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_stage_2_runs_where_the_drive_excites_it(case, tmp_path_factory):
+    res, _ = _run(case, tmp_path_factory)
+    assert any(w["stage"] == 2 for w in res["windows"])
