@@ -289,10 +289,12 @@ class Service:
         try:
             result = cmd.fn(self.pipeline)
         except BaseException as exc:
+            self._publish()
             cmd.future.set_exception(exc)
         else:
+            # publish first: a caller woken by the result (sync) reads the snapshot at once
+            self._publish()
             cmd.future.set_result(result)
-        self._publish()
 
     def _publish(self) -> None:
         pipe = self.pipeline
