@@ -161,11 +161,21 @@ def run_one(job) -> dict:
         log = Path(tmp) / "drive.log"
         write_log(sim.frames(), log, sim.bus_channel)
         pipe = Pipeline(profile, EstimatorConfig())
+        spent = [0.0]
+        handle = pipe.estimator.handle
+
+        def timed(t, s):  # the estimator's share of the replay (issue 11: it may grow by half at most)
+            t1 = time.perf_counter()
+            handle(t, s)
+            spent[0] += time.perf_counter() - t1
+
+        pipe.estimator.handle = timed
         t0 = time.perf_counter()
         res = replay(open_log(log, channel=profile.bus_channel), pipe)
         wall = time.perf_counter() - t0
     est = pipe.estimator
     out = {"case": case, "seed": seed, "noise": noise, "wall": wall, "frames": res["log"]["frames"]}
+    out["estimator_s"] = spent[0]
     out["windows"] = {s: sum(1 for w in res["windows"] if w["stage"] == s) for s in (1, 2)}
     first = {s: min((w["start"] for w in res["windows"] if w["stage"] == s), default=None) for s in (1, 2)}
     for kind, key in (("ukf", "parameters"), ("ekf", "baseline_ekf")):
@@ -256,7 +266,13 @@ def report(runs: list[dict], cases: list[str], seeds: int, scale: float) -> str:
             HEADER,
         ]
         out += summarise(runs, case, "none") + summarise(runs, case, "realistic")
-        out += ["", f"Stage 2 opened a window on {s2}/{len(rs)} runs.", ""]
+        share = sum(r.get("estimator_s", 0.0) for r in rs) / max(sum(r["wall"] for r in rs), 1e-9)
+        out += [
+            "",
+            f"Stage 2 opened a window on {s2}/{len(rs)} runs; the estimator took {100 * share:.0f} % of "
+            f"the replay time ({statistics.fmean(r.get('estimator_s', 0.0) for r in rs):.1f} s per drive).",
+            "",
+        ]
     # across every case
     out += ["#### All cases together", "", "| parameter | UKF ±2σ covers | UKF valid, truth > 3σ | EKF ±2σ covers "]
     out[-1] += "| EKF valid, truth > 3σ |"
@@ -315,6 +331,12 @@ def main() -> int:
     print(report(runs, cases, a.seeds, a.prior_scale))
     frames = sum(r["frames"] for r in runs)
     wall = sum(r["wall"] for r in runs)
+    share = sum(r.get("estimator_s", 0.0) for r in runs) / max(wall, 1e-9)
+    est_s = sum(r.get("estimator_s", 0.0) for r in runs)
+    print(
+        f"\nEstimator: {100 * share:.0f} % of the replay time, {est_s / max(frames, 1) * 1e6:.0f} µs per frame "
+        f"({est_s / len(runs):.1f} s per drive)."
+    )
     print(
         f"\nReplay (read log + decode + UKF + EKF): {frames / wall:,.0f} frames/s; whole benchmark "
         f"{time.perf_counter() - t0:.0f} s on {a.jobs} processes."
