@@ -103,7 +103,11 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
     reasons = sup.get("reasons") or {}
     excitation = sup.get("excitation") or {}
     caps = snapshot.get("capabilities") or {}
-    handed_over = snapshot.get("stage") in ("stage2", "done")
+    # stage 2 waits on stage 1 while the supervisor says so (what it waits for is its to say)
+    gate2 = str(reasons.get("2") or "no data yet")
+    handed_over = snapshot.get("stage") in ("stage2", "done") or not (
+        gate2.startswith("waiting") or gate2 == "no data yet"
+    )
 
     out: dict = {"parameters": {}, "stages": {}}
     for name in NAMES:
@@ -150,7 +154,8 @@ def _hint(name, stage, status, p, to_go, prior_std, why_not, reasons, excitation
     if status == "invalid":
         return "the estimate left its sane range; it restarts from its last good value — keep driving"
     if stage == 2 and not handed_over:
-        return "waits for l_f, h and C_K (stage 1): first " + DRIVE[1]
+        why = str(reasons.get("2") or "waiting for stage 1")
+        return f"{why}: first " + DRIVE[1]
     reason = reasons.get(str(stage))
     if status == "not_identifiable":
         extra = _EXTRA.get(name)
