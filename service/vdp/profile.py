@@ -66,6 +66,14 @@ UNIT_FACTORS: dict[str, tuple[float, str]] = {
     "m/s^2": (1.0, "accel"),
     "m/s2": (1.0, "accel"),
     "g": (9.80665, "accel"),
+    "bar": (1e5, "pressure"),
+    "mbar": (100.0, "pressure"),
+    "kPa": (1e3, "pressure"),
+    "MPa": (1e6, "pressure"),
+    "Pa": (1.0, "pressure"),
+    "psi": (6894.757, "pressure"),
+    "1": (1.0, "ratio"),
+    "%": (0.01, "ratio"),
 }
 # VW's DBCs (opendbc vw_*.dbc) spell units like this; same meaning as above.
 UNIT_ALIASES: dict[str, str] = {
@@ -98,6 +106,18 @@ CHANNEL_KINDS: dict[str, tuple[str, ...]] = {
     "roll_rate": ("angular_rate",),
     "speed": ("speed",),
 }
+
+# Source channels: what production buses send instead of per-axle torque.  They never
+# reach the estimator themselves; [drivetrain] turns them into wheel_torque_front/rear.
+SOURCES: dict[str, tuple[str, ...]] = {
+    "drive_torque": ("torque",),  # total drive torque at the wheels, of the driven axle(s)
+    "brake_torque": ("torque",),  # total brake torque, a positive magnitude
+    "brake_pressure": ("pressure",),  # master-cylinder pressure; times brake_gain is brake_torque
+}
+CHANNEL_KINDS.update(SOURCES)
+# Any unit kind is allowed in a term of a composite channel (its weight converts it).
+TERM = "term"
+CHANNEL_KINDS[TERM] = tuple({k for _, k in UNIT_FACTORS.values()})
 
 PARAMETERS = ("l_f", "h", "C_K", "C_alpha", "I_z", "I_x")
 
@@ -156,6 +176,57 @@ class ChannelMap:
 
 
 @dataclass(frozen=True)
+class Term:
+    """One signal of a composite channel: ``weight * si`` (or a factor of a product)."""
+
+    map: ChannelMap  # how the signal is read; its ``channel`` is a source name or "term"
+    weight: float = 1.0
+    when: tuple[int, frozenset[int]] | None = None  # (index of a condition, its values): else 0
+
+
+@dataclass(frozen=True)
+class Composite:
+    """A canonical channel computed from signals of one or more messages.
+
+    ``sum``: the sum of ``weight * term``; ``product``: the product of the terms (times the
+    first term's weight).  A term with ``when`` counts only while its condition signal (an
+    enum such as a gear or a direction) holds one of the given raw values.  Each term keeps
+    its newest value; the channel is emitted whenever a term arrives and every term is newer
+    than ``max_age``.
+    """
+
+    channel: str
+    op: str
+    terms: tuple[Term, ...]
+    conditions: tuple[ChannelMap, ...] = ()  # enum signals read raw
+    max_age: float = 0.5  # s
+    where: str = ""
+
+    @property
+    def messages(self) -> set[str]:
+        return {t.map.message for t in self.terms} | {c.message for c in self.conditions}
+
+
+@dataclass(frozen=True)
+class Drivetrain:
+    """Which axles drive, how the brakes split, and how brake pressure becomes torque."""
+
+    driven: str = "front"  # "front", "rear" or "all"
+    front_share: float = 0.5  # for "all": the front axle's share of the drive torque
+    brake_balance: float = 0.65  # the front axle's share of the brake torque
+    brake_gain: float | None = None  # N m of total brake torque per bar of brake pressure
+
+    @property
+    def drive_front(self) -> float:
+        return {"front": 1.0, "rear": 0.0}.get(self.driven, self.front_share)
+
+    @property
+    def free_axle(self) -> str | None:
+        """The axle no drive torque reaches ("front" or "rear"), a speed reference while unbraked."""
+        return {"front": "rear", "rear": "front"}.get(self.driven)
+
+
+@dataclass(frozen=True)
 class MessageCheck:
     """Rolling counter and checksum of one message, checked or ignored."""
 
@@ -176,13 +247,32 @@ class Profile:
     channels: dict[str, ChannelMap]
     checks: dict[str, MessageCheck] = field(default_factory=dict)
     extra_dbcs: tuple[Path, ...] = ()  # further DBCs of the same bus (dbc = [first, ...])
+    composites: dict[str, Composite] = field(default_factory=dict)
+    drivetrain: Drivetrain | None = None  # None: not given (per-axle torques mapped directly)
+    sources: dict[str, ChannelMap] = field(default_factory=dict)  # drive_torque, brake_torque, ...
 
     @property
     def dbcs(self) -> tuple[Path, ...]:
         return (self.dbc,) + self.extra_dbcs
 
+    def has(self, name: str) -> bool:
+        return name in self.channels or name in self.composites
+
+    @property
+    def speed_reference(self) -> str | None:
+        """Where stage 1 and 2 get the ground speed: "gnss", "wheels" (the free-rolling axle
+        while unbraked, with the IMU), or None."""
+        if "speed" in self.channels:
+            return "gnss"
+        dt = self.drivetrain
+        if dt is not None and dt.free_axle is not None:
+            side = "f" if dt.free_axle == "front" else "r"
+            if all(f"wheel_speed_{side}{w}" in self.channels for w in "lr"):
+                return "wheels"
+        return None
+
     def missing(self, needs: tuple[str, ...]) -> list[str]:
-        return [c for c in needs if c not in self.channels]
+        return [c for c in needs if not self.has(c) and not (c == "speed" and self.speed_reference)]
 
 
 _VEHICLE_KEYS = {
@@ -280,8 +370,8 @@ _MAP_KEYS = {
 }
 
 
-def _channel(where: str, name: str, raw: Any, nested: bool = False) -> ChannelMap:
-    w = f"{where} [channels.{name}{'.alt' if nested else ''}]"
+def _channel(where: str, name: str, raw: Any, nested: bool = False, label: str | None = None) -> ChannelMap:
+    w = f"{where} [channels.{label or (name + ('.alt' if nested else ''))}]"
     if not isinstance(raw, dict):
         raise ProfileError(f"{w}: must be a table with message, signal and unit")
     unknown = set(raw) - _MAP_KEYS
@@ -295,7 +385,8 @@ def _channel(where: str, name: str, raw: Any, nested: bool = False) -> ChannelMa
         raise ProfileError(f"{w}: unit '{unit}' is not known; use one of {_UNIT_LIST}")
     kind = UNIT_FACTORS[unit][1]
     if kind not in CHANNEL_KINDS[name]:
-        raise ProfileError(f"{w}: unit '{unit}' ({kind}) cannot be converted to {name}'s {channels.UNITS[name]}")
+        si = channels.UNITS.get(name) or {"drive_torque": "N*m", "brake_torque": "N*m"}.get(name, "Pa")
+        raise ProfileError(f"{w}: unit '{unit}' ({kind}) cannot be converted to {name}'s {si}")
     sign = _num(w, "sign", raw.get("sign", 1.0))
     if sign not in (1.0, -1.0):
         raise ProfileError(f"{w}: 'sign' must be 1 or -1, got {sign}")
@@ -353,7 +444,7 @@ def _channel(where: str, name: str, raw: Any, nested: bool = False) -> ChannelMa
     if "plausible" in raw:
         r = raw["plausible"]
         if not isinstance(r, list) or len(r) != 2:
-            raise ProfileError(f"{w}: 'plausible' must be [minimum, maximum] in {channels.UNITS[name]}")
+            raise ProfileError(f"{w}: 'plausible' must be [minimum, maximum] in {channels.UNITS.get(name, 'SI units')}")
         lo, hi = _num(w, "plausible", r[0]), _num(w, "plausible", r[1])
         if not lo < hi:
             raise ProfileError(f"{w}: 'plausible' must be [minimum, maximum] with minimum < maximum, got {r}")
@@ -420,10 +511,10 @@ def load_profile(path: str | Path) -> Profile:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ProfileError(f"{where}: not valid TOML: {exc}") from None
-    unknown = set(raw) - {"vehicle", "priors", "can", "channels", "checks"}
+    unknown = set(raw) - {"vehicle", "priors", "can", "channels", "checks", "drivetrain"}
     if unknown:
         raise ProfileError(
-            f"{where}: unknown section(s) {sorted(unknown)}; known: vehicle, priors, can, channels, checks"
+            f"{where}: unknown section(s) {sorted(unknown)}; known: vehicle, priors, can, channels, checks, drivetrain"
         )
     vehicle = _vehicle(where, raw.get("vehicle"))
     priors = _priors(where, raw.get("priors"))
@@ -454,10 +545,25 @@ def load_profile(path: str | Path) -> Profile:
     chans_raw = raw.get("channels")
     if not isinstance(chans_raw, dict) or not chans_raw:
         raise ProfileError(f"{where} [channels]: missing; map at least one of {', '.join(channels.NAMES)}")
-    bad = set(chans_raw) - set(channels.NAMES)
+    bad = set(chans_raw) - set(channels.NAMES) - set(SOURCES)
     if bad:
-        raise ProfileError(f"{where} [channels]: unknown channel(s) {sorted(bad)}; known: {', '.join(channels.NAMES)}")
-    maps = {name: _channel(where, name, entry) for name, entry in chans_raw.items()}
+        raise ProfileError(
+            f"{where} [channels]: unknown channel(s) {sorted(bad)}; known: {', '.join(channels.NAMES)}, "
+            f"and the sources {', '.join(SOURCES)}"
+        )
+    maps, comps, sources = {}, {}, {}
+    for name, entry in chans_raw.items():
+        if isinstance(entry, dict) and "terms" in entry:
+            if name in SOURCES:
+                raise ProfileError(f"{where} [channels.{name}]: a source cannot be a composite; map one signal")
+            comps[name] = _composite(where, name, entry)
+        elif name in SOURCES:
+            sources[name] = _channel(where, name, entry)
+        else:
+            maps[name] = _channel(where, name, entry)
+    drivetrain = _drivetrain(where, raw.get("drivetrain"))
+    if sources:
+        comps.update(_axle_torques(where, drivetrain, sources, maps, comps))
     return Profile(
         path=path,
         vehicle=vehicle,
@@ -467,7 +573,130 @@ def load_profile(path: str | Path) -> Profile:
         channels=maps,
         checks=_checks(where, raw.get("checks")),
         extra_dbcs=tuple(dbcs[1:]),
+        composites=comps,
+        drivetrain=drivetrain,
+        sources=sources,
     )
+
+
+def _drivetrain(where: str, raw: Any) -> Drivetrain | None:
+    if raw is None:
+        return None
+    w = f"{where} [drivetrain]"
+    if not isinstance(raw, dict):
+        raise ProfileError(f"{w}: must be a table with driven, brake_balance (and front_share, brake_gain)")
+    unknown = set(raw) - {"driven", "front_share", "brake_balance", "brake_gain"}
+    if unknown:
+        raise ProfileError(
+            f"{w}: unknown key(s) {sorted(unknown)}; allowed: brake_balance, brake_gain, driven, front_share"
+        )
+    driven = raw.get("driven", "front")
+    if driven not in ("front", "rear", "all"):
+        raise ProfileError(f'{w}: \'driven\' must be "front", "rear" or "all", got {driven!r}')
+    vals: dict[str, Any] = {"driven": driven}
+    for key in ("front_share", "brake_balance"):
+        if key in raw:
+            v = _num(w, key, raw[key])
+            if not 0.0 <= v <= 1.0:
+                raise ProfileError(f"{w}: '{key}' is the front axle's share, within [0, 1]; got {v}")
+            vals[key] = v
+    if "front_share" in raw and driven != "all":
+        raise ProfileError(f"{w}: 'front_share' applies to driven = \"all\" only")
+    if "brake_gain" in raw:
+        v = _num(w, "brake_gain", raw["brake_gain"])
+        if v <= 0:
+            raise ProfileError(f"{w}: 'brake_gain' (N m of brake torque per bar) must be positive, got {v}")
+        vals["brake_gain"] = v
+    return Drivetrain(**vals)
+
+
+def _axle_torques(where, dt, sources, maps, comps) -> dict[str, Composite]:
+    """wheel_torque_front/rear from drive_torque and brake_torque (or brake_pressure * brake_gain)."""
+    w = f"{where} [channels]"
+    if dt is None:
+        raise ProfileError(
+            f"{w}: {', '.join(sorted(sources))} need a [drivetrain] section (driven axle, brake balance) "
+            f"to become per-axle torques"
+        )
+    for name in ("wheel_torque_front", "wheel_torque_rear"):
+        if name in maps or name in comps:
+            raise ProfileError(f"{w}: map {name} directly or through drive_torque/brake_*, not both")
+    if "drive_torque" not in sources:
+        raise ProfileError(f"{w}: brake_torque or brake_pressure needs drive_torque as well")
+    if "brake_torque" in sources and "brake_pressure" in sources:
+        raise ProfileError(f"{w}: map brake_torque or brake_pressure, not both")
+    brake, gain = None, 1.0
+    if "brake_torque" in sources:
+        brake = sources["brake_torque"]
+    elif "brake_pressure" in sources:
+        if dt.brake_gain is None:
+            raise ProfileError(f"{where} [drivetrain]: brake_pressure needs 'brake_gain' (N m per bar)")
+        brake, gain = sources["brake_pressure"], dt.brake_gain / 1e5  # per Pa
+    out = {}
+    for name, d_share, b_share in (
+        ("wheel_torque_front", dt.drive_front, dt.brake_balance),
+        ("wheel_torque_rear", 1.0 - dt.drive_front, 1.0 - dt.brake_balance),
+    ):
+        terms = [Term(sources["drive_torque"], d_share)]
+        if brake is not None:
+            terms.append(Term(brake, -b_share * gain))  # brake torque acts against the drive (eq 2)
+        out[name] = Composite(name, "sum", tuple(terms), where=f"{where} [drivetrain] -> {name}")
+    return out
+
+
+def _composite(where: str, name: str, raw: dict) -> Composite:
+    w = f"{where} [channels.{name}]"
+    unknown = set(raw) - {"terms", "op", "max_age", "conditions"}
+    if unknown:
+        raise ProfileError(
+            f"{w}: unknown key(s) {sorted(unknown)} for a composite; allowed: conditions, max_age, op, terms"
+        )
+    op = raw.get("op", "sum")
+    if op not in ("sum", "product"):
+        raise ProfileError(f'{w}: \'op\' must be "sum" or "product", got {op!r}')
+    conds_raw = raw.get("conditions", [])
+    if not isinstance(conds_raw, list):
+        raise ProfileError(f"{w}: 'conditions' must be a list of {{ message, signal }} enum signals")
+    conds = []
+    for i, c in enumerate(conds_raw):
+        if not isinstance(c, dict) or set(c) != {"message", "signal"}:
+            raise ProfileError(f"{w}: conditions[{i}] must be {{ message = ..., signal = ... }}")
+        conds.append(ChannelMap(TERM, c["message"], c["signal"], "1", where=f"{w} conditions[{i}]"))
+    terms_raw = raw.get("terms")
+    if not isinstance(terms_raw, list) or not terms_raw:
+        raise ProfileError(f"{w}: 'terms' must be a non-empty list of {{ message, signal, unit, weight }}")
+    terms = []
+    for i, t in enumerate(terms_raw):
+        tw = f"{w} terms[{i}]"
+        if not isinstance(t, dict):
+            raise ProfileError(f"{tw}: must be a table with message, signal, unit (and weight, when)")
+        t = dict(t)
+        weight = _num(tw, "weight", t.pop("weight", 1.0))
+        when = None
+        if "when" in t:
+            wv = t.pop("when")
+            if (
+                not isinstance(wv, dict)
+                or set(wv) != {"condition", "values"}
+                or not isinstance(wv["condition"], int)
+                or not 0 <= wv["condition"] < len(conds)
+                or not isinstance(wv["values"], list)
+                or not all(isinstance(x, int) for x in wv["values"])
+            ):
+                raise ProfileError(
+                    f"{tw}: 'when' must be {{ condition = K, values = [...] }}, K indexing 'conditions' "
+                    f"(0 to {len(conds) - 1})"
+                )
+            when = (wv["condition"], frozenset(wv["values"]))
+        if "alt" in t:
+            raise ProfileError(f"{tw}: a term cannot have an 'alt'")
+        terms.append(Term(_channel(where, TERM, t, nested=True, label=f"{name}.terms[{i}]"), weight, when))
+    if op == "product" and any(t.when for t in terms):
+        raise ProfileError(f"{w}: 'when' applies to op = \"sum\" only")
+    max_age = _num(w, "max_age", raw.get("max_age", 0.5))
+    if max_age <= 0:
+        raise ProfileError(f"{w}: 'max_age' must be positive")
+    return Composite(name, op, tuple(terms), tuple(conds), max_age, w)
 
 
 def cache_dir() -> Path:

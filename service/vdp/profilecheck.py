@@ -164,7 +164,7 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
     """Check the profile against aligned samples: ``y[i, channel index]`` in SI (NaN where missing)."""
     rep = check_profile(profile, report)
     veh = profile.vehicle
-    have = set(profile.channels)
+    have = set(profile.channels) | set(getattr(profile, "composites", {}))
     n = len(t)
     rep.seconds = float(t[-1] - t[0]) if n > 1 else 0.0
     if n < MIN_SAMPLES:
@@ -431,6 +431,8 @@ def coverage(dec) -> Coverage:
     from .io.decoder import _hex
 
     primaries = {cm.message for cm in dec.profile.channels.values()}
+    for comp in getattr(dec.profile, "composites", {}).values():
+        primaries |= comp.messages
     wanted = {plan.name: plan.good for plan in dec._plans.values() if plan.name in primaries}
     other = sorted(dec.stats.unknown.items(), key=lambda kv: -kv[1])
     return Coverage(wanted, [(_hex(k), n) for k, n in other])

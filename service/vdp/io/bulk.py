@@ -35,6 +35,7 @@ from typing import Any
 import can
 import numpy as np
 
+from .. import channels
 from .decoder import _limits as limits  # with the profile's range overrides
 from .decoder import compile_extractor
 from .logs import EXT_KEY, LogStats, channel_keys, open_log
@@ -243,6 +244,7 @@ class BulkSource:
                 and compile_extractor(msg, need) is not None
                 and all(o[5] is None for o in p.outputs)  # an alternative source depends on another's state
                 and all(o[7] is None for o in p.outputs)  # status and plausibility: the per-frame path
+                and all(o[0] < channels.N for o in p.outputs)  # composite channels' terms: the per-frame path
             )
             out[key] = _Plan(p, msg, need, getattr(dec, "ranges", None)) if ok else None
         return out

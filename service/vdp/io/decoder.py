@@ -188,6 +188,8 @@ class FrameDecoder:
         self._validate()
         self._plans: dict[int, _Plan] = {}
         self.ranges: dict[tuple[str, str], tuple[float, float]] = {}
+        self._virtual: list[tuple[_Composite, int]] = []  # index - channels.N -> (composite, term)
+        self._composites: dict[str, _Composite] = {}
         self._build()
         self.stats = DecodeStats(
             {k: p.name for k, p in self._plans.items()}, [p for p in self._plans.values() if p.plain is not None]
@@ -255,6 +257,14 @@ class FrameDecoder:
                     f"{cmap.alt.where}: the alternative source must be another message "
                     f"than the primary '{cmap.message}'"
                 )
+        for comp in getattr(prof, "composites", {}).values():
+            for m in [t.map for t in comp.terms] + list(comp.conditions):
+                msg = self._message(m.where, m.message)
+                self._signal(m.where, msg, m.signal)
+                if m.sign_signal:
+                    self._signal(m.where, msg, m.sign_signal, "sign_signal")
+                if m.status:
+                    self._signal(m.where, msg, m.status[0], "status signal")
         for name, chk in prof.checks.items():
             where = f"{prof.path} [checks.{name}]"
             msg = self._message(where, name)
@@ -310,6 +320,39 @@ class FrameDecoder:
                 )
                 if primary is None:
                     plan.channels.append(cmap.channel)
+        # composite channels: each term and condition is a virtual output (index >= channels.N)
+        for comp in getattr(prof, "composites", {}).values():
+            state = _Composite(comp)
+            for j, m in enumerate([t.map for t in comp.terms] + list(comp.conditions)):
+                is_cond = j >= len(comp.terms)
+                msg = self.db.get_message_by_name(m.message)
+                plan = self._plan(msg)
+                msgs[plan.key] = msg
+                need = needs.setdefault(plan.key, [])
+                _need(need, m.signal, raw=is_cond, check=not is_cond)
+                if m.sign_signal:
+                    _need(need, m.sign_signal, raw=False, check=False)
+                if m.status is not None:
+                    _need(need, m.status[0], raw=True, check=False)
+                if m.range is not None:
+                    ranges[(msg.name, m.signal)] = m.range
+                f = 1.0 if is_cond else m.factor(prof.vehicle)
+                vidx = channels.N + len(self._virtual)
+                self._virtual.append((state, j))
+                outs.setdefault(plan.key, []).append(
+                    (
+                        vidx,
+                        m.signal,
+                        f * m.scale if not is_cond else 1.0,
+                        f * m.offset if not is_cond else 0.0,
+                        m.sign_signal,
+                        None,
+                        m.fine,
+                        m.status,
+                        m.plausible,
+                    )
+                )
+            self._composites[comp.channel] = state
         for key, msg in msgs.items():
             plan = self._plans[key]
             need = needs[key]
@@ -348,7 +391,7 @@ class FrameDecoder:
                     )
                 )
             if not msg.is_multiplexed() and all(
-                o[4] < 0 and o[5] is None and o[6] < 0 and o[7] is None for o in plan.outputs
+                o[0] < channels.N and o[4] < 0 and o[5] is None and o[6] < 0 and o[7] is None for o in plan.outputs
             ):
                 plan.plain = [o[:4] for o in plan.outputs]
 
@@ -429,6 +472,7 @@ class FrameDecoder:
             return [(idx, vals[pos] * mul + add) for idx, pos, mul, add in plain]
         out = []
         samples = st._counted
+        touched = None  # composite channels whose terms this frame carries
         for idx, pos, mul, add, sign_pos, primary, fine_pos, valid in plan.outputs:
             v = vals[pos]
             if v is None or (primary is not None and not primary.stale(t)):
@@ -444,11 +488,30 @@ class FrameDecoder:
             if valid is not None:
                 why = _invalid(valid, vals, v)
                 if why is not None:  # never becomes a sample; counted per channel and reason
-                    k = (channels.NAMES[idx], why)
+                    if idx >= channels.N:
+                        comp, j = self._virtual[idx - channels.N]
+                        comp.values[j] = None  # the composite waits for a valid term
+                        k = (comp.comp.channel, f"{comp.label(j)}: {why}")
+                    else:
+                        k = (channels.NAMES[idx], why)
                     st.invalid_samples[k] = st.invalid_samples.get(k, 0) + 1
                     continue
+            if idx >= channels.N:
+                comp, j = self._virtual[idx - channels.N]
+                comp.values[j], comp.times[j] = v, t
+                if touched is None:
+                    touched = [comp]
+                elif comp not in touched:
+                    touched.append(comp)
+                continue
             out.append((idx, v))
             samples[idx] += 1
+        if touched is not None:  # once per frame, after all of its terms are in
+            for comp in touched:
+                cv = comp.value(t)
+                if cv is not None:
+                    out.append((comp.index, cv))
+                    samples[comp.index] += 1
         return out
 
     def _flag(self, plan: _Plan, invalid: bool) -> None:
@@ -493,6 +556,45 @@ class FrameDecoder:
         return channel not in self.invalid_channels
 
 
+class _Composite:
+    """Live state of a composite channel: each term's newest value and time."""
+
+    def __init__(self, comp: Any):
+        self.comp = comp
+        self.index = channels.INDEX[comp.channel]
+        n = len(comp.terms) + len(comp.conditions)
+        self.values: list[float | None] = [None] * n
+        self.times = [-math.inf] * n
+        self.n_terms = len(comp.terms)
+        self.weights = [t.weight for t in comp.terms]
+        self.when = [t.when for t in comp.terms]
+        self.product = comp.op == "product"
+
+    def label(self, j: int) -> str:
+        m = self.comp.terms[j].map if j < self.n_terms else self.comp.conditions[j - self.n_terms]
+        return f"{m.message}.{m.signal}"
+
+    def value(self, t: float) -> float | None:
+        """The channel's value at ``t`` if every term (and condition) is current, else None."""
+        oldest = t - self.comp.max_age
+        vals = self.values
+        for i, ti in enumerate(self.times):
+            if ti < oldest or vals[i] is None:
+                return None
+        if self.product:
+            out = self.weights[0]
+            for i in range(self.n_terms):
+                out *= vals[i]
+            return out
+        out = 0.0
+        for i in range(self.n_terms):
+            w = self.when[i]
+            if w is not None and int(vals[self.n_terms + w[0]]) not in w[1]:
+                continue  # this piece does not apply in the current gear or direction
+            out += self.weights[i] * vals[i]
+        return out
+
+
 def _invalid(valid: tuple, vals: tuple, v: float) -> str | None:
     """Why a value is invalid by its status signal or plausible range (None: it is valid)."""
     status_pos, values, ok_if_in, lo, hi, name = valid
@@ -526,6 +628,8 @@ def load_dbc(profile: Profile) -> cantools.database.Database:
     """
     db = _load_one(profile, profile.dbc)
     used = {m.message for cm in profile.channels.values() for m in (cm, cm.alt) if m is not None}
+    for comp in getattr(profile, "composites", {}).values():
+        used |= comp.messages
     used |= set(profile.checks)
     for extra in getattr(profile, "extra_dbcs", ()):
         more = _load_one(profile, extra)

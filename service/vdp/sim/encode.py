@@ -134,6 +134,19 @@ class Encoder:
             for m in (cm, cm.alt):
                 if m is not None:
                     self._add(m, by_name)
+        for comp in getattr(profile, "composites", {}).values():
+            if comp.conditions or any(
+                t.map.channel not in ("drive_torque", "brake_torque", "brake_pressure") for t in comp.terms
+            ):
+                raise ProfileError(
+                    f"{comp.where}: the simulator encodes composite channels built by [drivetrain] only "
+                    f"(drive_torque, brake_torque, brake_pressure), not general terms or conditions"
+                )
+            for t in comp.terms:
+                gain = 1.0
+                if t.map.channel == "brake_pressure":  # the simulator's brake torque, as a pressure
+                    gain = profile.drivetrain.brake_gain / 1e5
+                self._add(t.map, by_name, source_gain=gain)
         self._checks(by_name)
         self.plans = sorted(by_name.values(), key=lambda p: p.frame_id)
         # Fixed phases inside each period so the messages interleave like on a real bus.
@@ -155,7 +168,7 @@ class Encoder:
         except KeyError:
             raise ProfileError(f"{cm.where}: message '{cm.message}' is not in {self.profile.dbc}") from None
 
-    def _add(self, cm: ChannelMap, by_name: dict[str, MessagePlan]) -> None:
+    def _add(self, cm: ChannelMap, by_name: dict[str, MessagePlan], source_gain: float = 1.0) -> None:
         msg = self._message(cm)
         if msg.is_multiplexed():
             raise ProfileError(
@@ -191,8 +204,16 @@ class Encoder:
         if cm.range is not None:  # the profile's range replaces the DBC's, within what the bits carry
             full = signal_range(sig, dbc_range=False)
             lo, hi = max(cm.range[0], full[0]), min(cm.range[1], full[1])
+        channel = "brake_torque" if cm.channel == "brake_pressure" else cm.channel
         sp = SignalPlan(
-            cm.signal, cm.channel, 1.0 / cm.factor(self.profile.vehicle), cm.scale, cm.offset, lo, hi, cm.sign_signal
+            cm.signal,
+            channel,
+            1.0 / (cm.factor(self.profile.vehicle) * source_gain),
+            cm.scale,
+            cm.offset,
+            lo,
+            hi,
+            cm.sign_signal,
         )
         if cm.fine is not None:
             try:

@@ -109,6 +109,9 @@ class Simulation:
         self.bus_channel = bus_channel or self.profile.bus_channel or "can0"
         self.params = truth_parameters(params)
         self.model = Model(Params.from_vehicle(veh, self.params))
+        dtr = getattr(self.profile, "drivetrain", None)
+        if driver is None and dtr is not None:  # drive and brake the axles as the profile says the car does
+            driver = DriverConfig(drive_front=dtr.drive_front, brake_front=dtr.brake_balance)
         self.driver_cfg = driver or DriverConfig()
         self.noise = noise if isinstance(noise, NoiseModel) else noise_model(noise, veh.steering_ratio)
         self.encoder = Encoder(self.profile)  # validates the mapping against the DBC now

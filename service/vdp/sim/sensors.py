@@ -38,7 +38,7 @@ class NoiseModel:
             "model": self.name,
             "sigma": dict(self.sigma),
             "bias_sigma": dict(self.bias_sigma),
-            "units": {c: channels.UNITS[c] for c in self.sigma},
+            "units": {c: channels.UNITS.get(c, "N*m") for c in self.sigma},
         }
 
 
@@ -59,6 +59,8 @@ def noise_model(name: str, steering_ratio: float = 1.0) -> NoiseModel:
             "yaw_rate": 0.1 * _DEG,
             "roll_rate": 0.1 * _DEG,
             "speed": 0.05,
+            "drive_torque": 5.0,  # what a production bus sends instead of per-axle torque
+            "brake_torque": 5.0,
         }
     )
     bias = {"accel_x": 0.02, "accel_y": 0.02, "yaw_rate": 0.03 * _DEG, "roll_rate": 0.03 * _DEG}
@@ -96,6 +98,9 @@ def _truth_readers() -> dict:
         "yaw_rate": lambda x, e, tf, tr, d: x[WZ],
         "roll_rate": lambda x, e, tf, tr, d: x[P],
         "speed": lambda x, e, tf, tr, d: math.hypot(x[VX], x[VY]),
+        # sources (profile.SOURCES): the total drive torque and the brake torque's magnitude
+        "drive_torque": lambda x, e, tf, tr, d: max(tf + tr, 0.0),
+        "brake_torque": lambda x, e, tf, tr, d: max(-(tf + tr), 0.0),
     }
 
 
@@ -112,8 +117,9 @@ class Sensors:
 
     def __init__(self, model: NoiseModel, bias: dict[str, float], noise_rng: np.random.Generator):
         self.model = model
-        self.bias = {c: float(bias.get(c, 0.0)) for c in channels.NAMES}
-        self.sigma = {c: model.sigma.get(c, 0.0) for c in channels.NAMES}
+        names = (*channels.NAMES, "drive_torque", "brake_torque")
+        self.bias = {c: float(bias.get(c, 0.0)) for c in names}
+        self.sigma = {c: model.sigma.get(c, 0.0) for c in names}
         self._normal = Normals(noise_rng)
 
     def read(self, channel: str, x, e, T_f: float, T_r: float, delta: float) -> float:
