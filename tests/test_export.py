@@ -147,13 +147,6 @@ def test_export_refuses_bad_input(replayed, tmp_path, capsys, args, needle):
     assert needle in err and len(err.strip().splitlines()) == 1
 
 
-def test_simulate_says_when_duration_is_capped(tmp_path, capsys):
-    out = tmp_path / "s.log"
-    assert main(["simulate", "--scenario", "stage1", "--duration", "9999", "--out", str(out)]) == 0
-    err = capsys.readouterr().err
-    assert "--duration 9999 s is longer than scenario 'stage1'" in err
-
-
 def test_plot_reads_at_a_glance(drive, repo_root):
     """The paper's Figs 5 and 7: a panel per parameter, truth line, windows in the legend, and
     axes set by the estimate once the data narrowed it, not by the prior's band."""

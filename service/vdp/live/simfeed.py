@@ -45,6 +45,10 @@ class SimFeed:
         self.sim_time = 0.0
         self.done = False
         self.error: str | None = None
+        # --sim-speed is a cap, not a promise: the feed waits when estimation falls behind,
+        # and says so (once in the log, and in status() as the speed it really ran at)
+        self.paused_s = 0.0
+        self._said_slow = False
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -78,6 +82,7 @@ class SimFeed:
             "duration": self.duration,
             "loops": self.loops,
             "frames_sent": self.sent,
+            "paused_s": self.paused_s,
             "done": self.done,
             "error": self.error,
             "truth": self.truth.get("parameters"),
@@ -140,7 +145,16 @@ class SimFeed:
                     while backlog() > PAUSE_ABOVE:
                         if stop.wait(0.002):
                             return None
-                    w0 += time.monotonic() - p0  # a pause is not lost time to catch up on
+                    waited = time.monotonic() - p0
+                    w0 += waited  # a pause is not lost time to catch up on
+                    self.paused_s += waited
+                    if speed > 0 and not self._said_slow:  # (speed 0 asks for exactly this)
+                        self._said_slow = True
+                        log.warning(
+                            "simulation: estimation cannot keep up with --sim-speed %g; the simulator "
+                            "waits for it (/status simulation.paused_s counts the waiting)",
+                            speed,
+                        )
             bus.send(msg)
             self.sent += 1
             last = ts
