@@ -212,7 +212,13 @@ function showStatus(st, health) {
   const byKind = dec.errors_by_kind || {};
   const errs = Object.values(byKind).reduce((a, b) => a + b, 0);
   const kinds = Object.entries(byKind).map(([k, n]) => `${k} ${n}`).join(", ");
+  const sim = st.simulation;
+  const source = sim
+    ? `simulated '${sim.scenario}' at ${sim.speed}x, ${fmt(sim.sim_time, 3)} of ${fmt(sim.duration, 3)} s` +
+      (sim.loops ? `, loop ${sim.loops + 1}` : "") + (sim.paused_s > 0.5 ? `, waited ${fmt(sim.paused_s, 2)} s for estimation` : "")
+    : `${bus.interface || "?"} ${bus.channel || ""}`;
   kv($("bus"), [
+    ["source", source],
     ["state", bus.state || "–", bus.state !== "up"],
     ["frames/s", fmt(bus.frames_per_s || 0, 4)],
     ["frames", String(bus.frames || 0)],
