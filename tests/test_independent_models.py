@@ -135,6 +135,7 @@ def test_brush_steady_cornering_matches_the_bicycle_closed_form(car):
     # small a_y (about 2 m/s^2): lateral load transfer and tyre curvature change it by a few per cent
     assert r == pytest.approx(r_closed, rel=0.05)
     assert ay == pytest.approx(v * r, rel=0.01)  # steady state: a_y = v r
+    _inner_wheels_slower(tr)
     # roll leans out of the turn, by the roll axis's closed form
     phi = np.cumsum(tr.values[:, ch.ROLL]) * 1e-3
     ms, d, g = m.c.m_s, m.d, m.c.g
@@ -161,6 +162,15 @@ def test_mb_understeer_gradient_sign_and_size():
     assert abs(K_closed) < math.radians(0.05) / 9.81
     assert abs(K) < math.radians(0.1) / 9.81, f"K = {math.degrees(K) * 9.81:.3f} deg/g"
     assert ay2 > 1.5 * ay1 > 0
+    _inner_wheels_slower(tr)
+
+
+def _inner_wheels_slower(tr):
+    """In a left turn (yaw rate > 0) the left wheels, on the inside, turn slower than the right ones."""
+    w = tr.values[-500:]
+    assert w[:, ch.YAW].mean() > 0.02
+    assert w[:, ch.WS_FL].mean() < w[:, ch.WS_FR].mean()
+    assert w[:, ch.WS_RL].mean() < w[:, ch.WS_RR].mean()
 
 
 # -- onto the bus -----------------------------------------------------------------------

@@ -22,7 +22,8 @@ library lacks or takes in another form:
 Sensors: a_x from the whole car's x-equation (sum of tyre forces minus drag over m), a_y
 the sprung mass's lateral acceleration (the IMU sits on the body), yaw rate, the sprung
 mass's roll rate (sign turned to vdp's: positive when the body leans out of a left
-turn), the four wheel speeds, the road-wheel angle (state 3) and the CG's ground speed.
+turn), the four wheel speeds (the library's L and R wheels sit at y = -T/2 and +T/2 of
+its own equations, i.e. on vdp's right and left), the road-wheel angle (state 3) and the CG's ground speed.
 
 Integration: classic Runge-Kutta 4 at 1 ms.  Before the drive the car runs 3 s straight
 at the start speed so that the library's initial state (not at its static equilibrium)
@@ -213,7 +214,9 @@ class MBModel(Model):
         ax = k1[3] - r * vy  # whole car: (sum of tyre forces - drag) / m
         ay = k1[10] + r * vx  # the sprung mass, where the IMU sits
         zf, zr = self._loads(x)
-        row = (x[23], x[24], x[25], x[26], T_f, T_r, x[2], ax, ay, r, -x[7], math.hypot(vx, vy), zf, zr, vx, ax)
+        # the library's 'left' wheels sit at y = -T/2 in its own equations (u_w_lf = v_x + T_f r / 2): in vdp's
+        # frame (y left) they are the right-hand wheels, so fl <- its RF, fr <- its LF (and the same at the rear)
+        row = (x[24], x[23], x[26], x[25], T_f, T_r, x[2], ax, ay, r, -x[7], math.hypot(vx, vy), zf, zr, vx, ax)
         return x1, row
 
 
