@@ -156,3 +156,61 @@ def test_both_stages_from_total_drive_and_brake_torque(tmp_path):
     par, truth = pipe.snapshot()["parameters"], sim.truth["parameters"]
     for name, tol in (("l_f", 0.01), ("h", 0.03), ("C_K", 0.03), ("C_alpha", 0.03), ("I_z", 0.05)):
         assert abs(par[name]["value"] / truth[name] - 1) < tol, (name, par[name], truth[name])
+
+
+# -- the speed reference without GNSS, and a coarse GNSS ---------------------------------------
+
+
+def no_gnss(tmp_path, driven: str):
+    prof = profile(
+        tmp_path, TOTALS, f'[drivetrain]\ndriven = "{driven}"\nbrake_balance = 0.65\n', name=f"{driven}.toml"
+    )
+    chans = {k: v for k, v in prof.channels.items() if k != "speed"}
+    import dataclasses
+
+    return dataclasses.replace(prof, channels=chans)
+
+
+def test_free_rolling_axle_is_the_speed_reference(tmp_path):
+    from vdp.core.speed import SpeedConfig, wheel_reference
+
+    rwd = no_gnss(tmp_path, "rear")
+    assert rwd.speed_reference == "wheels" and not Pipeline(rwd).capabilities()["1"]
+    assert Pipeline(rwd).estimator.cfg.speed.wheel_ref == "front"
+    awd = no_gnss(tmp_path, "all")
+    assert awd.speed_reference is None and "speed" in Pipeline(awd).capabilities()["1"]
+    cfg = SpeedConfig(wheel_ref="front")
+    assert wheel_reference(cfg, 30.0, 32.0, 0.0, 0.3) == pytest.approx(9.3)
+    assert wheel_reference(cfg, 30.0, 32.0, -500.0, 0.3) is None  # braked: no reference
+    assert wheel_reference(SpeedConfig(), 30.0, 32.0, 0.0, 0.3) is None
+
+
+def test_coarse_gnss_speed_gets_its_rounding_noise(tmp_path):
+    from vdp.core.speed import gnss_noise
+
+    text = PAPER.replace('dbc = "', 'dbc = ["').replace(
+        'vdp.dbc"', f'vdp.dbc", "{ROOT / "tests" / "data" / "gnss_mph.dbc"}"]'
+    )
+    text = "\n".join(
+        'speed = { message = "GPS_MPH", signal = "GPS_SPEED_MPH", unit = "mph" }' if ln.startswith("speed ") else ln
+        for ln in text.splitlines()
+    )
+    p = tmp_path / "mph.toml"
+    p.write_text(text)
+    noise = Pipeline(load_profile(p)).estimator.cfg.speed.gnss_noise
+    assert noise == pytest.approx(gnss_noise(0.05, 0.44704)) and noise > 0.13  # whole mph: 0.447 m/s steps
+    fine = Pipeline(load_profile(ROOT / "profiles" / "paper.toml")).estimator.cfg.speed.gnss_noise
+    assert fine == pytest.approx(0.05, rel=1e-4)  # 1 mm/s steps change nothing
+
+
+@pytest.mark.slow
+def test_both_stages_without_gnss_on_a_rear_driven_car(tmp_path):
+    """Total drive and brake torque, no GNSS: the front wheels are the speed reference."""
+    prof = no_gnss(tmp_path, "rear")
+    sim = Simulation(prof, "paper", seed=5)
+    pipe = Pipeline(prof, EstimatorConfig(baseline=False))
+    for msg in sim.frames():
+        pipe.feed(msg)
+    par, truth = pipe.snapshot()["parameters"], sim.truth["parameters"]
+    for name, tol in (("l_f", 0.01), ("h", 0.03), ("C_K", 0.03), ("C_alpha", 0.03), ("I_z", 0.05)):
+        assert abs(par[name]["value"] / truth[name] - 1) < tol, (name, par[name], truth[name])

@@ -16,7 +16,7 @@ from . import channels
 from .buffer import Aligner, SampleRing
 from .core import progress
 from .core.estimator import EstimatorConfig, TwoStageEstimator
-from .io.decoder import FrameDecoder
+from .io.decoder import FrameDecoder, estimator_config
 from .profile import Profile
 
 log = logging.getLogger(__name__)
@@ -28,6 +28,9 @@ class Pipeline:
     def __init__(self, profile: Profile, cfg: EstimatorConfig | None = None, ring_capacity: int = 3000):
         self.profile = profile
         self.decoder = FrameDecoder(profile)
+        cfg = cfg or EstimatorConfig()
+        # the speed reference this car has: GNSS at its resolution, or the free-rolling axle
+        cfg = estimator_config(profile, self.decoder.db, cfg)
         self.estimator = TwoStageEstimator(profile.vehicle, profile.priors, cfg)
         self.aligner = Aligner(stale_after=self._stale_after(), tick=self.estimator.cfg.tick)
         self.ring = SampleRing(ring_capacity)

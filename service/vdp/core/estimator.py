@@ -17,7 +17,7 @@ import numpy as np
 
 from .. import channels as ch
 from .learner import LearnerConfig, Stage1, Stage2
-from .speed import SpeedConfig, SpeedFilter
+from .speed import SpeedConfig, SpeedFilter, wheel_reference
 from .supervisor import GateConfig, Supervisor
 
 log = logging.getLogger(__name__)
@@ -79,7 +79,11 @@ class TwoStageEstimator:
         lcfg = replace(self.cfg.learner, tick=self.cfg.tick)
         self.s1 = {k: Stage1(k, vehicle, priors, lcfg) for k in kinds}
         self.s2 = {k: Stage2(k, vehicle, priors, lcfg) for k in kinds}
-        self.supervisor = Supervisor(self.cfg.gate, wheel_radius=vehicle.wheel_radius)
+        # with the free-rolling axle as the speed reference, no stage waits for a GNSS speed
+        need1, need2 = Supervisor.stage1_needs, Supervisor.stage2_needs
+        if self.cfg.speed.wheel_ref is not None:
+            need1, need2 = (tuple(i for i in n if i != ch.SPEED) for n in (need1, need2))
+        self.supervisor = Supervisor(self.cfg.gate, need1, need2, wheel_radius=vehicle.wheel_radius)
         self.speed = SpeedFilter(self.cfg.speed)
         self.gyro_bias = GyroBias()
         self.trace: deque = deque(maxlen=self.cfg.trace_len)
@@ -122,9 +126,15 @@ class TwoStageEstimator:
         if s.fresh[ch.SPEED] and math.isfinite(y[ch.SPEED]):
             # the GNSS speed belongs to its own time: carry it to the tick with a_x
             gnss = y[ch.SPEED] + (ax * s.age[ch.SPEED] if math.isfinite(ax) else 0.0)
+        noise = None
+        if gnss is None and self.cfg.speed.wheel_ref is not None:  # no GNSS: the free-rolling axle
+            f = self.cfg.speed.wheel_ref == "front"
+            left, right, tq = (ch.WS_FL, ch.WS_FR, ch.T_F) if f else (ch.WS_RL, ch.WS_RR, ch.T_R)
+            gnss = wheel_reference(self.cfg.speed, y[left], y[right], y[tq], self.vehicle.wheel_radius)
+            noise = self.cfg.speed.wheel_noise
         if s.gap:
             self.speed.reset()
-        self.speed.step(t, ax, gnss)
+        self.speed.step(t, ax, gnss, noise)
         s.v_x, s.v_std, s.ax_bias = self.speed.v, self.speed.std, self.speed.bias
 
     def reset(self, stage: int | None = None) -> None:

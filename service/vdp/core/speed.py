@@ -2,9 +2,21 @@
 
 State ``[v_x, b_ax]``: speed over ground and the accelerometer's bias.
 ``v_x`` integrates the measured a_x minus the bias (eq 1 with the IMU's a_x);
-each GNSS speed corrects it.  The wheel speeds are left out on purpose: stage
+each GNSS speed corrects it.  The driven wheels are left out on purpose: stage
 1 compares them with this speed, and an estimate built from them would carry
 the torque noise back into the slip (see :mod:`vdp.core.longitudinal`).
+
+Without GNSS, a car with one driven axle has a reference all the same: the
+free-rolling axle carries no torque while it is not braked, so its wheels turn
+at the ground speed (no slip, eq 14 with F_x = 0) up to the tyre's rolling radius.
+:func:`wheel_reference` gives that speed when it applies; the filter takes it as
+the measurement (``wheel_noise``), and while the free axle is braked the IMU
+carries the speed alone, with the bias learnt before.
+
+A GNSS speed in coarse steps (whole mph in Ford's GPS messages: 0.447 m/s) has a
+rounding error of up to half a step, uniform, so its noise is inflated by
+``step / sqrt(12)`` (:func:`gnss_noise`); otherwise the filter would trust it, and
+stage 1's C_K would come out "converged" and wrong.
 """
 
 from __future__ import annotations
@@ -19,6 +31,29 @@ class SpeedConfig:
     bias_walk: float = 0.002  # m/s^2 per sqrt(s)
     gnss_noise: float = 0.05  # m/s
     max_gap: float = 0.2  # s without a_x: restart from the next GNSS speed
+    # no GNSS: the free-rolling axle ("front" or "rear") as the reference while unbraked
+    wheel_ref: str | None = None
+    wheel_noise: float = 0.05  # m/s: rolling radius error and noise of the axle's mean wheel speed
+    brake_torque_max: float = 20.0  # N m: a free axle torque below minus this is braking
+
+
+def gnss_noise(base: float, step: float) -> float:
+    """GNSS speed noise [m/s] for a signal quantised in ``step`` m/s (rounding: uniform, step^2/12)."""
+    return math.sqrt(base * base + step * step / 12.0)
+
+
+def wheel_reference(
+    cfg: SpeedConfig, ws_left: float, ws_right: float, axle_torque: float, wheel_radius: float
+) -> float | None:
+    """Ground speed from the free-rolling axle's wheel speeds [rad/s], or None while it is braked
+    (or a value is missing)."""
+    if cfg.wheel_ref is None:
+        return None
+    if not (math.isfinite(ws_left) and math.isfinite(ws_right)):
+        return None
+    if math.isfinite(axle_torque) and axle_torque < -cfg.brake_torque_max:
+        return None  # braked: the wheels slip, they are no reference now
+    return 0.5 * (ws_left + ws_right) * wheel_radius
 
 
 class SpeedFilter:
@@ -43,9 +78,11 @@ class SpeedFilter:
     def std(self) -> float:
         return math.sqrt(self.p_vv) if self.ready else math.nan
 
-    def step(self, t: float, a_x: float, gnss: float | None) -> None:
-        """Advance to ``t`` with the measured a_x; correct with a GNSS speed valid at ``t``."""
+    def step(self, t: float, a_x: float, gnss: float | None, noise: float | None = None) -> None:
+        """Advance to ``t`` with the measured a_x; correct with a speed measured at ``t``
+        (GNSS, or the free-rolling axle), of std ``noise`` (default: ``gnss_noise``)."""
         c = self.cfg
+        r = c.gnss_noise if noise is None else noise
         dt = None if self.t is None else t - self.t
         if not math.isfinite(a_x) or dt is None or dt <= 0 or dt > c.max_gap:
             self.reset()
@@ -64,10 +101,10 @@ class SpeedFilter:
         if gnss is None or not math.isfinite(gnss):
             return
         if not self.ready:
-            self.v, self.p_vv, self.p_vb = gnss, c.gnss_noise**2, 0.0
+            self.v, self.p_vv, self.p_vb = gnss, r**2, 0.0
             self.t = t
             return
-        s = self.p_vv + c.gnss_noise**2
+        s = self.p_vv + r**2
         k_v, k_b = self.p_vv / s, self.p_vb / s
         e = gnss - self.v
         self.v += k_v * e

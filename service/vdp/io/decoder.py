@@ -875,3 +875,27 @@ class DecodeListener(can.Listener):
 
     def stop(self) -> None:
         self.stopped = True
+
+
+def speed_config(profile: Profile, db: Any, base: Any) -> Any:
+    """The speed filter's settings for this car: the GNSS noise inflated by the speed signal's
+    resolution, or the free-rolling axle as the reference when there is no GNSS."""
+    import dataclasses
+
+    from ..core.speed import gnss_noise
+
+    cm = profile.channels.get("speed")
+    if cm is not None:
+        sig = db.get_message_by_name(cm.message).get_signal_by_name(cm.fine or cm.signal)
+        step = abs(sig.conversion.scale * cm.scale * cm.factor(profile.vehicle)) if not sig.is_float else 0.0
+        return dataclasses.replace(base, gnss_noise=gnss_noise(base.gnss_noise, step), wheel_ref=None)
+    if getattr(profile, "speed_reference", None) == "wheels":
+        return dataclasses.replace(base, wheel_ref=profile.drivetrain.free_axle)
+    return base
+
+
+def estimator_config(profile: Profile, db: Any, cfg: Any) -> Any:
+    """``cfg`` (an EstimatorConfig) with this car's speed reference (:func:`speed_config`)."""
+    import dataclasses
+
+    return dataclasses.replace(cfg, speed=speed_config(profile, db, cfg.speed))
