@@ -33,6 +33,7 @@ log = logging.getLogger(__name__)
 _DEPTH = 4  # values kept per channel for interpolation
 _EPS = 1e-6  # s: time comparisons tolerate float rounding of absolute Unix times (~2e-7 s)
 RESYNC_AFTER = 10  # frames in a row behind the clock before the grid follows them back
+_MAX_T = 1e10  # s (year 2286): bus times beyond are refused; near 1e21 floats are 131,072 s apart
 
 
 @dataclass
@@ -84,7 +85,7 @@ class Aligner:
 
     def push(self, t: float, pairs) -> list[Sample]:
         """Add one frame's (channel, value) pairs at bus time ``t``; return due ticks."""
-        if not math.isfinite(t):
+        if not -_MAX_T < t < _MAX_T:  # NaN, inf, or so large a tick no longer advances (1e21 + 0.01 == 1e21)
             self.clock_backwards += 1
             return []
         out: list[Sample] = []
