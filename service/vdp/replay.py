@@ -39,6 +39,8 @@ def replay(source, pipeline, truth: dict | None = None, progress: Callable[[int,
     wall = time.monotonic() - t0
     result = pipeline.snapshot()
     duration = (last - first) if n and last is not None else 0.0
+    # a log reader sums bus time over the runs between clock steps: never negative, never a jump's years
+    duration = getattr(source.stats, "bus_time", duration)
     log_info = {
         "path": str(getattr(source, "path", "")),
         "frames": n,

@@ -155,6 +155,9 @@ def run(args) -> int:
     bad = result["log"].get("bad_lines", 0)
     if bad:
         print(f"{bad} malformed log line(s) skipped; see the JSON 'log' section for line numbers")
+    damage = result["log"].get("damage") or {}
+    if damage.get("places"):
+        print(f"{args.log}: {damage['summary']}; see the JSON 'log' section")
     if args.json_out:
         report.write_json(result, args.json_out)
         print(f"wrote {args.json_out}")

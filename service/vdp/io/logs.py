@@ -44,7 +44,7 @@ import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from decimal import Decimal
-from functools import partial
+from itertools import chain
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -64,6 +64,8 @@ _WRONG_FORMAT_AFTER = 100  # this many bad lines before any good one: not a log 
 _RESYNC_AFTER = 10  # consecutive in-order lines behind the clock: the clock jumped back, follow it
 _BLF_HEADER_SIZE = 144
 _MAX_LINE = 1 << 16  # bytes: a longer line is skipped in pieces, never held whole (a gzip line bomb)
+_BLOCK = 1 << 16  # bytes read at a time from text logs
+_LONG = bytes(bytearray(b"\x00LONG\x00"))  # marks a too-long line (compared by identity, never equal by chance)
 _MAX_TS = 1e10  # s (year 2286): later stamps are nonsense; near 1e21 a 10 ms tick cannot even advance
 _JUMP = 3600.0  # s: a forward jump beyond this starts a new run of bus time (one far-future frame)
 _MAX_CHANNELS = 1024  # distinct channel names: garbage beyond this is bad lines, not a growing table
@@ -168,6 +170,7 @@ class LogStats:
             "channels": sorted(self.channels),
             "bad_examples": [{self.unit: b.line, "reason": b.reason, "text": b.text} for b in self.examples],
             "damage": {
+                "summary": self.damage_summary(),
                 "places": self.damaged,
                 "bytes_skipped": self.lost_bytes,
                 "truncated": self.truncated,
@@ -351,6 +354,7 @@ class _Reader:
         self._back_last = 0.0
         self._back_ref = -_INF  # the clock when the last line behind it came
         self.lineno = 0
+        self.long_bytes = 0
 
     # -- bad records ---------------------------------------------------------
     def bad(self, n: int, reason: str, text: bytes | str) -> None:
@@ -425,26 +429,48 @@ class _Reader:
         return True
 
     # -- lines -----------------------------------------------------------------
-    def skip_long(self, n: int, head: bytes) -> None:
-        """The rest of a line longer than _MAX_LINE, read in pieces and dropped."""
-        read = self.src._stream.readline
-        total = len(head)
+    def blocks(self) -> Iterator[Any]:
+        """Lists of lines (without their newline), read in blocks of _BLOCK bytes.
+
+        Splitting blocks is faster than reading line by line, and bounds a line: one
+        longer than _MAX_LINE is dropped as it is read and stands as the ``_LONG`` marker
+        (its size in ``self.long_bytes``).  Chain them with itertools.chain.from_iterable.
+        """
+        read = self.src._stream.read
+        carry = b""
+        long = 0  # bytes of a too-long line skipped so far
         while True:
-            piece = read(_MAX_LINE)
-            total += len(piece)
-            if not piece or piece[-1] == 10:
-                break
-        self.bad(n, f"line longer than {_MAX_LINE} bytes ({total:,} bytes)", head[:80])
+            b = read(_BLOCK)
+            if not b:
+                if long:
+                    self.long_bytes = long
+                    yield (_LONG,)
+                elif carry:
+                    yield (carry,)
+                return
+            if long:
+                k = b.find(b"\n")
+                if k < 0:
+                    long += len(b)
+                    continue
+                self.long_bytes, long = long + k, 0
+                yield (_LONG,)
+                b = b[k + 1 :]
+            parts = (carry + b).split(b"\n") if carry else b.split(b"\n")
+            carry = parts.pop()
+            if len(carry) > _MAX_LINE:
+                long, carry = len(carry), b""
+            yield parts
+
+    def long_line(self, n: int) -> None:
+        self.bad(n, f"line longer than {_MAX_LINE} bytes ({self.long_bytes:,} bytes)", "")
 
     def lines(self) -> Iterator[str]:
         """Decoded lines of a text log, bounded in length; sets ``self.lineno``."""
-        read = self.src._stream.readline
-        n = 0
-        for line in iter(partial(read, _MAX_LINE), b""):
-            n += 1
+        for n, line in enumerate(chain.from_iterable(self.blocks()), 1):
             self.lineno = n
-            if len(line) >= _MAX_LINE and line[-1] != 10:
-                self.skip_long(n, line)
+            if line is _LONG:
+                self.long_line(n)
                 continue
             yield line.decode("utf-8", "replace")
 
@@ -566,13 +592,8 @@ class CandumpReader(_Reader):
         jump = _JUMP
         frames = skipped = 0
         lineno = 0
-        readline = partial(self.src._stream.readline, _MAX_LINE)
         try:
-            for lineno, line in enumerate(iter(readline, b""), 1):
-                if len(line) >= _MAX_LINE and line[-1] != 10:
-                    self.lineno = lineno
-                    self.skip_long(lineno, line)
-                    continue
+            for lineno, line in enumerate(chain.from_iterable(self.blocks()), 1):
                 parts = line.split()
                 if len(parts) == 3:
                     ts_b, ch_b, frame = parts
@@ -583,7 +604,10 @@ class CandumpReader(_Reader):
                     ts_b, ch_b, frame, d = parts
                     rx = _DIRS[d]
                 else:
-                    self.bad(lineno, "not '(time) channel id#data'", line)
+                    if line is _LONG:
+                        self.long_line(lineno)
+                    else:
+                        self.bad(lineno, "not '(time) channel id#data'", line)
                     continue
                 ch = chans.get(ch_b)
                 if ch is None:
@@ -1006,6 +1030,8 @@ class BlfReader(_Reader):
                     self.stats.truncated = True
                     self.damaged(self._off, len(self._buf), "the file ends inside an object (truncated)")
                     return
+                # frames live in containers: another type here is a damaged type field, or nothing we read
+                self.damaged(self._off, size, f"object of type {typ} outside a container skipped")
                 self._drop(size)
                 continue
             start = self._off
@@ -1020,7 +1046,7 @@ class BlfReader(_Reader):
                 if data:
                     yield data
                 if problem and self.stats.truncated:
-                    self.damaged(start, 0, f"the file ends inside the container at byte {start:,} (truncated)")
+                    self.damaged(start, 0, "the file ends inside a container (truncated); its readable part is used")
                     return
                 if problem:
                     if not self._resync(head, f"container at byte {start}: {problem}"):
