@@ -239,6 +239,17 @@ def test_a_gzip_line_bomb_is_skipped_in_bounded_memory(tmp_path, msgs):
     assert rss < 200, rest
     n, bad = (int(x) for x in rest.split()[:2])
     assert n == 100 and bad == 1 and "line longer than" in rest
+    # and through vdp replay, whose bulk reader hands such a log to the bounded per-frame one
+    code = (
+        "import resource, sys\n"
+        "from vdp.cli import main\n"
+        "rc = main(sys.argv[1:])\n"
+        "print('peak', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024, 'rc', rc)\n"
+    )
+    args = ["replay", str(p), "--profile", str(PROFILE), "--no-progress", "--no-ekf"]
+    r = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=120, env=ENV)
+    peak = r.stdout.split("peak ")[1].split()
+    assert int(peak[0]) < 300 and peak[2] == "0" and "1 malformed log line(s) skipped" in r.stdout, r.stdout
 
 
 def test_an_endless_plain_line_is_skipped_in_bounded_memory(tmp_path, msgs):

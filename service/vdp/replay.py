@@ -40,7 +40,9 @@ def replay(source, pipeline, truth: dict | None = None, progress: Callable[[int,
     result = pipeline.snapshot()
     duration = (last - first) if n and last is not None else 0.0
     # a log reader sums bus time over the runs between clock steps: never negative, never a jump's years
-    duration = getattr(source.stats, "bus_time", duration)
+    bus_time = getattr(source.stats, "bus_time", None)
+    if bus_time is not None:
+        duration = bus_time
     log_info = {
         "path": str(getattr(source, "path", "")),
         "frames": n,

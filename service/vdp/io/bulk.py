@@ -225,11 +225,15 @@ class BulkSource:
             block = tail + block
             cut = block.rfind(b"\n") + 1
             tail = block[cut:]
+            if len(tail) > BLOCK:  # a line longer than a block (a gzip line bomb): bounded per-frame reading
+                raise Irregular(f"a line longer than {BLOCK} bytes after line {lineno}")
             if cut:
                 lineno = self._block(block[:cut], lineno, pipe, plans, keep_arr, state)
             if progress is not None:
                 progress(self.position, state["n"])
         st.lines = lineno
+        # in order and without jumps (else Irregular): the per-frame reader's bus time is the span
+        st.bus_time = state["last"] - state["first"] if state["first"] is not None else 0.0
         if st.frames == 0 and st.skipped == 0:
             raise Irregular("no frames")
         return state["n"], state["first"]

@@ -119,7 +119,7 @@ class LogStats:
     bad: int = 0
     resyncs: int = 0  # times the log's clock jumped back and we followed it
     jumps: int = 0  # forward clock jumps beyond _JUMP (not counted as bus time)
-    bus_time: float = 0.0  # s: frames' time span, summed over the runs between clock steps
+    bus_time: float | None = None  # s: frames' time span summed over the runs between clock steps (once read)
     reasons: dict[str, int] = field(default_factory=dict)
     examples: list[BadLine] = field(default_factory=list)
     channels: set[str] = field(default_factory=set)
@@ -355,6 +355,7 @@ class _Reader:
         self._back_ref = -_INF  # the clock when the last line behind it came
         self.lineno = 0
         self.long_bytes = 0
+        self.stats.bus_time = 0.0
 
     # -- bad records ---------------------------------------------------------
     def bad(self, n: int, reason: str, text: bytes | str) -> None:
@@ -463,7 +464,7 @@ class _Reader:
             yield parts
 
     def long_line(self, n: int) -> None:
-        self.bad(n, f"line longer than {_MAX_LINE} bytes ({self.long_bytes:,} bytes)", "")
+        self.bad(n, f"line longer than {_MAX_LINE} bytes", f"{self.long_bytes:,} bytes")
 
     def lines(self) -> Iterator[str]:
         """Decoded lines of a text log, bounded in length; sets ``self.lineno``."""
