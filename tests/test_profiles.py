@@ -78,9 +78,13 @@ def test_profile_matches_its_dbc_and_lacks_what_real_buses_lack(name):
 @pytest.mark.parametrize("name", CARS)
 def test_capabilities_say_which_stage_cannot_run_and_why(name):
     cap = Pipeline(car(name)).capabilities()
-    for ch in ("wheel_torque_front", "wheel_torque_rear", "speed"):
+    # the Golf sends a brake pressure: what it lacks is exactly the drive torque
+    torque = ("drive_torque",) if car(name).sources else ("wheel_torque_front", "wheel_torque_rear")
+    # no GNSS: a front-driven car with the [drivetrain] has its rear wheels as the speed reference
+    speed = () if car(name).speed_reference else ("speed",)
+    for ch in (*torque, *speed):
         assert ch in cap["1"]
-    for ch in ("roll_rate", "speed"):
+    for ch in ("roll_rate", *speed):
         assert ch in cap["2"]
 
 
@@ -180,7 +184,8 @@ def test_simulate_cli_writes_the_cars_layout_and_replay_explains(name, tmp_path,
     res_path = tmp_path / "res.json"
     assert main(["replay", str(out), "--profile", str(prof.path), "--json", str(res_path), "--no-progress"]) == 0
     text = capsys.readouterr().out
-    assert "stage 1 cannot run: " in text and "wheel_torque_front" in text
+    lacks = "drive_torque" if prof.sources else "wheel_torque_front"  # the Golf sends a brake pressure
+    assert "stage 1 cannot run: " in text and lacks in text
     assert "stage 2 cannot run: " in text and "roll_rate" in text
     res = json.loads(res_path.read_text())
     assert res["capabilities"]["1"] and res["capabilities"]["2"]

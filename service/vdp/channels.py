@@ -43,6 +43,10 @@ DESCRIPTIONS: dict[str, str] = {
     "yaw_rate": "yaw-rate gyro",
     "roll_rate": "roll-rate gyro",
     "speed": "GNSS ground speed",
+    # sources of the axle torques (vdp.profile.SOURCES)
+    "drive_torque": "drive torque at the wheels",
+    "brake_torque": "brake torque",
+    "brake_pressure": "brake pressure",
 }
 
 # Which channels each stage needs; a profile lacking one disables the stage.

@@ -250,6 +250,7 @@ class Profile:
     composites: dict[str, Composite] = field(default_factory=dict)
     drivetrain: Drivetrain | None = None  # None: not given (per-axle torques mapped directly)
     sources: dict[str, ChannelMap] = field(default_factory=dict)  # drive_torque, brake_torque, ...
+    cycle_ms: dict[str, int] = field(default_factory=dict)  # message periods the DBC does not give
 
     @property
     def dbcs(self) -> tuple[Path, ...]:
@@ -272,7 +273,10 @@ class Profile:
         return None
 
     def missing(self, needs: tuple[str, ...]) -> list[str]:
-        return [c for c in needs if not self.has(c) and not (c == "speed" and self.speed_reference)]
+        out = [c for c in needs if not self.has(c) and not (c == "speed" and self.speed_reference)]
+        if self.sources and "drive_torque" not in self.sources:  # the one source this car lacks
+            out = ["drive_torque" if c == "wheel_torque_front" else c for c in out if c != "wheel_torque_rear"]
+        return out
 
 
 _VEHICLE_KEYS = {
@@ -525,9 +529,16 @@ def load_profile(path: str | Path) -> Profile:
         raise ProfileError(
             f"{where} [can]: missing 'dbc' (a path relative to the profile, or opendbc:NAME, or a list of them)"
         )
-    unknown = set(can) - {"dbc", "channel"}
+    unknown = set(can) - {"dbc", "channel", "cycle_ms"}
     if unknown:
-        raise ProfileError(f"{where} [can]: unknown key(s) {sorted(unknown)}; allowed: channel, dbc")
+        raise ProfileError(f"{where} [can]: unknown key(s) {sorted(unknown)}; allowed: channel, cycle_ms, dbc")
+    cycles = can.get("cycle_ms", {})
+    if not isinstance(cycles, dict) or not all(
+        isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in cycles.values()
+    ):
+        raise ProfileError(
+            f"{where} [can]: 'cycle_ms' must be a table of message = period in whole ms, e.g. {{ GPS = 1000 }}"
+        )
     dbcs = []
     for dbc_s in names:
         if dbc_s.startswith("opendbc:"):
@@ -576,6 +587,7 @@ def load_profile(path: str | Path) -> Profile:
         composites=comps,
         drivetrain=drivetrain,
         sources=sources,
+        cycle_ms=dict(cycles),
     )
 
 
@@ -622,7 +634,7 @@ def _axle_torques(where, dt, sources, maps, comps) -> dict[str, Composite]:
         if name in maps or name in comps:
             raise ProfileError(f"{w}: map {name} directly or through drive_torque/brake_*, not both")
     if "drive_torque" not in sources:
-        raise ProfileError(f"{w}: brake_torque or brake_pressure needs drive_torque as well")
+        return {}  # a brake signal alone gives no axle torque; Profile.missing names drive_torque
     if "brake_torque" in sources and "brake_pressure" in sources:
         raise ProfileError(f"{w}: map brake_torque or brake_pressure, not both")
     brake, gain = None, 1.0

@@ -201,9 +201,10 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
     if v is not None and v_ref is None:
         v = v_wheel  # the only speed there is; its scale is checked through a_y = v r below
 
-    # 2. a_x against dv/dt
+    # 2. a_x against dv/dt (of the wheels when their scale is right: a coarse GNSS steps)
     if v is not None and "accel_x" in have:
-        dv = np.gradient(_smooth(v, win), t)
+        v_d = v_wheel if v_wheel is not None and not wheel_bad else v
+        dv = np.gradient(_smooth(v_d, win), t)
         ax = _smooth(y[:, ch.AX], win)
         ok = np.isfinite(dv) & np.isfinite(ax) & (v > 1.0)
         ok[:win] = ok[-win:] = False

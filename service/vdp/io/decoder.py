@@ -646,6 +646,11 @@ def load_dbc(profile: Profile) -> cantools.database.Database:
                 )
             db.messages.append(m)
         db.refresh()
+    for name, ms in getattr(profile, "cycle_ms", {}).items():  # periods the DBC does not give
+        try:
+            db.get_message_by_name(name).cycle_time = ms
+        except KeyError:
+            raise ProfileError(f"{profile.path} [can] cycle_ms: message '{name}' is not in the DBC") from None
     return db
 
 

@@ -42,4 +42,14 @@ def with_addons(prof: Profile, dbc: Path = VDP_DBC) -> Profile:
     checks = dict(prof.checks)
     for name in ("WHEEL_TORQUE", "IMU_RATES"):
         checks[name] = MessageCheck(name, counter="COUNTER", checksum="CHECKSUM")
-    return dataclasses.replace(prof, channels=chans, checks=checks, extra_dbcs=prof.extra_dbcs + (dbc,))
+    # the add-on measures each axle's torque: the car's own drive/brake sources are not needed,
+    # and the simulator's driver keeps its default split (both axles drive and brake)
+    return dataclasses.replace(
+        prof,
+        channels=chans,
+        checks=checks,
+        extra_dbcs=prof.extra_dbcs + (dbc,),
+        composites={},
+        sources={},
+        drivetrain=None,
+    )

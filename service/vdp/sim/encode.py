@@ -198,6 +198,14 @@ class Encoder:
             raise ProfileError(f"{cm.where}: signal '{cm.signal}' is not in message '{msg.name}'") from None
         if cm.sign_signal is not None and cm.sign_signal not in {s.name for s in msg.signals}:
             raise ProfileError(f"{cm.where}: sign_signal '{cm.sign_signal}' is not in message '{msg.name}'")
+        if cm.status is not None:  # send the status a receiver reads as valid
+            sig_name, values, ok_if_in = cm.status
+            if sig_name not in plan.base:
+                raise ProfileError(f"{cm.where}: status signal '{sig_name}' is not in message '{msg.name}'")
+            if ok_if_in:
+                plan.base[sig_name] = min(values)
+            else:
+                plan.base[sig_name] = next(v for v in range(1 << 16) if v not in values)
         if any(s.signal == cm.signal for s in plan.signals):
             return  # one signal feeding two channels (e.g. a shared wheel speed): encode once
         lo, hi = signal_range(sig)

@@ -1,0 +1,80 @@
+"""More opendbc cars with production layouts: Ford's total drive and brake torque, whole-mph
+GPS at 1 Hz and quality flags; VW's brake pressure without a drive torque; Hyundai's CAN-FD."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import pytest
+
+from vdp import channels
+from vdp.io.decoder import FrameDecoder
+from vdp.pipeline import Pipeline
+from vdp.profile import load_profile
+from vdp.sim.run import Simulation
+
+pytest.importorskip("opendbc", reason="the car profiles read their DBCs from the opendbc extra")
+
+ROOT = Path(__file__).resolve().parents[1]
+FORD = ROOT / "profiles" / "ford_escape_2020.toml"
+
+
+@pytest.fixture(autouse=True)
+def quiet(tmp_path, monkeypatch):
+    monkeypatch.setenv("VDP_CACHE_DIR", str(tmp_path / "cache"))
+    logging.getLogger("vdp.sim.encode").setLevel(logging.ERROR)
+
+
+def test_ford_runs_both_stages_from_its_own_signals():
+    prof = load_profile(FORD)
+    assert Pipeline(prof).capabilities() == {"1": None, "2": None}
+    assert set(prof.composites) == {"wheel_torque_front", "wheel_torque_rear"}
+    assert prof.drivetrain.driven == "front" and prof.speed_reference == "gnss"
+
+
+def test_ford_layout_round_trips_with_1_hz_whole_mph_gps():
+    prof = load_profile(FORD)
+    sim = Simulation(prof, "paper", seed=1, duration=12.0)
+    pipe = Pipeline(prof)
+    gps = 0
+    gps_id = pipe.decoder.db.get_message_by_name("APIMGPS_Data_Nav_3_FD1").frame_id
+    for msg in sim.frames():
+        gps += msg.arbitration_id == gps_id
+        pipe.feed(msg)
+    st = pipe.decoder.stats.as_dict()
+    assert st["errors"] == {} and st["invalid_samples"] == {}
+    assert gps == 12  # once a second, as the profile's cycle_ms says
+    assert st["samples"]["speed"] == 12 and st["samples"]["wheel_torque_front"] > 1000
+    # whole mph: the speed filter's GNSS noise carries the rounding (0.447 m/s / sqrt 12)
+    assert pipe.estimator.cfg.speed.gnss_noise > 0.13
+
+
+def test_ford_quality_flags_keep_bad_samples_out():
+    prof = load_profile(FORD)
+    sim = Simulation(prof, "stage2", seed=1, duration=2.0, noise="none")
+    dec = FrameDecoder(prof)
+    msg_def = dec.db.get_message_by_name("Yaw_Data_FD1")
+    bad = 0
+    yaw = []
+    for msg in sim.frames():
+        if msg.arbitration_id == msg_def.frame_id and bad < 30:
+            vals = msg_def.decode(msg.data, decode_choices=False)
+            vals.update(VehYawWActl_D_Qf=0, VehYaw_W_Actl=6.6)  # "Faulty", saturated
+            msg.data = bytearray(msg_def.encode(vals))
+            bad += 1
+        yaw += [v for i, v in dec.decode(msg) if i == channels.YAW]
+    assert dec.stats.as_dict()["invalid_samples"] == {"yaw_rate": {"status VehYawWActl_D_Qf=0": 30}}
+    assert max(abs(v) for v in yaw) < 1.0
+
+
+def test_vw_names_exactly_the_missing_drive_torque():
+    prof = load_profile(ROOT / "profiles" / "vw_golf_mk7.toml")
+    assert "brake_pressure" in prof.sources and not prof.composites
+    cap = Pipeline(prof).capabilities()
+    assert cap["1"] == "no drive torque at the wheels (the profile maps no drive_torque)"
+
+
+def test_canfd_car_names_what_it_lacks():
+    cap = Pipeline(load_profile(ROOT / "profiles" / "hyundai_ioniq5_2022.toml")).capabilities()
+    assert "wheel_torque_front" in cap["1"] and "speed" in cap["1"] and "roll_rate" in cap["2"]
