@@ -338,6 +338,7 @@ def run(args) -> int:
         cl, cluster = client(args)
         try:
             print(f"dask: {len(cl.scheduler_info()['workers'])} workers at {cl.scheduler.address}")
+            t_run = time.monotonic()
             futures = {cl.submit(run_task, t, key=f"vdp-{t.key}", pure=False): t for t in pending}
             bar = Progress(len(pending), enabled=not args.no_progress)
             for fut in as_completed(futures):
@@ -356,6 +357,7 @@ def run(args) -> int:
                     failed.append((t.log, err))
                 bar.step(bool(err))
             bar.close()
+            print(f"ran {len(pending)} logs in {time.monotonic() - t_run:.1f} s")
         finally:
             cl.close()
             if cluster is not None:

@@ -234,7 +234,7 @@ class BulkSource:
         st.lines = lineno
         # in order and without jumps (else Irregular): the per-frame reader's bus time is the span
         st.bus_time = state["last"] - state["first"] if state["first"] is not None else 0.0
-        if st.frames == 0 and st.skipped == 0:
+        if st.frames == 0:  # the per-frame reader's words for that (an error, or a warning)
             raise Irregular("no frames")
         return state["n"], state["first"]
 
