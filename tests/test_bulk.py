@@ -127,3 +127,17 @@ def test_a_car_with_sign_and_fine_signals(repo_root, tmp_path, caplog):
         assert vectorised(caplog), car
         assert b == a, car
         assert list(pb.estimator.trace) == list(pa.estimator.trace), car
+
+
+def test_a_layout_read_differently_from_the_decoder_goes_frame_by_frame(mixed, paper, monkeypatch, caplog):
+    real = bulk._Plan.extract
+
+    def off_by_one(self, b):
+        vals, bad = real(self, b)
+        return [v + 1 for v in vals], bad
+
+    monkeypatch.setattr(bulk._Plan, "extract", off_by_one)
+    with caplog.at_level(logging.DEBUG, logger="vdp.io.bulk"):
+        (a, _), (b, _) = both(mixed, paper)
+    assert "block and frame decoders disagree" in caplog.text
+    assert b == a

@@ -284,6 +284,7 @@ class FrameDecoder:
         prof = self.profile
         # Per message: ordered list of needed signals (name, raw, range-checked).
         needs: dict[int, list[tuple[str, bool, bool]]] = {}
+        self.needs = needs  # kept: vdp.io.bulk decodes blocks of frames by the same slots
         outs: dict[int, list[tuple]] = {}
         msgs: dict[int, Any] = {}
         ranges = self.ranges  # the profile's range overrides, (message, signal) -> (lo, hi)
