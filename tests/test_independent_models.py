@@ -163,6 +163,12 @@ def test_mb_understeer_gradient_sign_and_size():
     assert abs(K) < math.radians(0.1) / 9.81, f"K = {math.degrees(K) * 9.81:.3f} deg/g"
     assert ay2 > 1.5 * ay1 > 0
     _inner_wheels_slower(tr)
+    # the profile's roll stiffness (fitted to a roll-moment step, kc_roll) gives the car's own steady roll
+    # gradient through eq 9's steady state, about a roll axis at the library's roll-axis height
+    phi = np.cumsum(tr.values[:, ch.ROLL]) * 1e-3
+    msd = m.p.m_s * (m.p.h_s - m.h_ra)
+    assert phi[-1] / ay2 == pytest.approx(msd / (m.roll_stiffness - msd * 9.81), rel=0.05)
+    assert m.roll_inertia_kc == pytest.approx(m.static_truth()["I_x"], rel=0.15)  # I_xx,s: IMU at the sprung CG
 
 
 def _inner_wheels_slower(tr):

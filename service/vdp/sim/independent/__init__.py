@@ -22,7 +22,10 @@ vdp's simulator: the drive reaches the estimator through the same DBC -> candump
 ``vdp replay`` path.
 
 What "truth" means on a model vdp did not write (written into every truth JSON under
-``definitions``; see :data:`DEFINITIONS`).
+``definitions``; see :data:`DEFINITIONS`).  The profile's known constants are what a
+user would measure: mass, wheelbase, rolling radius, wheel inertia, and the elastic
+roll stiffness and damping a K&C rig gives (brush: the model's own springs and
+dampers; mb: fitted to a roll-moment step on the model, :func:`.mb.kc_roll`).
 """
 
 from __future__ import annotations
@@ -42,8 +45,9 @@ DEFINITIONS = {
     "camber, at the mean axle loads of the steering (stage 2) part of the drive; the single value is the mean of "
     "front and rear [N/rad]",
     "I_z": "yaw inertia of the whole car about the vertical axis through its reference point [kg m^2]",
-    "I_x": "roll inertia of the sprung mass about the roll axis: I_xx,sprung + m_s d^2, d = height of the sprung "
-    "CG above the roll axis; roll rate is the sprung body's [kg m^2]",
+    "I_x": "roll inertia of the sprung mass as eq 9 sees it from where the IMU sits: I_xx,s + m_s d (d - e), "
+    "d = height of the sprung CG above the roll axis, e = height of the IMU above it (brush: IMU on the roll axis, "
+    "so I_xx,s + m_s d^2; mb: IMU at the sprung CG, so I_xx,s); roll rate is the sprung body's [kg m^2]",
 }
 
 MODELS = ("brush", "mb")

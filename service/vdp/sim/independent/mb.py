@@ -19,6 +19,10 @@ library lacks or takes in another form:
 * **aerodynamic drag**: 0.5 rho C_d A v_x |v_x| on v_x (acting at the sprung CG, so it
   adds no pitch moment about it).
 
+Known constants for the profile: the elastic roll stiffness and damping are fitted to a
+roll-moment step on the model (:func:`kc_roll`): the library spreads them over springs,
+torsion terms, tyre compliance and the lateral compliant joints.
+
 Sensors: a_x from the whole car's x-equation (sum of tyre forces minus drag over m), a_y
 the sprung mass's lateral acceleration (the IMU sits on the body), yaw rate, the sprung
 mass's roll rate (sign turned to vdp's: positive when the body leans out of a left
@@ -33,6 +37,7 @@ settles.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import math
 from dataclasses import dataclass
@@ -121,12 +126,6 @@ class MBModel(Model):
         self.p, self.x_extra = p, extra
         L = p.a + p.b
         m = p.m
-        # K&C roll stiffness of each axle: springs at the track plus the torsion term, in series with the tyres
-        kf_s = p.K_sf * p.T_f**2 / 2.0 + p.K_tsf
-        kr_s = p.K_sr * p.T_r**2 / 2.0 + p.K_tsr
-        kf_t = p.K_zt * p.T_f**2 / 2.0
-        kr_t = p.K_zt * p.T_r**2 / 2.0
-        self.k_axle = (1.0 / (1.0 / kf_s + 1.0 / kf_t), 1.0 / (1.0 / kr_s + 1.0 / kr_t))
         super().__init__(
             name="mb",
             car=car,
@@ -134,8 +133,8 @@ class MBModel(Model):
             wheelbase=L,
             wheel_radius=p.R_w,
             wheel_inertia_axle=2.0 * p.I_y_w,
-            roll_stiffness=sum(self.k_axle),
-            roll_damping=p.K_sdf * p.T_f**2 / 2.0 + p.K_sdr * p.T_r**2 / 2.0,
+            roll_stiffness=0.0,  # measured below, on the model itself
+            roll_damping=0.0,
             steering_ratio=extra.steering_ratio,
             track=0.5 * (p.T_f + p.T_r),
             g=G,
@@ -145,6 +144,8 @@ class MBModel(Model):
         self.zf0 = p.m_s * G * p.b / L + p.m_uf * G
         self.zr0 = p.m_s * G * p.a / L + p.m_ur * G
         self.lf = L * self.zr0 / (self.zf0 + self.zr0)
+        self.h_ra = p.h_raf + (p.h_rar - p.h_raf) * p.a / L  # roll axis under the sprung CG
+        self.roll_stiffness, self.roll_damping, self.roll_inertia_kc = kc_roll(car)
 
     # -- truth ------------------------------------------------------------------------
     def fx(self, kappa: float, F_z: float, axle: str) -> float:
@@ -159,15 +160,20 @@ class MBModel(Model):
         return t.formula_lateral_comb(0.0, a, 0.0, mu, F_z, f0, self.p.tire)
 
     def static_truth(self) -> dict[str, float]:
-        p = self.p
-        h_ra = p.h_raf + (p.h_rar - p.h_raf) * p.a / (p.a + p.b)
-        return {"l_f": self.lf, "I_z": p.I_z, "I_x": p.I_Phi_s + p.m_s * (p.h_s - h_ra) ** 2}
+        # the IMU sits at the sprung CG (e = d), so eq 9 sees I_xx,s + m_s d (d - e) = I_xx,s
+        return {"l_f": self.lf, "I_z": self.p.I_z, "I_x": self.p.I_Phi_s}
 
     def describe(self) -> dict:
         p = self.p
         keep = {k: getattr(p, k) for k in ("m", "m_s", "m_uf", "m_ur", "a", "b", "h_s", "h_cg", "h_raf", "h_rar")}
         keep.update({k: getattr(p, k) for k in ("I_Phi_s", "I_y_s", "I_z", "K_sf", "K_sr", "K_tsf", "K_tsr", "K_zt")})
-        keep.update({"T_f": p.T_f, "T_r": p.T_r, "R_w": p.R_w, "I_y_w": p.I_y_w, "roll_stiffness_axle": self.k_axle})
+        keep.update({"T_f": p.T_f, "T_r": p.T_r, "R_w": p.R_w, "I_y_w": p.I_y_w})
+        keep["kc_roll"] = {
+            "stiffness": self.roll_stiffness,
+            "damping": self.roll_damping,
+            "inertia_fitted": self.roll_inertia_kc,
+            "how": "fitted to a 1000 N m roll-moment step on the sprung mass at 10 m/s (kc_roll)",
+        }
         keep["vdp_extra"] = dataclasses.asdict(self.x_extra)
         keep["library"] = "commonroad-vehicle-models vehicle_dynamics_mb"
         return keep
@@ -218,6 +224,49 @@ class MBModel(Model):
         # frame (y left) they are the right-hand wheels, so fl <- its RF, fr <- its LF (and the same at the rear)
         row = (x[24], x[23], x[26], x[25], T_f, T_r, x[2], ax, ay, r, -x[7], math.hypot(vx, vy), zf, zr, vx, ax)
         return x1, row
+
+
+@functools.cache
+def kc_roll(car: str) -> tuple[float, float, float]:
+    """The car's elastic roll stiffness and damping as a K&C rig would give them, measured on the model.
+
+    The library spreads roll stiffness over springs, torsion terms, tyre compliance and
+    the lateral compliant joints, so no one of its parameters is the car's roll
+    stiffness.  A roll-moment step M on the sprung mass (driving straight at 10 m/s)
+    is fitted by least squares to M = I phi'' + c phi' + k' phi; the elastic stiffness
+    adds back gravity's share, k = k' + m_s g (h_s - h_roll_axis).  Returns (k, c, I).
+    """
+    import numpy as np
+
+    m = MBModel.__new__(MBModel)  # the physics without the measured constants (no recursion)
+    vid, extra, _ = CARS[car]
+    vp, m._init, m._tire, m._f = _library()
+    m.p, m.x_extra = vp.setup_vehicle_parameters(vehicle_id=vid), extra
+    p = m.p
+    moment = [0.0]
+    base = m.deriv
+
+    def deriv(x, T_f, T_r, delta):
+        f = base(x, T_f, T_r, delta)
+        f[7] += moment[0] / p.I_Phi_s
+        return f
+
+    m.deriv = deriv
+    x, dt = m.initial(10.0), 0.001
+    T = 30.0  # N m per axle: about what holds 10 m/s against drag and rolling resistance
+    for _ in range(2000):
+        x = m.step(x, T, T, 0.0, dt)[0]
+    rows = []
+    for i in range(3000):
+        moment[0] = 1000.0 if i >= 200 else 0.0
+        rows.append((x[6], x[7], moment[0]))
+        x = m.step(x, T, T, 0.0, dt)[0]
+    a = np.array(rows)
+    phi, rate = a[:, 0] - a[0, 0], a[:, 1]
+    A = np.column_stack([np.gradient(rate, dt), rate, phi])
+    (inertia, c, k_el), *_ = np.linalg.lstsq(A, a[:, 2], rcond=None)
+    h_ra = p.h_raf + (p.h_rar - p.h_raf) * p.a / (p.a + p.b)
+    return float(k_el + p.m_s * G * (p.h_s - h_ra)), float(c), float(inertia)
 
 
 def model(car: str = "bmw_320i") -> MBModel:
