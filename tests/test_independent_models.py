@@ -241,3 +241,24 @@ def test_vdp_simulate_model_refuses_what_it_cannot_drive(tmp_path):
     )
     assert r.returncode != 0
     assert "paper, stage1, stage2" in r.stderr
+
+
+@pytest.mark.parametrize(("model", "car"), [("brush", "saloon"), pytest.param("mb", "bmw_320i", marks=need_mb)])
+def test_coast_down_is_drag_plus_rolling_resistance(model, car):
+    """No torque: the car slows by (drag + rolling resistance) over its mass plus the wheels' spin inertia."""
+    m = get_model(model, car)
+    x = m.initial(25.0)
+    for _ in range(1500):  # let the tyres settle to their free-rolling slip
+        x, row = m.step(x, 0.0, 0.0, 0.0, 1e-3)
+    v, ax = row[ch.N + AUX.index("v_x")], row[ch.AX]
+    if model == "brush":
+        c = m.c
+        drag, f_r = 0.5 * c.rho * c.cda * v * v, c.f_r
+    else:
+        e = m.x_extra
+        drag, f_r = 0.5 * e.rho * e.cda * v * v, e.f_r
+    J4 = 2.0 * m.wheel_inertia_axle
+    # the rolling-resistance moment f_r F_z r slows the wheels, the tyres pass it on to the body
+    expect = -(drag + f_r * m.mass * m.g) / (m.mass + J4 / m.wheel_radius**2)
+    assert ax == pytest.approx(expect, rel=0.05)
+    assert -0.5 < ax < -0.1  # a few tenths of a m/s^2 at 25 m/s, as a real car coasts
