@@ -128,3 +128,15 @@ def test_replay_warns_and_marks_the_parameters_not_valid(drive, tmp_path, capsys
     assert main(["profile", "check", str(drive), "--profile", str(prof)]) == 1
     assert "set sign = -1" in capsys.readouterr().out
     assert main(["profile", "check", str(drive), "--profile", str(ROOT / "profiles" / "paper.toml")]) == 0
+
+
+def test_the_real_rav4_drive_passes_its_profile_check():
+    from conftest import REAL
+
+    log = REAL / "rav4-2018-highway-60s.log.gz"
+    if not log.is_file():
+        pytest.skip(f"no real drive at {log}")
+    pytest.importorskip("opendbc")
+    rep, cov = check_log(log, load_profile(ROOT / "profiles" / "toyota_rav4.toml"))
+    assert cov.seen == len(cov.wanted) == 3 and rep.findings == []
+    assert 0.8 < rep.measured["accel_x_per_dv_dt"] < 1.25  # the flipped ACCEL_X is right

@@ -210,9 +210,16 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
         ok[:win] = ok[-win:] = False
         strong = ok & (np.abs(dv) > 0.3)
         if strong.sum() >= MIN_SAMPLES and np.std(dv[ok]) > 0.2:
-            k = _fit(dv[ok], ax[ok])
+            # Both sides are noisy (dv/dt of a quantised speed too), so a least-squares slope
+            # would be biased low: take the ratio of the spreads with the correlation's sign
+            # (reduced major axis); means removed, for the road's grade and the sensor's offset.
+            rho = float(np.corrcoef(dv[ok], ax[ok])[0, 1])
+            k = math.copysign(float(np.std(ax[ok]) / np.std(dv[ok])), rho)
+            rep.measured["accel_x_dv_dt_correlation"] = rho
             rep.measured["accel_x_per_dv_dt"] = k
-            if k < -0.5:
+            if abs(rho) < 0.5:
+                rep.skipped["accel_x"] = f"a_x and dv/dt correlate too weakly to judge (rho = {rho:.2f})"
+            elif k < -0.5:
                 rep.add(
                     "accel_x_sign",
                     "accel_x",
