@@ -78,3 +78,28 @@ def test_vw_names_exactly_the_missing_drive_torque():
 def test_canfd_car_names_what_it_lacks():
     cap = Pipeline(load_profile(ROOT / "profiles" / "hyundai_ioniq5_2022.toml")).capabilities()
     assert "wheel_torque_front" in cap["1"] and "speed" in cap["1"] and "roll_rate" in cap["2"]
+
+
+def test_profile_new_drafts_the_ford_profile_from_its_dbc_and_a_log(tmp_path, capsys):
+    import opendbc
+
+    from vdp.cli import main
+    from vdp.sim.run import write_log
+
+    dbc = Path(opendbc.__file__).parent / "dbc" / "ford_lincoln_base_pt.dbc"
+    log = tmp_path / "ford.log"
+    write_log(Simulation(load_profile(FORD), "paper", seed=2, duration=40.0).frames(), log)
+    out = tmp_path / "draft.toml"
+    assert main(["profile", "new", "--dbc", str(dbc), "--log", str(log), "--out", str(out)]) == 0
+    draft = load_profile(out)  # a valid profile as written
+    got = {ch: (cm.message, cm.signal) for ch, cm in draft.channels.items()}
+    assert got["wheel_speed_rl"] == ("WheelSpeed", "WhlRl_W_Meas")
+    assert got["yaw_rate"] == ("Yaw_Data_FD1", "VehYaw_W_Actl")  # by behaviour: it follows steering x speed
+    assert got["accel_x"] == ("Accel_Data_FD1", "VehLong2_A_Actl")  # the other candidates are not in the log
+    assert draft.sources["drive_torque"].signal == "PrplWhlTot2_Tq_Actl"
+    assert draft.sources["brake_torque"].signal == "BrkTot_Tq_Actl"
+    assert "follows the wheel speeds" in out.read_text() and "EDIT" in out.read_text()
+    capsys.readouterr()
+    # the check validates the draft: its placeholders (wheel radius 0.31 m for 0.35 m, mass) show
+    assert main(["profile", "check", str(log), "--profile", str(out)]) == 1
+    assert "wheel_radius" in capsys.readouterr().out

@@ -409,6 +409,10 @@ def check_log(
 
     dec = FrameDecoder(profile)
     stale = np.full(ch.N, 0.5)
+    for name, cm in profile.channels.items():  # a 1 Hz GPS stays usable between its frames
+        cycle = dec.db.get_message_by_name(cm.message).cycle_time
+        if cycle:
+            stale[ch.INDEX[name]] = max(5.0 * cycle / 1000.0, 0.5)
     al = Aligner(stale_after=stale, tick=TICK)
     ts: list[float] = []
     rows: list[np.ndarray] = []

@@ -1,6 +1,7 @@
-"""vdp profile: check a vehicle profile against a log of the car.
+"""vdp profile: check a vehicle profile against a log of the car, or draft one from a DBC.
 
 vdp profile check drive.log --profile profiles/mycar.toml [--json out.json] [--seconds 300]
+vdp profile new --dbc car.dbc [--log drive.log] [--out mycar.toml]
 
 Exit status 0 when the profile fits the log, 1 when a check found a mismatch (each
 printed with the channel and the likely fix), 2 on an error (a log that holds too few of
@@ -10,6 +11,7 @@ the profile's messages is one).
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 from .paths import check_output
 
@@ -28,10 +30,38 @@ def add_parser(sub):
     c.add_argument("--profile", required=True, help="the vehicle profile TOML")
     c.add_argument("--seconds", type=float, default=300.0, help="bus time read from the log's start (default 300)")
     c.add_argument("--json", dest="json_out", metavar="PATH", help="write the findings as JSON")
+    n = s.add_parser("new", help="draft a profile from a DBC (and a log): candidate signals per channel")
+    n.add_argument("--dbc", required=True, help="the car's DBC file")
+    n.add_argument("--log", help="a CAN log of the car: rank the candidates by how their values behave")
+    n.add_argument("--out", default="draft.toml", help="where to write the TOML draft (default draft.toml)")
+    n.add_argument("--name", default="my-car", help="the vehicle's name in the draft")
     return p
 
 
+def run_new(args) -> int:
+    from ..errors import ConfigError
+    from ..io import dbcfix
+    from ..scaffold import behaviour, candidates, draft
+
+    check_output(args.out, "--out", (".toml",))
+    dbc = Path(args.dbc).resolve()
+    if not dbc.is_file():
+        raise ConfigError(f"--dbc {args.dbc}: no such file")
+    db = dbcfix.load(dbc)
+    cands = candidates(db)
+    if args.log:
+        behaviour(db, cands, args.log)
+    for ch, cs in cands.items():
+        best = ", ".join(f"{c.message}.{c.signal} [{c.dbc_unit or '-'}]" for c in cs[:3]) or "none"
+        print(f"{ch:20} {best}")
+    Path(args.out).write_text(draft(dbc, cands, args.name), encoding="utf-8")
+    print(f"wrote {args.out}: edit the values marked EDIT, then run vdp profile check LOG --profile {args.out}")
+    return 0
+
+
 def run(args) -> int:
+    if args.action == "new":
+        return run_new(args)
     from ..errors import ConfigError
     from ..profile import load_profile
     from ..profilecheck import check_log, lines

@@ -1,0 +1,246 @@
+"""A first profile for a new car: candidate DBC signals per channel, by name and unit, and
+with a log of the car, by behaviour.
+
+:func:`candidates` scores every signal of the DBC for each channel (and source) by its
+name (English, German and the usual abbreviations) and whether its unit can be converted
+to the channel's.  With a log (:func:`behaviour`), the signals that never move are pushed
+down, wheel-speed candidates are ranked by how closely they follow the others, and
+yaw-rate candidates by how well they follow the steering angle times the speed.
+:func:`draft` writes a commented TOML profile that ``vdp profile check`` then validates.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import channels
+from .profile import CHANNEL_KINDS, SOURCES, UNIT_FACTORS
+
+# channel -> (patterns that must all match the lower-case "message.signal", patterns that add)
+_B = r"(^|[._])"  # a token boundary before
+_E = r"([._]|$)"  # and after
+_PATTERNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "wheel_speed_fl": (
+        (r"wh(ee)?l|rad|wheel", rf"fl|front_?left|left_?front|{_B}(lf|vl){_E}"),
+        (r"sp(ee)?d|_w_|geschw",),
+    ),
+    "wheel_speed_fr": (
+        (r"wh(ee)?l|rad|wheel", rf"fr|front_?right|right_?front|{_B}(rf|vr){_E}"),
+        (r"sp(ee)?d|_w_|geschw",),
+    ),
+    "wheel_speed_rl": (
+        (r"wh(ee)?l|rad|wheel", rf"rl|rear_?left|left_?rear|{_B}(lr|hl){_E}"),
+        (r"sp(ee)?d|_w_|geschw",),
+    ),
+    "wheel_speed_rr": ((r"wh(ee)?l|rad|wheel", rf"rr|rear_?right|right_?rear|{_B}hr{_E}"), (r"sp(ee)?d|_w_|geschw",)),
+    "steering_angle": ((r"ste(er)?|str|lenk|sas|lwi|pin",), (r"ang|an_|winkel|_an", r"wheel|whl|comp|est")),
+    "yaw_rate": ((r"yaw|gier",), (r"rate|_w_|rt|gierrate", r"veh|esp|esc|imu")),
+    "accel_x": ((r"lon|laeng|ax\b|accel_?x|long",), (r"acc|_a_|beschl", r"veh|esp|esc|imu")),
+    "accel_y": ((r"lat|quer|ay\b|accel_?y",), (r"acc|_a_|beschl", r"veh|esp|esc|imu")),
+    "roll_rate": ((r"rol",), (r"rate|_w_|rt", r"veh|imu")),
+    "speed": ((r"gps|gnss|nav",), (r"sp(ee)?d|vel|_v_",)),
+    "drive_torque": ((r"tq|torq|moment",), (r"wh(ee)?l|whl|prpl|drive|axle|rad", r"tot|actl|ist")),
+    "brake_torque": ((r"tq|torq|moment", r"brk|brake|brems"), (r"tot|actl|ist",)),
+    "brake_pressure": ((r"press|druck", r"brk|brake|brems|esp"), (r"mc|master|haupt|bremsdruck",)),
+    "wheel_torque_front": ((r"tq|torq", rf"front|vorder|{_B}(fa|va){_E}"), (r"wh(ee)?l|axle|achs",)),
+    "wheel_torque_rear": ((r"tq|torq", rf"rear|hinter|{_B}(ra|ha){_E}"), (r"wh(ee)?l|axle|achs",)),
+}
+_NOT = re.compile(r"counter|_cnt|checksum|_cs\b|crc|alive|_qf|stat|warn|req|rq|lamp|btn|button|cmd|target|trg|max|min")
+UNIT_GUESS = {  # DBC unit spellings vdp's table does not hold
+    "radians/second": "rad/s",
+    "rad/sec": "rad/s",
+    "degrees": "deg",
+    "degree": "deg",
+    "degrees/second": "deg/s",
+    "deg/sec": "deg/s",
+    "kph": "km/h",
+    "mph": "mph",
+    "nm": "Nm",
+    "newton meter": "Nm",
+    "bar": "bar",
+    "kilopascal": "kPa",
+    "m/s2": "m/s^2",
+    "m/s²": "m/s^2",
+}
+
+
+@dataclass
+class Candidate:
+    message: str
+    signal: str
+    unit: str | None  # vdp's name of the DBC unit, if known
+    dbc_unit: str
+    score: float
+    note: str = ""
+
+
+def unit_of(dbc_unit: str | None) -> str | None:
+    u = (dbc_unit or "").strip()
+    if u in UNIT_FACTORS:
+        return u
+    return UNIT_GUESS.get(u.lower()) or next((k for k in UNIT_FACTORS if k.lower() == u.lower()), None)
+
+
+def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
+    """Per channel (and source), the best-scoring signals of the DBC by name and unit."""
+    out: dict[str, list[Candidate]] = {}
+    names = [*channels.NAMES, *SOURCES]
+    for ch in names:
+        must, more = _PATTERNS[ch]
+        kinds = CHANNEL_KINDS[ch]
+        found = []
+        for m in db.messages:
+            for s in m.signals:
+                name = f"{m.name}.{s.name}".lower()
+                if not all(re.search(p, name) for p in must) or _NOT.search(s.name.lower()) or s.length < 6:
+                    continue
+                unit = unit_of(s.unit)
+                score = 1.0 + sum(1.0 for p in more if re.search(p, name))
+                if unit is not None:
+                    score += 2.0 if UNIT_FACTORS[unit][1] in kinds else -3.0
+                found.append(Candidate(m.name, s.name, unit, s.unit or "", score))
+        found.sort(key=lambda c: -c.score)
+        out[ch] = found[:top]
+    return out
+
+
+def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, seconds: float = 120.0) -> None:
+    """Re-rank the candidates by what their values do in a log of the car (in place)."""
+    from .io.logs import open_log
+
+    wanted = {(c.message, c.signal) for cs in cands.values() for c in cs}
+    by_id = {}
+    for m in db.messages:
+        if any(msg == m.name for msg, _ in wanted):
+            by_id[(m.frame_id, m.is_extended_frame)] = m
+    series: dict[tuple[str, str], list[tuple[float, float]]] = {k: [] for k in wanted}
+    t0 = None
+    with open_log(log_path) as src:
+        for msg in src:
+            t0 = msg.timestamp if t0 is None else t0
+            if msg.timestamp - t0 > seconds:
+                break
+            m = by_id.get((msg.arbitration_id, msg.is_extended_id))
+            if m is None or len(msg.data) != m.length:
+                continue
+            try:
+                vals = m.decode(bytes(msg.data), decode_choices=False)
+            except Exception:  # a frame of another layout: skip it
+                continue
+            for s, v in vals.items():
+                if (m.name, s) in series and isinstance(v, (int, float)) and math.isfinite(v):
+                    series[(m.name, s)].append((msg.timestamp - t0, float(v)))
+    grid = np.arange(0.0, seconds, 0.05)
+
+    def on_grid(key):
+        pts = series.get(key) or []
+        if len(pts) < 20:
+            return None
+        a = np.asarray(pts)
+        return np.interp(grid[grid <= a[-1, 0]], a[:, 0], a[:, 1])
+
+    def corr(a, b):
+        n = min(len(a), len(b))
+        if n < 20 or np.std(a[:n]) == 0 or np.std(b[:n]) == 0:
+            return 0.0
+        return float(np.corrcoef(a[:n], b[:n])[0, 1])
+
+    for cs in cands.values():
+        for c in cs:
+            g = on_grid((c.message, c.signal))
+            if g is None:
+                c.score -= 2.0
+                c.note = "not in the log"
+            elif np.std(g) == 0:
+                c.score -= 2.0
+                c.note = "never moves in the log"
+    wheels = [on_grid((c.message, c.signal)) for w in ("fl", "fr", "rl", "rr") for c in cands[f"wheel_speed_{w}"][:1]]
+    wheels = [w for w in wheels if w is not None]
+    if wheels:
+        n = min(len(w) for w in wheels)
+        ref = np.median(np.stack([w[:n] for w in wheels]), axis=0)
+        for w in ("fl", "fr", "rl", "rr"):
+            for c in cands[f"wheel_speed_{w}"]:
+                g = on_grid((c.message, c.signal))
+                if g is not None:
+                    r = corr(g, ref)
+                    c.score += 2.0 * r
+                    c.note = c.note or f"follows the wheel speeds (r = {r:.2f})"
+        steer = next((on_grid((c.message, c.signal)) for c in cands["steering_angle"][:1]), None)
+        if steer is not None:
+            n = min(len(steer), len(ref))
+            turn = steer[:n] * ref[:n]
+            for c in cands["yaw_rate"]:
+                g = on_grid((c.message, c.signal))
+                if g is not None:
+                    r = corr(g, turn)
+                    c.score += 2.0 * abs(r)
+                    c.note = c.note or f"looks like a yaw rate (r = {r:+.2f} with steering x speed)"
+    for cs in cands.values():
+        cs.sort(key=lambda c: -c.score)
+
+
+def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car") -> str:
+    """A commented TOML profile: the best candidate per channel mapped, the others as comments."""
+    L = [
+        f"# Draft profile for {name}, written by `vdp profile new` from {dbc.name}.",
+        "# Every value marked EDIT is a placeholder: put in your car's numbers, then run",
+        "#   vdp profile check LOG --profile THIS_FILE",
+        "# on a drive with some acceleration, braking and turns; it names each sign or unit it doubts.",
+        "",
+        "[vehicle]",
+        f'name = "{name}"',
+        "mass = 1500.0              # kg as driven (kerb weight plus occupants): EDIT",
+        "wheelbase = 2.65           # m: EDIT",
+        "wheel_radius = 0.31        # m, rolling radius of the tyres: EDIT",
+        "wheel_inertia = 2.0        # kg m^2 per axle, both wheels lumped: EDIT",
+        "roll_stiffness = 80000.0   # N m/rad: EDIT (about 6 deg/g for a passenger car)",
+        "roll_damping = 5000.0      # N m s/rad: EDIT",
+        "steering_ratio = 15.0      # steering-wheel / road-wheel angle: EDIT",
+        "track = 1.55               # m: EDIT",
+        "",
+        "[priors]                   # vague on purpose; l_f must lie inside the wheelbase",
+        "l_f     = { value = 1.15,    std = 0.3 }",
+        "h       = { value = 0.55,    std = 0.2 }",
+        "C_K     = { value = 8.0,     std = 4.0 }",
+        "C_alpha = { value = 80000.0, std = 40000.0 }",
+        "I_z     = { value = 2500.0,  std = 1200.0 }",
+        "I_x     = { value = 600.0,   std = 400.0 }",
+        "",
+        "[can]",
+        f'dbc = "{dbc}"',
+        "",
+    ]
+    has_sources = bool(cands.get("drive_torque")) and not cands.get("wheel_torque_front")
+    if has_sources:
+        L += [
+            "[drivetrain]               # which axles drive, how the brakes split: EDIT",
+            'driven = "front"',
+            "brake_balance = 0.65",
+            "",
+        ]
+    L.append("[channels]")
+    for ch in [*channels.NAMES, *SOURCES]:
+        cs = cands.get(ch) or []
+        if ch in ("wheel_torque_front", "wheel_torque_rear") and has_sources:
+            continue
+        if ch in SOURCES and not has_sources:
+            continue
+        if not cs:
+            L.append(f"# {ch}: no candidate in the DBC")
+            continue
+        best = cs[0]
+        unit = best.unit or "EDIT"
+        flag = "" if best.unit else f"  # DBC unit '{best.dbc_unit}' unknown to vdp: EDIT unit"
+        extra = ", steering_wheel = true" if ch == "steering_angle" else ""
+        why = f"  # {best.note}" if best.note and not flag else ""
+        line = f'{ch} = {{ message = "{best.message}", signal = "{best.signal}", unit = "{unit}"{extra} }}'
+        L.append(("# " if not best.unit else "") + line + (flag or why))
+        for c in cs[1:3]:
+            L.append(f"#   or {c.message}.{c.signal} [{c.dbc_unit or '-'}]" + (f" ({c.note})" if c.note else ""))
+    return "\n".join(L) + "\n"
