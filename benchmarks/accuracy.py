@@ -64,26 +64,26 @@ def run_one(args) -> dict:
         pipe.feed(msg)
         n += 1
     wall = time.perf_counter() - t0
-    snap = pipe.snapshot()
+    res = pipe.result(trace=True)
     tp = truth["parameters"]
     out = {"seed": seed, "frames": n, "wall": wall, "ukf": {}, "ekf": {}}
-    for kind, key in (("ukf", "parameters"), ("ekf", "baseline_ekf")):
+    for kind, params in (("ukf", res.parameters), ("ekf", res.baseline_ekf)):
         for name in NAMES:
-            e = snap[key][name]
-            v, sd = e["value"], e["std"]
+            e = params[name]
+            v, sd = e.value, e.std
             err = None if v is None else (v - tp[name]) / tp[name]
             out[kind][name] = {
                 "err": err,
                 "std": sd,
-                "status": e["status"],
+                "status": e.status,
                 "covered": bool(v is not None and sd is not None and abs(v - tp[name]) <= 2 * sd),
             }
     # time for stage 1 to get within 2 % and stay there, from its first window
-    wins = [w for w in snap["windows"] if w["stage"] == 1]
-    t_open = wins[0]["start"] if wins else None
+    wins = [w for w in res.windows if w.stage == 1]
+    t_open = wins[0].start if wins else None
     t_in = None
     if t_open is not None:
-        for row in pipe.estimator.trace:
+        for row in res.trace:
             t, ukf = row[0], row[2]
             ok = all(
                 ukf[i][0] is not None and abs(ukf[i][0] - tp[n_]) <= 0.02 * tp[n_]
@@ -96,8 +96,7 @@ def run_one(args) -> dict:
                 t_in = None
     out["t_stage1_2pct"] = None if t_in is None else t_in - t_open
     out["windows"] = [
-        (w["stage"], round(w["start"] - first, 1), None if w["end"] is None else round(w["end"] - first, 1))
-        for w in snap["windows"]
+        (w.stage, round(w.start - first, 1), None if w.end is None else round(w.end - first, 1)) for w in res.windows
     ]
     return out
 

@@ -27,11 +27,11 @@ def times(scenario: str, seed: int) -> tuple[float, dict]:
         t = msg.timestamp
         first = t if first is None else first
         if n % CHECK_EVERY == 0:
-            snap = pipe.snapshot()
+            snap = pipe.result().to_dict()
             for name, e in snap["parameters"].items():
                 if name not in done and e["status"] == "converged":
                     done[name] = (round(t - first, 1), snap["coaching"]["parameters"][name]["window_s"])
-    final = pipe.snapshot()["parameters"]
+    final = pipe.result().to_dict()["parameters"]
     return t - first, {k: done.get(k, final[k]["status"]) for k in final}
 
 

@@ -171,7 +171,7 @@ def run_one(job) -> dict:
 
         pipe.estimator.handle = timed
         t0 = time.perf_counter()
-        res = replay(open_log(log, channel=profile.bus_channel), pipe)
+        res = replay(open_log(log, channel=profile.bus_channel), pipe).to_dict()
         wall = time.perf_counter() - t0
     est = pipe.estimator
     out = {"case": case, "seed": seed, "noise": noise, "wall": wall, "frames": res["log"]["frames"]}

@@ -92,7 +92,7 @@ def run_one(args) -> dict:
     for msg in frames:
         pipe.feed(msg)
     cpu = time.process_time() - t0
-    snap = pipe.snapshot()
+    snap = pipe.result().to_dict()
     out = {"car": car, "scale": scale, "seed": seed, "cpu": cpu}
     for kind, key in (("ukf", "parameters"), ("ekf", "baseline_ekf")):
         out[kind] = {}

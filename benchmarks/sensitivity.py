@@ -42,8 +42,8 @@ def run(profile, frames, truth: dict, moved: str | None, step: float) -> tuple[d
             pipe.feed(msg)
     finally:
         Stage2.set_stage1 = original
-    p = pipe.snapshot()["parameters"]
-    return {n: (p[n]["value"] - truth[n]) / truth[n] for n in STAGE2}, pipe
+    p = pipe.result().parameters
+    return {n: (p[n].value - truth[n]) / truth[n] for n in STAGE2}, pipe
 
 
 def correlation(pipe) -> str:

@@ -84,7 +84,7 @@ def ours(path: Path) -> tuple[int, float, float, dict]:
     t0 = clock()
     result = replay(open_log(path), pipe)
     wall = clock() - t0
-    return result["log"]["frames"], wall, result["log"]["duration_s"], result
+    return result.log.frames, wall, result.log.duration_s, result
 
 
 def layers(path: Path) -> None:
@@ -151,7 +151,7 @@ def main() -> int:
     print(f"bare can.LogReader: {n_bare / t_bare:,.0f} frames/s ({t_bare:.1f} s)")
     print(f"vdp replay pipeline: {n_ours / t_ours:,.0f} frames/s ({t_ours:.1f} s), {duration / t_ours:.0f}x real time")
     print(f"ratio (replay / bare reader): {(n_ours / t_ours) / (n_bare / t_bare):.2f}")
-    windows = result["windows"]
+    windows = result.to_dict()["windows"]  # times since the start of the log
     busy = sum((w["end"] or duration) - w["start"] for w in windows)
     print(f"windows: {len(windows)}, filters ran on {100 * busy / duration:.0f} % of the drive")
     if a.layers:

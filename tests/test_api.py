@@ -8,14 +8,15 @@ import logging
 import math
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import can
 import pytest
 from fastapi.testclient import TestClient
 
 from vdp.api import check_host, create_app
+from vdp.core.result import Estimate, WindowSpan
 from vdp.live import Service
+from vdp.result import Clock, Freshness, RunResult
 from vdp.settings import ApiSettings, BusSettings, RawLogSettings, ServiceSettings, Settings, StoreSettings
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,23 +35,39 @@ class FakePipeline:
         self.resets: list = []
         self.restored = None
         self.lf = 1.25
-        self.decoder = SimpleNamespace(
-            stats=SimpleNamespace(
-                as_dict=lambda: {
-                    "frames": self.frames,
-                    "errors": {"0x123": {"dlc": 2}},
-                    "errors_by_kind": {"dlc": 2},
-                    "unknown_ids": [{"id": "0x7FF", "count": 1}],
-                    "invalid_channels": [],
-                }
-            )
-        )
-        self.aligner = SimpleNamespace(clock_backwards=0, clock_jumps=0)
-        self.estimator = SimpleNamespace(restore=self._restore)
 
-    def _restore(self, params):
+    def restore(self, params):
         self.restored = params
-        self.lf = params["l_f"]["value"]
+        self.lf = params["l_f"].value
+
+    def decode(self):
+        return {
+            "frames": self.frames,
+            "errors": {"0x123": {"dlc": 2}},
+            "errors_by_kind": {"dlc": 2},
+            "unknown_ids": [{"id": "0x7FF", "count": 1}],
+            "invalid_channels": [],
+        }
+
+    def result(self, trace=False):
+        """The typed result, from the plain dicts below (which subclasses change)."""
+        snap = self.snapshot()
+        ekf = snap["baseline_ekf"]
+        return RunResult(
+            parameters={k: Estimate.from_dict(k, v) for k, v in snap["parameters"].items()},
+            baseline_ekf=None if ekf is None else {k: Estimate.from_dict(k, v) for k, v in ekf.items()},
+            stage=snap["stage"],
+            supervisor=snap["supervisor"],
+            windows=tuple(WindowSpan(**w) for w in snap["windows"]),
+            resets=snap["resets"],
+            capabilities=snap["capabilities"],
+            decode=self.decode(),
+            clock=Clock(),
+            channels={k: Freshness(**v) for k, v in self.freshness().items()},
+            frames=self.frames,
+            samples=self.samples,
+            bus_time=self.last_bus_time,
+        )
 
     def feed(self, msg):
         self.frames += 1

@@ -22,7 +22,7 @@ def both(path, profile, **kw):
             path, lambda: Pipeline(profile, EstimatorConfig(baseline=False)), bulk=is_bulk,
             channel=profile.bus_channel, **kw,
         )  # fmt: skip
-        doc = json.loads(json.dumps(doc))
+        doc = json.loads(json.dumps(doc.to_dict()))
         for k in ("wall_s", "realtime_factor"):
             doc["log"].pop(k)
         out.append((doc, pipe))

@@ -28,24 +28,24 @@ def run(profile, scenario, seed, noise, **kw):
     pipe = Pipeline(profile)
     for msg in frames:
         pipe.feed(msg)
-    return pipe, pipe.snapshot(), truth["parameters"]
+    return pipe, pipe.result(), truth["parameters"]
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("noise,seed", [("none", 1), ("realistic", 7)])
 def test_paper_drive_converges_to_truth(profile, noise, seed):
     pipe, snap, truth = run(profile, "paper", seed, noise)
-    p = snap["parameters"]
+    p = snap.parameters
     for name, tol in TOL.items():
-        err = (p[name]["value"] - truth[name]) / truth[name]
+        err = (p[name].value - truth[name]) / truth[name]
         assert abs(err) <= tol, f"{name}: {100 * err:+.2f} % (tolerance {100 * tol} %)"
-        assert p[name]["valid"] and p[name]["status"] == "converged", name
+        assert p[name].valid and p[name].status == "converged", name
     # I_x barely moves any signal in this manoeuvre (NOTES 5): it must be flagged, not shown as confident
     ix = p["I_x"]
-    assert ix["status"] == "not_identifiable" and not ix["valid"]
-    assert abs(ix["value"] - truth["I_x"]) <= 2 * ix["std"]
+    assert ix.status == "not_identifiable" and not ix.valid
+    assert abs(ix.value - truth["I_x"]) <= 2 * ix.std
     # the EKF baseline runs beside it on the same windows
-    assert all(snap["baseline_ekf"][n]["samples"] > 0 for n in NAMES)
+    assert all(snap.baseline_ekf[n].samples > 0 for n in NAMES)
     # stage 2 considers stage 1's l_f: never moved, its uncertainty reaches C_alpha (1 % of
     # l_f is about 4 % of C_alpha here), so the two end up clearly correlated
     for kind, l2 in pipe.estimator.s2.items():
@@ -54,18 +54,18 @@ def test_paper_drive_converges_to_truth(profile, noise, seed):
         if l2.filter is not None:
             assert l2.filter.x[lateral.L_F] == pytest.approx(s1.value, rel=1e-12)
         assert l2.l_f_correlation()[0] > 0.1, kind  # C_alpha's
-    stages = {w["stage"] for w in snap["windows"]}
+    stages = {w.stage for w in snap.windows}
     assert stages == {1, 2}
 
 
 @pytest.mark.slow
 def test_stage1_alone_leaves_stage2_not_run(profile):
     _, snap, truth = run(profile, "stage1", 3, "realistic")
-    p = snap["parameters"]
+    p = snap.parameters
     for name in ("l_f", "h", "C_K"):
-        assert abs(p[name]["value"] - truth[name]) <= TOL[name] * truth[name], name
+        assert abs(p[name].value - truth[name]) <= TOL[name] * truth[name], name
     for name in ("C_alpha", "I_z", "I_x"):
-        assert p[name]["status"] == "not_run" and not p[name]["valid"]
+        assert p[name].status == "not_run" and not p[name].valid
 
 
 def test_a_diverging_filter_resets_to_its_last_good_estimate(profile):
@@ -78,10 +78,8 @@ def test_a_diverging_filter_resets_to_its_last_good_estimate(profile):
     for _ in range(learner.cfg.block):  # one filter step needs a full block of samples
         learner.handle(100.0, _sample_like(pipe))
     assert learner.resets == 1 and "non-finite" in learner.last_error
-    snap = pipe.snapshot()
-    assert all(
-        v is not None and math.isfinite(v) for v in (snap["parameters"][n]["value"] for n in ("l_f", "h", "C_K"))
-    )
+    snap = pipe.result()
+    assert all(v is not None and math.isfinite(v) for v in (snap.parameters[n].value for n in ("l_f", "h", "C_K")))
     np.testing.assert_allclose(learner.theta, good)
 
 
@@ -91,13 +89,12 @@ def _sample_like(pipe):
     from vdp.buffer import Sample
 
     t, v = pipe.ring.latest(1)
-    s = Sample(float(t[0]), v[0].copy(), np.ones(ch.N, bool), np.zeros(ch.N))
-    s.v_x, s.v_std = 20.0, 0.02
-    return s
+    n = ch.N
+    return Sample(float(t[0]), tuple(v[0].tolist()), (True,) * n, (0.0,) * n, v_x=20.0, v_std=0.02)
 
 
 def test_no_confident_estimate_from_a_drive_without_excitation(profile):
     # the first seconds of the stage-2 scenario: constant speed, straight, no steering yet
     _, snap, _ = run(profile, "stage2", 4, "realistic", duration=2.0)
     for name in NAMES:
-        assert not snap["parameters"][name]["valid"], name
+        assert not snap.parameters[name].valid, name

@@ -23,6 +23,7 @@ from test_api import make_settings, wait_frames, wait_up
 from test_decoder import EXTRA, EXTRA_DB, PAPER, VDP_DB, frame
 from vdp.core import filters
 from vdp.core.estimator import EstimatorConfig
+from vdp.core.result import Estimate
 from vdp.live import Service
 from vdp.pipeline import Pipeline
 from vdp.sim.run import Simulation
@@ -102,9 +103,9 @@ def test_bad_frames_on_the_live_bus_are_counted_and_never_half_used(service):
     ref = Pipeline(PAPER, EstimatorConfig(trace_len=600))
     for m in kept:
         ref.feed(m)
-    want = ref.snapshot()["parameters"]
+    want = {k: e.as_dict() for k, e in ref.result().parameters.items()}
     live = svc.estimates()["parameters"]
-    assert svc.latest.samples == ref.samples and want["l_f"]["samples"] > 150  # 20 ms samples
+    assert svc.latest.result.samples == ref.samples and want["l_f"]["samples"] > 150  # 20 ms samples
     for name in want:
         assert (live[name]["value"], live[name]["std"], live[name]["samples"]) == (
             want[name]["value"],
@@ -263,8 +264,11 @@ def test_clock_faults_never_give_a_filter_a_bad_step(steps, scenario):
     def run(seq):
         pipe = Pipeline(PAPER)
         if scenario == "stage2":  # stage 1 known and converged: the drive runs stage 2
-            pipe.estimator.restore(
-                {n: {"value": v, "std": 0.002 * v, "samples": 2000} for n, v in zip(TRUTH_S1, (1.4, 0.637, 10.0))}
+            pipe.restore(
+                {
+                    n: Estimate.from_dict(n, {"value": v, "std": 0.002 * v, "samples": 2000})
+                    for n, v in zip(TRUTH_S1, (1.4, 0.637, 10.0))
+                }
             )
         counts = []
         for k, m in enumerate(seq):
@@ -284,7 +288,7 @@ def test_clock_faults_never_give_a_filter_a_bad_step(steps, scenario):
         assert not bad, (kind, bad[:5])
     # estimation went on after every fault: each fifth of the drive stepped the filters
     assert all(b - a > 0.1 * n_clean["ukf"] for a, b in zip(counts, counts[1:])), counts
-    assert pipe.aligner.clock_jumps >= 3
-    p = pipe.snapshot()["parameters"]
-    assert all(e["value"] is None or math.isfinite(e["value"]) for e in p.values())
+    res = pipe.result()
+    assert res.clock.jumps >= 3
+    assert all(e.value is None or math.isfinite(e.value) for e in res.parameters.values())
     assert pipe.samples > 0.95 * clean.samples

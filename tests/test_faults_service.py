@@ -20,6 +20,7 @@ from test_api import make_settings, wait_for, wait_frames, wait_up
 from test_decoder import PAPER
 from vdp.api import create_app
 from vdp.core import filters
+from vdp.core.result import Estimate
 from vdp.errors import BusError
 from vdp.live import Service
 from vdp.live.bus import RECEIVE_BUFFER, BusLink
@@ -31,7 +32,7 @@ STAGE1 = {"l_f": 1.4, "h": 0.637, "C_K": 10.0}  # the simulator's truth
 
 
 def restore_stage1(pipe) -> None:
-    pipe.estimator.restore({n: {"value": v, "std": 0.002 * v, "samples": 2000} for n, v in STAGE1.items()})
+    pipe.restore({n: Estimate.from_dict(n, {"value": v, "std": 0.002 * v, "samples": 2000}) for n, v in STAGE1.items()})
 
 
 def drive(scenario: str, seconds: float, seed: int = 4) -> list[can.Message]:
@@ -179,8 +180,8 @@ def test_a_silent_channel_is_stale_pauses_gating_and_no_filter_predicts_across_t
     n0 = predicts["n"]
     for m in during[len(settle) :]:
         pipe.feed(m)
-    fresh = pipe.freshness()
-    assert fresh["yaw_rate"]["stale"] and fresh["roll_rate"]["stale"] and not fresh["accel_y"]["stale"]
+    fresh = pipe.result().channels
+    assert fresh["yaw_rate"].stale and fresh["roll_rate"].stale and not fresh["accel_y"].stale
     assert est.supervisor.active is None and learner.filter is None
     assert est.supervisor.reason[2] == "channels missing or stale: yaw_rate, roll_rate"
     assert predicts["n"] == n0  # no filter stepped while the channel was silent
@@ -248,8 +249,8 @@ def test_a_covariance_no_longer_positive_definite_resets_stage_1_to_its_last_goo
     assert learner.resets == 1, "the broken covariance went unnoticed"
     assert "positive definite" in learner.last_error
     np.testing.assert_allclose(learner.theta, good)  # back to the last good estimate
-    for e in pipe.snapshot()["parameters"].values():
-        assert e["value"] is None or math.isfinite(e["value"])
+    for e in pipe.result().parameters.values():
+        assert e.value is None or math.isfinite(e.value)
 
 
 def test_a_diverging_stage_2_resets_is_flagged_and_no_response_carries_nan(tmp_path):

@@ -19,6 +19,7 @@ from vdp.io.logs import open_log
 from vdp.pipeline import Pipeline
 from vdp.profile import load_profile
 from vdp.replay import replay
+from vdp.result import RunResult
 from vdp.sim.run import Simulation, write_log
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,7 +49,7 @@ def drive(tmp_path_factory):
     return frames, tmp_path_factory.mktemp("formats")
 
 
-def estimate(path: Path) -> dict:
+def estimate(path: Path) -> RunResult:
     return replay(open_log(path, channel=PROFILE.bus_channel), Pipeline(PROFILE, EstimatorConfig(baseline=True)))
 
 
@@ -59,9 +60,9 @@ def candump(drive):
     assert write_log(iter(frames), path) == len(frames)
     res = estimate(path)
     # a drive that moves the estimates, so equal results mean something
-    assert [w["stage"] for w in res["windows"]] == [1]
+    assert [w.stage for w in res.windows] == [1]
     for name in ("l_f", "h", "C_K"):
-        assert res["parameters"][name]["samples"] > 500 and res["parameters"][name]["status"] == "converged"
+        assert res.parameters[name].samples > 500 and res.parameters[name].status == "converged"
     return res
 
 
@@ -71,18 +72,18 @@ def test_format_replays_like_candump(drive, candump, suffix):
     path = d / f"drive{suffix}"
     assert write_log(iter(frames), path) == len(frames)
     res = estimate(path)
-    assert res["log"]["frames"] == len(frames) and res["log"]["bad_lines"] == 0
-    assert res["log"]["decode"]["errors"] == {} and res["log"]["decode"]["skipped_channel"] == 0
-    assert len(res["windows"]) == len(candump["windows"])
+    assert res.log.frames == len(frames) and res.log.source["bad_lines"] == 0
+    assert res.decode["errors"] == {} and res.decode["skipped_channel"] == 0
+    assert len(res.windows) == len(candump.windows)
     for kind in ("parameters", "baseline_ekf"):
-        for name, ref in candump[kind].items():
-            got = res[kind][name]
+        for name, ref in getattr(candump, kind).items():
+            got = getattr(res, kind)[name]
             # Timestamps are exact to the microsecond in every format; .asc restarts the
             # clock at 0, and time differences of absolute Unix times carry ~2e-7 s of
             # float rounding that relative times do not: the filters' results then differ
             # in the 4th digit, never in status.
             asc = suffix.startswith(".asc")
-            assert got["status"] == ref["status"], (kind, name)
-            assert abs(got["samples"] - ref["samples"]) <= (2 if asc else 0), (kind, name)
-            assert got["value"] == pytest.approx(ref["value"], rel=1e-3 if asc else 1e-6), (kind, name)
-            assert got["std"] == pytest.approx(ref["std"], rel=1e-2 if asc else 1e-4), (kind, name)
+            assert got.status == ref.status, (kind, name)
+            assert abs(got.samples - ref.samples) <= (2 if asc else 0), (kind, name)
+            assert got.value == pytest.approx(ref.value, rel=1e-3 if asc else 1e-6), (kind, name)
+            assert got.std == pytest.approx(ref.std, rel=1e-2 if asc else 1e-4), (kind, name)

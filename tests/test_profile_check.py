@@ -124,7 +124,7 @@ def test_replay_warns_and_marks_the_parameters_not_valid(drive, tmp_path, capsys
     res = json.loads(out.read_text())
     assert res["profile_check"]["findings"][0]["subject"] == "accel_x"
     for p in res["parameters"].values():
-        assert p["valid"] is False and "accel_x" in p["invalid_reason"]
+        assert p["valid"] is False and "accel_x" in p["reason"]
     assert main(["profile", "check", str(drive), "--profile", str(prof)]) == 1
     assert "set sign = -1" in capsys.readouterr().out
     assert main(["profile", "check", str(drive), "--profile", str(ROOT / "profiles" / "paper.toml")]) == 0

@@ -26,6 +26,7 @@ from vdp.io.decoder import FrameDecoder
 from vdp.pipeline import Pipeline
 from vdp.profile import ChannelMap, Profile, load_profile
 from vdp.replay import replay
+from vdp.result import RunResult
 from vdp.sim.addons import CAR_TRUTH, with_addons
 from vdp.sim.run import Simulation
 
@@ -274,7 +275,7 @@ class Frames:
             return {}
 
 
-def run_drive(prof: Profile, scenario: str, seed: int, params=None, duration=None) -> tuple[dict, dict]:
+def run_drive(prof: Profile, scenario: str, seed: int, params=None, duration=None) -> tuple[RunResult, dict]:
     sim = Simulation(prof, scenario, seed=seed, noise="realistic", params=params, duration=duration)
     res = replay(Frames(sim), Pipeline(prof, EstimatorConfig(baseline=False)))
     return res, sim.truth["parameters"]
@@ -285,17 +286,17 @@ def test_stage1_runs_on_the_cars_layout_with_addons(name, tmp_path):
     prof = with_addons(car(name))
     assert Pipeline(prof).capabilities() == {"1": None, "2": None}
     res, _ = run_drive(prof, "stage1", seed=4, duration=12.0)
-    assert [w["stage"] for w in res["windows"]] == [1]
-    assert all(res["parameters"][p]["samples"] > 250 for p in ("l_f", "h", "C_K"))
-    assert res["log"]["decode"]["errors"] == {}
+    assert [w.stage for w in res.windows] == [1]
+    assert all(res.parameters[p].samples > 250 for p in ("l_f", "h", "C_K"))
+    assert res.decode["errors"] == {}
 
 
 TOLERANCE = {"l_f": 0.01, "h": 0.03, "C_K": 0.02, "C_alpha": 0.03, "I_z": 0.05}  # the estimator issue's
 STAGES = {1: ("l_f", "h", "C_K"), 2: ("C_alpha", "I_z")}
-_paper_runs: dict[str, tuple[dict, dict]] = {}
+_paper_runs: dict[str, tuple[RunResult, dict]] = {}
 
 
-def paper_run(name: str, tmp_path_factory) -> tuple[dict, dict]:
+def paper_run(name: str, tmp_path_factory) -> tuple[RunResult, dict]:
     """The full paper drive on the car's layout, once per car for both stage checks."""
     if name not in _paper_runs:
         _paper_runs[name] = run_drive(with_addons(car(name)), "paper", seed=11, params=CAR_TRUTH[name])
@@ -321,10 +322,10 @@ def test_paper_drive_converges_on_the_cars_layout(name, stage, tmp_path_factory)
         # openpilot reads it; the profile must say so (decoding is tested above).
         assert car(name).channels["steering_angle"].fine == "STEER_FRACTION"
     for p in STAGES[stage]:
-        est = res["parameters"][p]
-        assert est["value"] == pytest.approx(truth[p], rel=TOLERANCE[p]), (p, est, truth[p])
+        est = res.parameters[p]
+        assert est.value == pytest.approx(truth[p], rel=TOLERANCE[p]), (p, est, truth[p])
         # And not by luck: the filter's own std is inside the tolerance.  Not half of it, which
         # is what "converged" asks (params.py): the RAV4, heavier and stiffer, gets a C_alpha
         # std of about 2 % of its value from this drive on any bus layout, the paper's
         # included, and so says "uncertain", as it should.
-        assert est["status"] in ("converged", "uncertain") and est["std"] < TOLERANCE[p] * truth[p], (p, est)
+        assert est.status in ("converged", "uncertain") and est.std < TOLERANCE[p] * truth[p], (p, est)

@@ -92,11 +92,11 @@ def test_progress_grows_while_the_paper_drive_goes_on(tmp_path, repo_root):
     for i, msg in enumerate(open_log(log, channel=profile.bus_channel)):
         pipe.feed(msg)
         if i % 4000 == 0:
-            c = pipe.snapshot()["coaching"]
+            c = pipe.result().coaching
             seen.append((c["stages"]["1"]["progress"], c["stages"]["2"]["progress"]))
     s1 = [a for a, _ in seen]
     assert s1[0] < 0.5 and s1[-1] == 1.0
     assert max(b for _, b in seen) > 0.3  # stage 2 learns in the weaving that follows
-    final = pipe.snapshot()
+    final = pipe.result()
     for n in STAGE1:
-        assert final["parameters"][n]["progress"] == 1.0 and final["parameters"][n]["status"] == "converged"
+        assert final.parameters[n].progress == 1.0 and final.parameters[n].status == "converged"

@@ -107,7 +107,7 @@ def test_stage1_stays_physical_and_reaches_the_truth_with_priors_off(profile, sc
         for kind_values in row[2:]:
             (l_f, _), (h, _), (c_k, _) = kind_values[:3]
             assert 0.0 < l_f < L and h > 0.0 and c_k > 0.0
-    snap = pipe.snapshot()
+    snap = pipe.result().to_dict()
     for key in ("parameters", "baseline_ekf"):
         for name, tol in (("l_f", 0.01), ("h", 0.03), ("C_K", 0.02)):
             e = snap[key][name]

@@ -289,7 +289,7 @@ def test_restart_restores_the_last_committed_estimates(tmp_path):
     again = Service(settings, pipeline=FakePipeline())
     again.start()
     try:
-        assert again.pipeline.restored["l_f"]["value"] == lf
+        assert again.pipeline.restored["l_f"].value == lf
         e = again.estimates()
         assert e["restored"] is True and e["parameters"]["l_f"]["value"] == lf
     finally:

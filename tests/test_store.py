@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from vdp.core.result import Estimate
 from vdp.errors import StoreError
 from vdp.profile import Prior, load_profile
 from vdp.store import SCHEMA_VERSION, Store, profile_fingerprint
@@ -22,17 +23,18 @@ PROFILE = ROOT / "profiles" / "paper.toml"
 NAMES = ("l_f", "h", "C_K", "C_alpha", "I_z", "I_x")
 
 
-def params(v: float = 1.0, status: str = "converged") -> dict:
+def params(v: float = 1.0, status: str = "converged") -> dict[str, Estimate]:
     return {
-        n: {
-            "value": v * (i + 1),
-            "std": 0.01 * v,
-            "unit": "m",
-            "valid": status == "converged",
-            "stage": 1 if i < 3 else 2,
-            "status": status,
-            "samples": int(100 * v),
-        }
+        n: Estimate(
+            name=n,
+            value=v * (i + 1),
+            std=0.01 * v,
+            unit="m",
+            valid=status == "converged",
+            stage=1 if i < 3 else 2,
+            status=status,
+            samples=int(100 * v),
+        )
         for i, n in enumerate(NAMES)
     }
 
@@ -49,17 +51,18 @@ def test_round_trip_and_history_only_on_change(tmp_path, fp):
     assert st.save(params(1.0), t=100.0, bus_t=5.0) == 6
     assert st.save(params(1.0), t=101.0, bus_t=6.0) == 0  # nothing changed: no history rows
     p = params(2.0)
-    p["h"]["value"] = float("nan")  # never stored as NaN
+    p["h"] = dataclasses.replace(p["h"], value=float("nan"))  # never stored as NaN
     assert st.save(p, t=102.0) == 6
     st.close()
 
     st = Store(db, fp, "paper")
-    got = st.load()
-    assert set(got) == set(NAMES)
-    assert got["l_f"]["value"] == 2.0 and got["l_f"]["std"] == pytest.approx(0.02)
-    assert got["l_f"]["valid"] is True and got["l_f"]["status"] == "converged" and got["l_f"]["samples"] == 200
-    assert got["h"]["value"] is None and got["h"]["valid"] is False
-    assert got["C_alpha"]["stage"] == 2 and got["l_f"]["t"] == 102.0
+    stored = st.load()
+    assert set(stored) == set(NAMES) and stored["l_f"].t == 102.0
+    got = {k: v.estimate for k, v in stored.items()}
+    assert got["l_f"].value == 2.0 and got["l_f"].std == pytest.approx(0.02)
+    assert got["l_f"].valid is True and got["l_f"].status == "converged" and got["l_f"].samples == 200
+    assert got["h"].value is None and got["h"].valid is False
+    assert got["C_alpha"].stage == 2
     items, total = st.history()
     assert total == 12 and [i["t"] for i in items[:6]] == [100.0] * 6
     assert st.integrity() == "ok"
@@ -120,7 +123,7 @@ def test_another_profile_is_refused_and_left_alone(tmp_path, fp):
         Store(db, fp2, "changed")
     assert db.read_bytes() == before  # nothing deleted, nothing rewritten
     again = Store(db, fp, "paper")  # the right profile still gets its data
-    assert again.load()["l_f"]["value"] == 3.0
+    assert again.load()["l_f"].estimate.value == 3.0
     again.close()
 
 
@@ -163,15 +166,16 @@ def test_schema_change_and_foreign_files_are_refused(tmp_path, fp):
 WRITER = textwrap.dedent(
     f"""
     import sys
+    from vdp.core.result import Estimate
     from vdp.store import Store
     db, fp = sys.argv[1], sys.argv[2]
     st = Store(db, fp, "paper")
     got = st.load()
-    n = int(got["l_f"]["samples"]) if got else 0
+    n = got["l_f"].estimate.samples if got else 0
     while True:
         n += 1
-        st.save({{name: {{"value": n + i / 10, "std": 0.1, "unit": "m", "valid": True, "stage": 1,
-                        "status": "converged", "samples": n}} for i, name in enumerate({NAMES!r})}}, t=float(n))
+        st.save({{name: Estimate(name=name, value=n + i / 10, std=0.1, unit="m", valid=True, stage=1,
+                                 status="converged", samples=n) for i, name in enumerate({NAMES!r})}}, t=float(n))
         print(n, flush=True)
 """
 )
@@ -202,10 +206,10 @@ def test_kill_9_while_writing_keeps_the_store_intact(tmp_path, fp):
         assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
         con.close()
         st = Store(db, fp, "paper")
-        got = st.load()
+        got = {k: v.estimate for k, v in st.load().items()}
         # every batch it reported committed is there (maybe a few more)
-        assert got["l_f"]["samples"] >= seen and got["I_x"]["value"] == pytest.approx(got["l_f"]["samples"] + 0.5)
+        assert got["l_f"].samples >= seen and got["I_x"].value == pytest.approx(got["l_f"].samples + 0.5)
         _, total = st.history("l_f")
-        assert total == got["l_f"]["samples"]
-        last = got["l_f"]["samples"]
+        assert total == got["l_f"].samples
+        last = got["l_f"].samples
         st.close()

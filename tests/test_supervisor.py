@@ -15,9 +15,7 @@ def sample(t, ax=0.0, delta=0.0, yaw=0.0, speed=20.0, missing=()):
     y[ch.AX], y[ch.DELTA], y[ch.YAW], y[ch.SPEED] = ax, delta, yaw, speed
     for name in missing:
         y[ch.INDEX[name]] = math.nan
-    s = Sample(t, y, np.ones(ch.N, bool), np.zeros(ch.N))
-    s.v_x = speed
-    return s
+    return Sample(t, tuple(y.tolist()), (True,) * ch.N, (0.0,) * ch.N, v_x=speed)
 
 
 def run(sup, n, f, done=False, t0=0.0):

@@ -22,11 +22,11 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from . import channels
+from .core.sample import Sample
 
 log = logging.getLogger(__name__)
 
@@ -34,25 +34,6 @@ _DEPTH = 4  # values kept per channel for interpolation
 _EPS = 1e-6  # s: time comparisons tolerate float rounding of absolute Unix times (~2e-7 s)
 RESYNC_AFTER = 10  # frames in a row behind the clock before the grid follows them back
 _MAX_T = 1e10  # s (year 2286): bus times beyond are refused; near 1e21 floats are 131,072 s apart
-
-
-@dataclass
-class Sample:
-    """One tick: channel values (NaN if unknown or stale), which are new, and their age [s]."""
-
-    t: float
-    values: np.ndarray
-    fresh: np.ndarray
-    age: np.ndarray
-    gap: bool = False  # the first tick after a gap or a clock jump
-    vals: list | None = None  # ``values`` as Python floats: cheaper to read one by one
-    # filled in by the estimator's speed filter (GNSS + IMU)
-    v_x: float = math.nan
-    v_std: float = math.nan
-    ax_bias: float = 0.0
-    # gyro biases learnt while driving straight (see TwoStageEstimator)
-    yaw_bias: float = 0.0
-    roll_bias: float = 0.0
 
 
 class Aligner:
@@ -164,7 +145,7 @@ class Aligner:
             if before > emitted[ch]:
                 fresh[ch] = True
                 emitted[ch] = before
-        s = Sample(T, np.array(values), np.array(fresh), np.array(ages), self.gap, vals=values)
+        s = Sample(T, tuple(values), tuple(fresh), tuple(ages), self.gap)
         self.gap = False
         return s
 

@@ -103,8 +103,8 @@ def replay_log(path: str, profile_path: str) -> dict:
 
     profile = _profile(profile_path)
     cfg = EstimatorConfig(baseline=False)
-    doc, _ = replay_file(path, lambda: Pipeline(profile, cfg), channel=profile.bus_channel)
-    return doc
+    result, _ = replay_file(path, lambda: Pipeline(profile, cfg), channel=profile.bus_channel)
+    return result.to_dict()
 
 
 def run_task(task: Task) -> list[dict]:

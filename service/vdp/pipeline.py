@@ -1,27 +1,35 @@
 """The one pipeline, live or replay: frames -> decoder -> aligner -> ring -> estimator.
 
-Only the frame source differs: ``vdp replay`` iterates a log file into
-:meth:`Pipeline.feed`, ``vdp serve`` feeds it from a python-can Notifier.
+Only the frame source differs: ``vdp replay`` hands a log to :meth:`Pipeline.run`,
+``vdp serve`` feeds frames from the bus one by one (:meth:`Pipeline.feed`) and
+takes :meth:`Pipeline.result` now and then.  Readers see the typed
+:class:`vdp.result.RunResult`, never the decoder, aligner or estimator inside.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
 from . import channels
 from .buffer import Aligner, SampleRing
-from .core import progress
+from .core import progress as coaching
 from .core.estimator import EstimatorConfig, TwoStageEstimator
+from .core.result import Estimate
+from .core.sample import Sample
 from .io.decoder import FrameDecoder, estimator_config
 from .profile import Profile
+from .result import Clock, Freshness, LogInfo, RunResult
 
 log = logging.getLogger(__name__)
 
 STALE_PERIODS = 5.0  # a channel silent this many cycle times is stale
+PROGRESS_EVERY = 4096  # frames between progress callbacks in run()
 
 
 class Pipeline:
@@ -34,6 +42,7 @@ class Pipeline:
         self.estimator = TwoStageEstimator(profile.vehicle, profile.priors, cfg)
         self.aligner = Aligner(stale_after=self._stale_after(), tick=self.estimator.cfg.tick)
         self.ring = SampleRing(ring_capacity)
+        self._taps: list[Callable[[Sample], None]] = []
         self.frames = 0
         self.samples = 0
         self.started = time.monotonic()
@@ -77,29 +86,112 @@ class Pipeline:
             return
         t = msg.timestamp
         self.last_bus_time = t
-        for s in self.aligner.push(t, pairs):
-            self.samples += 1
-            self.ring.append(s)
-            self.estimator.handle(s.t, s)
+        samples = self.aligner.push(t, pairs)
+        if samples:
+            self.take(samples)
+
+    def take(self, samples: list[Sample]) -> None:
+        """Estimate from aligned samples (the aligner's, or a block reader's that aligns itself)."""
+        ring, handle, taps = self.ring.append, self.estimator.handle, self._taps
+        for s in samples:
+            ring(s)
+            s = handle(s.t, s)
+            for fn in taps:
+                fn(s)
+        self.samples += len(samples)
+
+    def tap(self, fn: Callable[[Sample], None]) -> None:
+        """Call ``fn`` with every sample the estimator takes, as it saw it (derived fields set)."""
+        self._taps.append(fn)
 
     def pass_over(self, counts: dict[int, int]) -> None:
         """Count frames a source left out because no plan decodes their id (see LogSource.keep_ids)."""
         self.frames += sum(counts.values())
         self.decoder.stats.add_unknown(counts)
 
-    def snapshot(self) -> dict:
-        snap = self.estimator.snapshot()
-        snap["capabilities"] = self.capabilities()
-        # progress and coaching from what the learners have (core.progress)
-        coach = progress.assess(snap, self.profile.priors, self.estimator.cfg.tick)
-        for name, c in coach["parameters"].items():
-            e = snap["parameters"].get(name)
-            if e is not None:
-                e["progress"], e["hint"] = c["progress"], c["hint"]
-        snap["coaching"] = coach
-        return snap
+    def run(self, source, progress: Callable[[int, int], None] | None = None) -> RunResult:
+        """Feed every frame of ``source`` (a log: iterable of frames with ``stats``); return the result.
 
-    def freshness(self) -> dict[str, dict]:
+        ``progress(position, frames)`` is called every PROGRESS_EVERY frames.
+        """
+        t0 = time.monotonic()
+        first = None
+        keep_ids = getattr(source, "keep_ids", None)
+        if keep_ids is not None:  # lines of ids the profile does not decode never become Messages
+            keep_ids(self.decoder.ids)
+        feed_into = getattr(source, "feed_into", None)
+        if feed_into is not None:  # a block source (vdp.io.bulk) decodes and aligns itself, then take()s
+            n, first = feed_into(self, progress)
+        else:
+            feed = self.feed
+            n = 0
+            for msg in source:
+                feed(msg)
+                n += 1
+                if first is None:
+                    first = msg.timestamp
+                if progress is not None and n % PROGRESS_EVERY == 0:
+                    progress(source.position, n)
+        passed = getattr(source.stats, "passed_over", None)
+        if passed:
+            self.pass_over(passed)
+            n += sum(passed.values())
+        last = (self.last_bus_time if self.last_bus_time is not None else first) if n else None
+        stats = source.stats.as_dict()
+        duration = (last - first) if n and last is not None else 0.0
+        # a log reader sums bus time over the runs between clock steps: never negative, never a jump's years
+        bus_time = getattr(source.stats, "bus_time", None)
+        if bus_time is not None:
+            duration = bus_time
+        info = LogInfo(
+            path=str(getattr(source, "path", "")),
+            frames=stats.get("frames", n),
+            wall_s=time.monotonic() - t0,
+            duration_s=duration,
+            start_time=first,
+            source=stats,
+        )
+        return self.result(trace=True, t0=first, log=info)
+
+    def result(self, trace: bool = False, t0: float | None = None, log: LogInfo | None = None) -> RunResult:
+        """The state now, as one immutable value (``trace``: with the estimator's trace)."""
+        a = self.aligner
+        snap = self.estimator.snapshot()
+        caps = self.capabilities()
+        coach, params = self._coach(snap, caps)
+        return RunResult.of(
+            dataclasses.replace(snap, parameters=params),
+            capabilities=caps,
+            coaching=coach,
+            decode=self.decoder.stats.as_dict(),
+            clock=Clock(a.clock_backwards, a.clock_jumps),
+            channels=self.freshness(),
+            frames=self.frames,
+            samples=self.samples,
+            bus_time=self.last_bus_time,
+            trace=tuple(self.estimator.trace) if trace else (),
+            t0=t0,
+            log=log,
+        )
+
+    def _coach(self, snap, caps) -> tuple[dict, dict[str, Estimate]]:
+        """Progress and coaching from what the learners have (core.progress), and the UKF's
+        estimates with their progress and hint filled in."""
+        doc = {
+            "parameters": {k: e.as_dict() for k, e in snap.parameters.items()},
+            "stage": snap.stage,
+            "supervisor": snap.supervisor,
+            "capabilities": caps,
+        }
+        coach = coaching.assess(doc, self.profile.priors, self.estimator.cfg.tick)
+        params = dict(snap.parameters)
+        for name, c in coach["parameters"].items():
+            e = params.get(name)
+            if e is not None:
+                params[name] = dataclasses.replace(e, progress=c["progress"], hint=c["hint"])
+        return coach, params
+
+    def freshness(self) -> dict[str, Freshness]:
         """Each mapped channel's age at the newest bus time, and whether it is stale."""
         out = {}
         t = self.last_bus_time
@@ -107,8 +199,12 @@ class Pipeline:
             i = channels.INDEX[name]
             newest = self.aligner.newest(i)
             age = (t - newest) if (t is not None and math.isfinite(newest)) else None
-            out[name] = {"age": age, "stale": age is None or age > self.aligner.stale_after[i]}
+            out[name] = Freshness(age, age is None or age > self.aligner.stale_after[i])
         return out
 
     def reset(self, stage: int | None = None) -> None:
         self.estimator.reset(stage)
+
+    def restore(self, params: Mapping[str, Estimate]) -> None:
+        """Start from stored estimates instead of the priors."""
+        self.estimator.restore(params)

@@ -23,14 +23,17 @@ which :func:`mark_invalid` then reports as not valid.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from . import channels as ch
+from .core.result import Estimate
 from .errors import ProfileError
 from .profile import PARAMETERS, Profile
 
@@ -106,13 +109,14 @@ class Report:
         }
 
 
-def mark_invalid(params: dict, report: Report) -> None:
-    """Set ``valid = False`` and ``invalid_reason`` on every parameter a finding concerns."""
+def mark_invalid(params: Mapping[str, Estimate], report: Report) -> dict[str, Estimate]:
+    """The estimates with ``valid = False`` and the ``reason`` on every parameter a finding concerns."""
+    out = dict(params)
     for name, why in report.invalid.items():
-        p = params.get(name)
-        if isinstance(p, dict):
-            p["valid"] = False
-            p["invalid_reason"] = why
+        e = out.get(name)
+        if e is not None:
+            out[name] = dataclasses.replace(e, valid=False, reason=why)
+    return out
 
 
 def _factor_name(ratio: float) -> str | None:

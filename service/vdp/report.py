@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import json
-import math
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from .core.params import BY_NAME, NAMES
+from .core.result import Estimate
 from .errors import ConfigError
+from .result import RunResult, jsonable
 
 
 def load_truth(path: str | Path) -> dict:
@@ -24,13 +27,13 @@ def load_truth(path: str | Path) -> dict:
     return data
 
 
-def compare(params: dict, truth: dict) -> dict:
+def compare(params: Mapping[str, Estimate], truth: dict) -> dict:
     """Relative error of each estimate, and whether truth is inside value +- 2 std."""
     out = {}
     for name in NAMES:
         t = truth["parameters"].get(name)
-        e = params.get(name) or {}
-        v, sd = e.get("value"), e.get("std")
+        e = params.get(name)
+        v, sd = (e.value, e.std) if e is not None else (None, None)
         if t is None or v is None:
             out[name] = {"truth": t, "rel_error": None, "within_2std": None}
             continue
@@ -41,22 +44,33 @@ def compare(params: dict, truth: dict) -> dict:
 _DRIVE_WORDS = {1: "straight-line acceleration and braking", 2: "steady speed with continuous steering"}
 
 
-def stage_lines(result: dict) -> list[str]:
+def document(result: RunResult, truth: dict | None = None) -> dict[str, Any]:
+    """The JSON document of a replay: the result, and the comparison with a truth file if given."""
+    doc = result.to_dict()
+    if truth is not None:
+        doc["truth"] = truth["parameters"]
+        doc["truth_comparison"] = compare(result.parameters, truth)
+        if result.baseline_ekf:
+            doc["truth_comparison_ekf"] = compare(result.baseline_ekf, truth)
+    return doc
+
+
+def stage_lines(result: RunResult) -> list[str]:
     """One line per stage that produced nothing: why it could not run, and what the drive offered."""
     lines = []
-    exc = result.get("supervisor", {}).get("excitation", {})
+    exc = result.supervisor.get("excitation", {})
     for stage in ("1", "2"):
-        ran = any(str(w["stage"]) == stage for w in result.get("windows", []))
+        ran = any(str(w.stage) == stage for w in result.windows)
         if ran:
             continue
-        why = result.get("capabilities", {}).get(stage)
+        why = result.capabilities.get(stage)
         if why:
             lines.append(f"stage {stage} cannot run: {why}")
         e = exc.get(stage) or {}
         if e.get("of"):
             blocker = e.get("main_blocker")
             if e["seconds"] > 0 and not why:
-                blocker = result["supervisor"]["reasons"].get(stage, blocker)
+                blocker = result.supervisor["reasons"].get(stage, blocker)
             lines.append(
                 f"stage {stage}: the drive had {e['seconds']:.1f} of {e['of']:.1f} s of "
                 f"{_DRIVE_WORDS[int(stage)]}" + (f"; mostly: {blocker}" if blocker else "")
@@ -72,22 +86,22 @@ def _fmt(v, digits=4):
     return f"{v:.3e}"
 
 
-def table(report: dict) -> str:
+def table(result: RunResult, truth: dict | None = None) -> str:
     """A fixed-width table of the six parameters (UKF), the EKF baseline and, if known, the truth."""
-    params, ekf = report["parameters"], report.get("baseline_ekf") or {}
-    cmp_ = report.get("truth_comparison") or {}
-    cmp_ekf = report.get("truth_comparison_ekf") or {}
+    params, ekf = result.parameters, result.baseline_ekf or {}
+    cmp_ = compare(params, truth) if truth is not None else {}
+    cmp_ekf = compare(ekf, truth) if truth is not None and ekf else {}
     head = f"{'param':8} {'value':>10} {'± std':>10} {'unit':7} {'status':17} {'EKF value':>10}"
     if cmp_:
         head += f" {'truth':>10} {'UKF err':>8} {'EKF err':>8}"
     lines = [head, "-" * len(head)]
     for name in NAMES:
         p = params[name]
-        e = ekf.get(name, {})
-        status = p["status"] + ("!" if p.get("invalid_reason") else "")  # not valid: the profile check failed
+        e = ekf.get(name)
+        status = p.status + ("!" if p.reason else "")  # not valid: the profile check failed
         row = (
-            f"{name:8} {_fmt(p['value']):>10} {_fmt(p['std'], 2):>10} {p['unit']:7} "
-            f"{status:17} {_fmt(e.get('value')):>10}"
+            f"{name:8} {_fmt(p.value):>10} {_fmt(p.std, 2):>10} {p.unit:7} "
+            f"{status:17} {_fmt(e.value if e is not None else None):>10}"
         )
         if cmp_:
             c, ce = cmp_[name], cmp_ekf.get(name, {})
@@ -95,24 +109,14 @@ def table(report: dict) -> str:
             err_e = "-" if ce.get("rel_error") is None else f"{100 * ce['rel_error']:+.2f}%"
             row += f" {_fmt(c['truth']):>10} {err:>8} {err_e:>8}"
         lines.append(row)
-    if any(params[n].get("invalid_reason") for n in NAMES):
+    if any(params[n].reason for n in NAMES):
         lines.append("! not valid: the profile check found a mismatch it rests on (see above)")
     return "\n".join(lines)
 
 
-def _finite_or_none(obj):
-    """JSON never carries NaN: non-finite floats become null."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _finite_or_none(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite_or_none(v) for v in obj]
-    return obj
-
-
-def write_json(report: dict, path: str | Path) -> None:
-    Path(path).write_text(json.dumps(_finite_or_none(report), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+def write_json(doc: dict | RunResult, path: str | Path) -> None:
+    """Strict JSON (never NaN: non-finite numbers become null)."""
+    Path(path).write_text(json.dumps(jsonable(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
 
 
 # The paper's figures: Fig. 5 is stage 1 (C_K, h, l_f), Fig. 7 stage 2 (C_alpha, I_x, I_z);

@@ -9,13 +9,17 @@ from __future__ import annotations
 
 import csv
 import math
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
 from . import channels
 from .core.params import NAMES
+from .core.result import Estimate
+from .core.sample import Sample
 from .errors import ConfigError
+from .result import RunResult
 
 SUFFIXES = (".csv", ".parquet")
 EVERY = 1.0  # s of bus time between series rows outside a window
@@ -29,11 +33,11 @@ def series_columns() -> list[str]:
     return cols
 
 
-def _row(t: float, params: dict) -> list:
+def _row(t: float, params: Mapping[str, Estimate]) -> list:
     row: list = [t]
     for name in NAMES:
-        p = params.get(name) or {}
-        row += [p.get("value"), p.get("std"), p.get("status")]
+        p = params.get(name)
+        row += [None, None, None] if p is None else [p.value, p.std, p.status]
     return row
 
 
@@ -54,17 +58,17 @@ class SeriesRecorder:
         t = self.pipeline.last_bus_time
         if t is None or (self._next is not None and t < self._next):
             return
-        snap = self.pipeline.snapshot()
-        self.rows.append(_row(t, snap["parameters"]))
-        active = (snap.get("supervisor") or {}).get("active_stage")
+        res = self.pipeline.result()
+        self.rows.append(_row(t, res.parameters))
+        active = res.supervisor.get("active_stage")
         self._next = t + (self.every_in_window if active else self.every)
 
-    def finish(self, result: dict) -> None:
+    def finish(self, result: RunResult) -> None:
         """The last row is the result itself, at the last bus time."""
-        t = self.pipeline.last_bus_time
+        t = result.bus_time
         if t is None:
             return
-        row = _row(t, result["parameters"])
+        row = _row(t, result.parameters)
         if self.rows and self.rows[-1][0] == t:
             self.rows[-1] = row
         else:
@@ -100,16 +104,15 @@ class ChannelTap:
     CHUNK = 4096
 
     def __init__(self, pipeline):
-        self._handle = pipeline.estimator.handle
         self._chunks: list[np.ndarray] = []
         self._buf = np.empty((self.CHUNK, channels.N + 3))
         self._n = 0
-        pipeline.estimator.handle = self._tap
+        pipeline.tap(self._tap)
 
-    def _tap(self, t, s) -> None:
-        self._handle(t, s)  # first: the speed filter fills in v_x
+    def _tap(self, s: Sample) -> None:
+        """One sample as the estimator saw it (v_x from its speed filter)."""
         b = self._buf[self._n]
-        b[0] = t
+        b[0] = s.t
         b[1 : channels.N + 1] = s.values
         b[channels.N + 1] = s.v_x
         b[channels.N + 2] = 1.0 if s.gap else 0.0

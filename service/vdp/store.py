@@ -19,14 +19,14 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import math
 import sqlite3
 import threading
 import time
-from dataclasses import asdict
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
 
+from .core.result import Estimate, finite
 from .errors import StoreError
 
 log = logging.getLogger(__name__)
@@ -46,8 +46,6 @@ CREATE TABLE history (
 CREATE INDEX history_name_t ON history (name, t);
 CREATE INDEX history_t ON history (t);
 """
-
-_FIELDS = ("value", "std", "unit", "valid", "stage", "status", "samples")
 
 
 def profile_fingerprint(profile) -> str:
@@ -74,12 +72,13 @@ def profile_fingerprint(profile) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
-def _num(v: Any) -> float | None:
-    """Finite float or None: the store never holds NaN."""
-    if v is None:
-        return None
-    f = float(v)
-    return f if math.isfinite(f) else None
+@dataclass(frozen=True)
+class Stored:
+    """A committed estimate and when: unix time ``t`` and the bus time ``bus_t`` of its batch."""
+
+    estimate: Estimate
+    t: float
+    bus_t: float | None
 
 
 class Store:
@@ -183,52 +182,44 @@ class Store:
             )
 
     # -- use ------------------------------------------------------------------------------
-    def load(self) -> dict[str, dict]:
-        """The last committed estimates: name -> {value, std, unit, valid, stage, status, samples, t}."""
+    def load(self) -> dict[str, Stored]:
+        """The last committed estimate of each parameter."""
         with self._rlock:
             rows = self._r.execute(
                 "SELECT name, value, std, unit, valid, stage, status, samples, t, bus_t FROM estimates"
             ).fetchall()
         return {
-            r[0]: {
-                "value": r[1],
-                "std": r[2],
-                "unit": r[3],
-                "valid": bool(r[4]),
-                "stage": r[5],
-                "status": r[6],
-                "samples": r[7],
-                "t": r[8],
-                "bus_t": r[9],
-            }
+            r[0]: Stored(
+                Estimate(
+                    name=r[0],
+                    value=r[1],
+                    std=r[2],
+                    unit=r[3],
+                    valid=bool(r[4]),
+                    stage=r[5],
+                    status=r[6],
+                    samples=r[7],
+                ),
+                t=r[8],
+                bus_t=r[9],
+            )
             for r in rows
         }
 
-    def save(self, parameters: dict[str, dict], t: float | None = None, bus_t: float | None = None) -> int:
+    def save(self, parameters: Mapping[str, Estimate], t: float | None = None, bus_t: float | None = None) -> int:
         """Commit one batch: the current rows, and history rows for what changed.  Returns those."""
         t = time.time() if t is None else t
+        bus_t = finite(bus_t)
         cur, hist, seen = [], [], {}
-        for name, p in parameters.items():
-            value, std = _num(p.get("value")), _num(p.get("std"))
-            valid = 1 if p.get("valid") and value is not None else 0
-            status = str(p.get("status", ""))
-            row = (
-                name,
-                value,
-                std,
-                str(p.get("unit", "")),
-                valid,
-                int(p.get("stage") or 0),
-                status,
-                int(p.get("samples") or 0),
-                t,
-                _num(bus_t),
-            )
+        for name, e in parameters.items():
+            value, std = finite(e.value), finite(e.std)  # the store never holds NaN
+            valid = 1 if e.valid and value is not None else 0
+            row = (name, value, std, e.unit, valid, int(e.stage), e.status, int(e.samples), t, bus_t)
             cur.append(row)
-            key = (value, std, valid, status)
+            key = (value, std, valid, e.status)
             seen[name] = key
             if self._last.get(name) != key:
-                hist.append((t, _num(bus_t), name, value, std, valid, row[5], status, row[7]))
+                hist.append((t, bus_t, name, value, std, valid, row[5], e.status, row[7]))
         with self._wlock:
             con = self._w
             try:

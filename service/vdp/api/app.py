@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import hmac
 import logging
-import math
 from contextlib import asynccontextmanager
 from typing import Annotated, Any, Literal
 
@@ -122,12 +121,12 @@ class _Metrics:
         std = GaugeMetricFamily("vdp_estimate_std", "1-sigma of the current estimate", labels=["parameter"])
         valid = GaugeMetricFamily("vdp_estimate_valid", "1 if the estimate is valid", labels=["parameter"])
         for name, p in m["parameters"].items():
-            # an unknown number is left out, never exported as NaN
-            if p.get("value") is not None and math.isfinite(p["value"]):
-                value.add_metric([name], p["value"])
-            if p.get("std") is not None and math.isfinite(p["std"]):
-                std.add_metric([name], p["std"])
-            valid.add_metric([name], 1.0 if p.get("valid") else 0.0)
+            # an unknown number is left out, never exported as NaN (Estimate holds None then)
+            if p.value is not None:
+                value.add_metric([name], p.value)
+            if p.std is not None:
+                std.add_metric([name], p.std)
+            valid.add_metric([name], 1.0 if p.valid else 0.0)
         yield value
         yield std
         yield valid

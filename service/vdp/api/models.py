@@ -6,11 +6,12 @@ and a null value always comes with ``valid: false``.
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+import dataclasses
+from typing import Annotated, Any, Literal, get_type_hints
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, create_model, field_validator
 
-STATUSES = ("not_run", "uncertain", "converged", "not_identifiable", "invalid")
+from ..core import result
 
 
 class _Model(BaseModel):
@@ -18,18 +19,26 @@ class _Model(BaseModel):
     model_config = ConfigDict(extra="allow", ser_json_inf_nan="null")
 
 
-class Estimate(_Model):
-    value: float | None = Field(description="estimate in SI units; null when not known, and then valid is false")
-    std: float | None = Field(description="1-sigma uncertainty; null when not known, and then valid is false")
-    unit: str
-    valid: bool = Field(description="true only for a converged, finite estimate inside its sane range")
-    stage: int = Field(description="1 (l_f, h, C_K) or 2 (C_alpha, I_z, I_x)")
-    samples: int = Field(description="samples the filter has used for this parameter")
-    status: str = Field(description=f"one of {', '.join(STATUSES)}")
-    progress: float | None = Field(
-        None, description="0-1: how far the std has come from the prior's to the convergence threshold (log scale)"
-    )
-    hint: str | None = Field(None, description="what to drive for this parameter, in a driver's words")
+def from_dataclass(dc: type, exclude: tuple[str, ...] = ()) -> type[BaseModel]:
+    """A response model with the dataclass's fields, types, defaults and (``doc`` metadata)
+    descriptions: the dataclass stays the one definition."""
+    hints = get_type_hints(dc)
+    spec: dict[str, Any] = {}
+    for f in dataclasses.fields(dc):
+        if f.name in exclude:
+            continue
+        if f.default is not dataclasses.MISSING:
+            info = Field(f.default, description=f.metadata.get("doc"))
+        elif f.default_factory is not dataclasses.MISSING:
+            info = Field(default_factory=f.default_factory, description=f.metadata.get("doc"))
+        else:
+            info = Field(description=f.metadata.get("doc"))
+        spec[f.name] = (hints[f.name], info)
+    return create_model(dc.__name__, __base__=_Model, __module__=__name__, **spec)
+
+
+# filed under its name, so the name is not repeated inside
+Estimate = from_dataclass(result.Estimate, exclude=("name",))
 
 
 class Supervisor(_Model):

@@ -5,6 +5,7 @@ vdp replay drive.log --profile profiles/paper.toml --json out.json --plot out.pn
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -122,46 +123,50 @@ def run(args) -> int:
         made["tap"] = ChannelTap(pipe) if args.channels else None
         return pipe
 
-    result, pipeline = replay_log(
+    result, _ = replay_log(
         args.log,
         make_pipeline,
         strict=args.strict,
         channel=profile.bus_channel,
         progress=progress.update,
         bulk=not (args.per_frame or args.series),  # the series samples the estimates frame by frame
-        truth=truth,
         wrap=lambda src: made["recorder"].wrap(src) if made["recorder"] else src,
     )
     recorder, tap = made["recorder"], made["tap"]
     progress.close()
-    result["vehicle"] = _constants(profile)
-    result["profile_check"] = check.as_dict()
-    for key in ("parameters", "baseline_ekf"):
-        if result.get(key):
-            profilecheck.mark_invalid(result[key], check)
+    # parameters the profile check found a mismatch under are not valid, whatever the filter says
+    result = dataclasses.replace(
+        result,
+        parameters=profilecheck.mark_invalid(result.parameters, check),
+        baseline_ekf=None if result.baseline_ekf is None else profilecheck.mark_invalid(result.baseline_ekf, check),
+    )
 
+    lg = result.log
     print(
-        f"{args.log}: {result['log']['frames']} frames, {result['log'].get('duration_s', 0):.1f} s of bus time, "
-        f"replayed in {result['log']['wall_s']:.1f} s ({result['log']['realtime_factor']:.0f}x real time)"
+        f"{args.log}: {lg.frames} frames, {lg.duration_s:.1f} s of bus time, "
+        f"replayed in {lg.wall_s:.1f} s ({lg.realtime_factor:.0f}x real time)"
     )
     for line in report.stage_lines(result):
         print(line)
-    print(report.table(result))
+    print(report.table(result, truth))
     for line in _coaching(result):
         print(line)
-    kept, total = len(result["windows"]), (result.get("supervisor") or {}).get("windows", 0)
+    kept, total = len(result.windows), result.supervisor.get("windows", 0)
     if total > kept:
         print(f"{total} gating windows in all; the JSON and the plot keep the newest {kept}")
-    bad = result["log"].get("bad_lines", 0)
+    bad = lg.source.get("bad_lines", 0)
     if bad:
         print(f"{bad} malformed log line(s) skipped; see the JSON 'log' section for line numbers")
     damage = result["log"].get("damage") or {}
     if damage.get("places"):
         print(f"{args.log}: {damage['summary']}; see the JSON 'log' section")
     if args.json_out:
-        report.write_json(result, args.json_out)
+        doc = report.document(result, truth)
+        doc["vehicle"] = _constants(profile)
+        doc["profile_check"] = check.as_dict()
+        report.write_json(doc, args.json_out)
         print(f"wrote {args.json_out}")
-    t0 = result["log"].get("start_time")
+    t0 = lg.start_time
     if recorder is not None:
         recorder.finish(result)
         cols, rows = recorder.table(t0)
@@ -172,13 +177,14 @@ def run(args) -> int:
         write_table(args.channels, tap.columns(), a)
         print(f"wrote {args.channels} ({len(a)} samples)")
     if args.plot:
+        doc = result.estimates_dict()  # windows on the trace's time axis (since the log's start)
         report.plot(
-            pipeline.estimator.trace,
-            result["windows"],
+            result.trace_since_start(),
+            doc["windows"],
             args.plot,
             truth,
             title=f"{Path(args.log).name}: {profile.vehicle.name}",
-            params=result["parameters"],
+            params=doc["parameters"],
             priors=profile.priors,
         )
         print(f"wrote {args.plot}")
@@ -194,9 +200,9 @@ def _constants(profile) -> dict:
     return {**asdict(Constants.of(profile.vehicle)), "profile": str(profile.path)}
 
 
-def _coaching(result: dict) -> list[str]:
+def _coaching(result) -> list[str]:
     """Progress per stage, and what to drive for what is not yet learnt."""
-    coach = result.get("coaching")
+    coach = result.coaching
     if not coach:
         return []
     stages = coach["stages"]
@@ -205,7 +211,7 @@ def _coaching(result: dict) -> list[str]:
         + ", ".join(f"stage {k} {100 * v['progress']:.0f} %" for k, v in stages.items())
         + f"; next: {coach['next']}"
     ]
-    for name, p in result["parameters"].items():
-        if p.get("status") != "converged" and p.get("hint"):
-            lines.append(f"  {name}: {p['hint']}")
+    for name, p in result.parameters.items():
+        if p.status != "converged" and p.hint:
+            lines.append(f"  {name}: {p.hint}")
     return lines

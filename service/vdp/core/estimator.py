@@ -11,12 +11,15 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .. import channels as ch
 from .learner import LearnerConfig, Stage1, Stage2
+from .result import SETTLED, Estimate, Snapshot, WindowSpan
+from .sample import Sample
 from .speed import SpeedConfig, SpeedFilter, wheel_reference
 from .supervisor import GateConfig, Supervisor
 
@@ -50,8 +53,9 @@ class GyroBias:
         self.n = 0
         self.t: float | None = None
 
-    def update(self, s, gate: GateConfig) -> None:
-        y = s.vals if s.vals is not None else s.values.tolist()
+    def update(self, s, gate: GateConfig) -> tuple[float, float]:
+        """Take one sample; return the (yaw, roll) offsets to remove from it."""
+        y = s.values
         d, yaw, roll = y[ch.DELTA], y[ch.YAW], y[ch.ROLL]
         if (
             math.isfinite(d)
@@ -67,7 +71,7 @@ class GyroBias:
             self.roll += k * (roll - self.roll)
             self.n += 1
         self.t = s.t
-        s.yaw_bias, s.roll_bias = self.yaw, self.roll
+        return self.yaw, self.roll
 
 
 class TwoStageEstimator:
@@ -92,10 +96,12 @@ class TwoStageEstimator:
         self.t: float | None = None
 
     # -- learner interface ---------------------------------------------
-    def handle(self, t: float, s) -> None:
+    def handle(self, t: float, s: Sample) -> Sample:
+        """Take one aligned sample; return it with the derived fields (speed, gyro offsets) set."""
         self.t = t
-        self._speed(t, s)
-        self.gyro_bias.update(s, self.cfg.gate)
+        v_x, v_std, ax_bias = self._speed(t, s)
+        yaw_bias, roll_bias = self.gyro_bias.update(s, self.cfg.gate)
+        s = s.derived(v_x=v_x, v_std=v_std, ax_bias=ax_bias, yaw_bias=yaw_bias, roll_bias=roll_bias)
         done = self.handover_t is not None
         stage = self.supervisor.update(t, s, done)
         for kind in self.s1:
@@ -117,10 +123,11 @@ class TwoStageEstimator:
         if self._next_trace is None or t >= self._next_trace:
             self._next_trace = t + self.cfg.trace_every
             self.trace.append(self._trace_row(t, stage))
+        return s
 
-    def _speed(self, t: float, s) -> None:
-        """Run the GNSS + IMU speed filter and attach v_x, its std and the a_x bias to the sample."""
-        y = s.vals if s.vals is not None else s.values.tolist()
+    def _speed(self, t: float, s) -> tuple[float, float, float]:
+        """Run the GNSS + IMU speed filter; return v_x, its std and the a_x bias."""
+        y = s.values
         ax = y[ch.AX]
         gnss = None
         if s.fresh[ch.SPEED] and math.isfinite(y[ch.SPEED]):
@@ -135,7 +142,7 @@ class TwoStageEstimator:
         if s.gap:
             self.speed.reset()
         self.speed.step(t, ax, gnss, noise)
-        s.v_x, s.v_std, s.ax_bias = self.speed.v, self.speed.std, self.speed.bias
+        return self.speed.v, self.speed.std, self.speed.bias
 
     def reset(self, stage: int | None = None) -> None:
         """Clear one stage (1 or 2) or both (None)."""
@@ -150,44 +157,44 @@ class TwoStageEstimator:
             self.supervisor.reset()
             self.trace.clear()
 
-    def snapshot(self) -> dict:
-        return {
-            "parameters": self.parameters("ukf"),
-            "baseline_ekf": self.parameters("ekf") if "ekf" in self.s1 else None,
-            "stage": self.stage(),
-            "supervisor": self.supervisor.state(),
-            "windows": [w.as_dict() for w in self.supervisor.windows],
-            "resets": {k: self.s1[k].resets + self.s2[k].resets for k in self.s1},
-        }
+    def snapshot(self) -> Snapshot:
+        return Snapshot(
+            parameters=self.parameters("ukf"),
+            baseline_ekf=self.parameters("ekf") if "ekf" in self.s1 else None,
+            stage=self.stage(),
+            supervisor=self.supervisor.state(),
+            windows=tuple(WindowSpan(w.stage, w.start, w.end, w.samples) for w in self.supervisor.windows),
+            resets={k: self.s1[k].resets + self.s2[k].resets for k in self.s1},
+        )
 
     # -- helpers -------------------------------------------------------
-    def parameters(self, kind: str = "ukf") -> dict:
+    def parameters(self, kind: str = "ukf") -> dict[str, Estimate]:
         out = {}
         for learner in (self.s1[kind], self.s2[kind]):
-            out.update({n: e.as_dict() for n, e in learner.snapshot().items()})
+            out.update(learner.snapshot())
         return out
 
     def stage(self) -> str:
         if self.handover_t is None:
             return "stage1"
         # done when every stage-2 parameter is either converged or known not to be identifiable
-        settled = all(e.status in ("converged", "not_identifiable") for e in self.s2["ukf"].snapshot().values())
+        settled = all(e.status in SETTLED for e in self.s2["ukf"].snapshot().values())
         return "done" if settled else "stage2"
 
-    def restore(self, params: dict) -> None:
+    def restore(self, params: Mapping[str, Estimate]) -> None:
         """Start from stored estimates (value, std, samples) instead of the priors."""
         for kind in self.s1:
             for learner in (self.s1[kind], self.s2[kind]):
                 snap = learner.snapshot()
                 vals, stds, n = [], [], 0
                 for name in learner.names:
-                    p = params.get(name) or {}
-                    v, sd = p.get("value"), p.get("std")
+                    p = params.get(name)
+                    v, sd = (p.value, p.std) if p is not None else (None, None)
                     ok = v is not None and sd is not None and math.isfinite(v) and math.isfinite(sd) and sd > 0
                     vals.append(v if ok else snap[name].value)
                     stds.append(sd if ok else snap[name].std)
                     if ok:
-                        n = max(n, int(p.get("samples") or 1))
+                        n = max(n, p.samples or 1)
                 if n:
                     learner.set_params(vals, np.diag(np.square(stds)), n)
         if self.s1["ukf"].converged():

@@ -30,6 +30,7 @@ from . import batch, lateral, longitudinal
 from .bounds import Bounds
 from .filters import EKF, UKF
 from .params import BY_NAME, STAGE1, STAGE2
+from .result import CONVERGED, INVALID, NOT_IDENTIFIABLE, NOT_RUN, UNCERTAIN, Estimate, finite
 
 log = logging.getLogger(__name__)
 
@@ -89,33 +90,6 @@ class LearnerConfig:
     @property
     def stage2_every(self) -> int:
         return max(1, round(self.stage2_step / self.tick))
-
-
-@dataclass
-class Estimate:
-    name: str
-    value: float | None
-    std: float | None
-    unit: str
-    valid: bool
-    stage: int
-    samples: int
-    status: str  # not_run | uncertain | converged | not_identifiable | invalid
-
-    def as_dict(self) -> dict:
-        return {
-            "value": self.value,
-            "std": self.std,
-            "unit": self.unit,
-            "valid": self.valid,
-            "stage": self.stage,
-            "samples": self.samples,
-            "status": self.status,
-        }
-
-
-def _finite(v) -> float | None:
-    return float(v) if v is not None and math.isfinite(v) else None
 
 
 class StageLearner:
@@ -191,17 +165,24 @@ class StageLearner:
             value = float(theta[i])
             std = math.sqrt(cov[i, i]) if cov[i, i] > 0 else math.nan
             if self.samples == 0:
-                status = "not_run"
+                status = NOT_RUN
             elif not (math.isfinite(value) and math.isfinite(std)) or not (spec.lo <= value <= spec.hi):
-                status = "invalid"
+                status = INVALID
             elif std <= spec.converged_rel * abs(value):
-                status = "converged"
+                status = CONVERGED
             elif self.samples >= self.cfg.min_samples and std > 0.5 * self.prior_std[i]:
-                status = "not_identifiable"
+                status = NOT_IDENTIFIABLE
             else:
-                status = "uncertain"
+                status = UNCERTAIN
             out[name] = Estimate(
-                name, _finite(value), _finite(std), spec.unit, status == "converged", self.stage, self.samples, status
+                name=name,
+                value=finite(value),
+                std=finite(std),
+                unit=spec.unit,
+                status=status,
+                valid=status == CONVERGED,
+                stage=self.stage,
+                samples=self.samples,
             )
         return out
 
@@ -323,7 +304,7 @@ class Stage1(StageLearner):
     @staticmethod
     def inputs(s) -> tuple[list, list, bool]:
         """(u, z, all finite) of one sample, as lists: arrays are built once per block."""
-        y = s.vals if s.vals is not None else s.values.tolist()
+        y = s.values
         u = [y[ch.T_F], y[ch.T_R], y[ch.AX] - s.ax_bias, s.v_x, s.v_std, 0.0, 0.0]
         z = [0.5 * (y[ch.WS_FL] + y[ch.WS_FR]), 0.5 * (y[ch.WS_RL] + y[ch.WS_RR])]
         return u, z, math.isfinite(sum(u) + z[0] + z[1])  # a NaN or inf anywhere makes the sum so
@@ -485,7 +466,7 @@ class Stage2(StageLearner):
 
     def inputs(self, s) -> list:
         """The model's input row u of one sample (a list: arrays are built once per step)."""
-        y = s.vals if s.vals is not None else s.values.tolist()
+        y = s.values
         v_x = y[ch.SPEED]
         # the rear wheels give a smoother v_x than GNSS: omega r / (1 + s_r), eqs (13)-(14)
         w_r = 0.5 * (y[ch.WS_RL] + y[ch.WS_RR])
@@ -500,7 +481,7 @@ class Stage2(StageLearner):
     @staticmethod
     def measurements(s) -> tuple[np.ndarray, np.ndarray]:
         """z = [yaw rate, roll rate, a_y] of one sample, gyro offsets removed, and which are finite."""
-        y = s.vals if s.vals is not None else s.values.tolist()
+        y = s.values
         z = np.array([y[ch.YAW] - s.yaw_bias, y[ch.ROLL] - s.roll_bias, y[ch.AY]])
         return z, np.isfinite(z)
 

@@ -88,7 +88,7 @@ class Supervisor:
 
     def update(self, t: float, s, stage1_done: bool) -> int | None:
         """Feed one sample; return the stage whose window is open (1, 2 or None)."""
-        y = s.vals if s.vals is not None else s.values.tolist()
+        y = s.values
         dt = 0.01 if self._t is None or s.gap else min(max(t - self._t, 0.0), 0.1)
         self._t = t
         ax, d, yaw = y[ch.AX], y[ch.DELTA], y[ch.YAW]

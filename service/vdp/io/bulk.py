@@ -36,6 +36,7 @@ import can
 import numpy as np
 
 from .. import channels
+from ..result import RunResult
 from .decoder import _limits as limits  # with the profile's range overrides
 from .decoder import compile_extractor
 from .logs import EXT_KEY, LogStats, channel_keys, open_log
@@ -75,10 +76,9 @@ def replay_log(
     channel: str | None = None,
     progress: Callable[[int, int], None] | None = None,
     bulk: bool = True,
-    truth: dict | None = None,
     wrap: Callable[[Any], Any] | None = None,
-) -> tuple[dict, Any]:
-    """``replay()``'s document for a log, and the pipeline it ran on.
+) -> tuple[RunResult, Any]:
+    """``replay()``'s result for a log, and the pipeline it ran on.
 
     candump logs go the bulk way (unless ``bulk`` is false); if the log turns out to
     need the per-frame reader's rules, it is replayed again that way on a fresh
@@ -90,7 +90,7 @@ def replay_log(
         src = BulkSource(path, strict=strict, channel=channel)
         pipe = make_pipeline()
         try:
-            return replay(src, pipe, truth=truth, progress=progress), pipe
+            return replay(src, pipe, progress=progress), pipe
         except Irregular as why:
             log.info("%s: %s; replaying it frame by frame", path, why)
         finally:
@@ -98,7 +98,7 @@ def replay_log(
     source = open_log(path, strict=strict, channel=channel)
     pipe = make_pipeline()
     try:
-        return replay(wrap(source) if wrap else source, pipe, truth=truth, progress=progress), pipe
+        return replay(wrap(source) if wrap else source, pipe, progress=progress), pipe
     finally:
         source.close()
 
@@ -480,12 +480,7 @@ class BulkSource:
                     per_channel[idx] = (fi[o], fv[o])
                 else:
                     per_channel[idx] = (fidx, out_vals[:, col])
-        ring, handle = pipe.ring.append, pipe.estimator.handle
-        samples = align(pipe.aligner, times, per_channel)
-        for s in samples:
-            ring(s)
-            handle(s.t, s)
-        pipe.samples += len(samples)
+        pipe.take(align(pipe.aligner, times, per_channel))
         pipe.last_bus_time = float(times[-1])
         return None
 

@@ -36,7 +36,9 @@ from typing import Any
 
 from .. import channels
 from ..core.params import NAMES
+from ..core.result import INVALID
 from ..errors import StoreError, VdpError
+from ..result import RunResult, jsonable
 from ..settings import Settings
 from ..store import Store, profile_fingerprint
 from .bus import BusLink, open_bus
@@ -55,36 +57,8 @@ class Unavailable(VdpError):
     """The service cannot answer this now (worker busy or stopped, store refused)."""
 
 
-def clean(obj: Any) -> Any:
-    """A copy safe for JSON: non-finite floats become None, numpy scalars plain numbers."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {str(k) if not isinstance(k, str) else k: clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [clean(v) for v in obj]
-    if isinstance(obj, (str, int, bool)) or obj is None:
-        return obj
-    if hasattr(obj, "item"):  # numpy scalar
-        return clean(obj.item())
-    return str(obj)
-
-
 def _close(a: float | None, b: float | None) -> bool:
     return a is not None and b is not None and math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-12)
-
-
-def _params(p: dict | None) -> dict | None:
-    """Parameters as the API promises: value null -> valid false."""
-    if p is None:
-        return None
-    out = {}
-    for name, e in p.items():
-        e = dict(e)
-        if e.get("value") is None or e.get("std") is None:
-            e["valid"] = False
-        out[name] = e
-    return out
 
 
 @dataclass(frozen=True)
@@ -93,14 +67,13 @@ class Published:
 
     seq: int
     wall: float
-    bus_time: float | None
-    snapshot: dict
-    freshness: dict
-    decode: dict
-    clock: dict
+    result: RunResult
     fed: int
-    samples: int
     restored: bool = False
+
+    @property
+    def bus_time(self) -> float | None:
+        return self.result.bus_time
 
 
 @dataclass
@@ -154,8 +127,8 @@ class Service:
         self.store_last_commit: float | None = None
         self.restored: dict | None = None
         self.restore_error: str | None = None
-        self._pub = Published(0, time.time(), None, {}, {}, {}, {}, 0, 0)
         self._seq = itertools.count(1)
+        self._pub = Published(0, time.time(), self.pipeline.result(), 0)
         self._fed = 0
         self._errors = 0
         self._dirty = True
@@ -225,13 +198,13 @@ class Service:
             log.error("estimate store refused, starting from the priors and not saving: %s", exc)
             return
         self.store_state, self.store_error = "ok", None
-        stored = {k: v for k, v in self.store.load().items() if v.get("samples") and v.get("value") is not None}
+        stored = {k: v for k, v in self.store.load().items() if v.estimate.samples and v.estimate.value is not None}
         if not stored:
             return
-        self.pipeline.estimator.restore(stored)
+        self.pipeline.restore({k: v.estimate for k, v in stored.items()})
         # Check the estimator really took them: claiming "restored" over the priors would be a lie.
-        now = self.pipeline.snapshot().get("parameters") or {}
-        off = [k for k, v in stored.items() if not _close((now.get(k) or {}).get("value"), v["value"])]
+        now = self.pipeline.result().parameters
+        off = [k for k, v in stored.items() if k not in now or not _close(now[k].value, v.estimate.value)]
         if off:
             self.restore_error = (
                 f"the estimator did not take the stored estimates of {', '.join(sorted(off))} "
@@ -240,7 +213,7 @@ class Service:
             log.error("%s", self.restore_error)
             return
         self.restored = stored
-        when = max(v["t"] for v in stored.values())
+        when = max(v.t for v in stored.values())
         log.info(
             "restored %d estimates from %s (saved %s)",
             len(stored),
@@ -299,19 +272,11 @@ class Service:
     def _publish(self) -> None:
         pipe = self.pipeline
         try:
-            snap = clean(pipe.snapshot())
-            snap["parameters"] = _params(snap.get("parameters"))
-            snap["baseline_ekf"] = _params(snap.get("baseline_ekf"))
             pub = Published(
                 seq=next(self._seq),
                 wall=time.time(),
-                bus_time=pipe.last_bus_time,
-                snapshot=snap,
-                freshness=clean(pipe.freshness()),
-                decode=clean(pipe.decoder.stats.as_dict()),
-                clock=clean({"backwards": pipe.aligner.clock_backwards, "jumps": pipe.aligner.clock_jumps}),
+                result=pipe.result(trace=True),
                 fed=self._fed,
-                samples=pipe.samples,
                 restored=self.restored is not None,
             )
         except Exception:
@@ -319,7 +284,7 @@ class Service:
             log.exception("taking a snapshot failed")
             return
         self._dirty = False
-        self._note_resets(pub.snapshot.get("resets") or {})
+        self._note_resets(pub.result.resets)
         self._pub = pub
 
     def _note_resets(self, resets: dict) -> None:
@@ -379,10 +344,10 @@ class Service:
         """Commit the latest snapshot, if it is new: one transaction per batch."""
         with self._commit_lock:
             store, pub = self.store, self._pub
-            if store is None or not pub.snapshot or pub.seq == self._committed_seq:
+            if store is None or pub.seq == self._committed_seq:
                 return
             try:
-                store.save(pub.snapshot.get("parameters") or {}, t=pub.wall, bus_t=pub.bus_time)
+                store.save(pub.result.parameters, t=pub.wall, bus_t=pub.bus_time)
             except StoreError as exc:
                 if self.store_state != "error":
                     log.error("%s; will retry", exc)
@@ -412,19 +377,10 @@ class Service:
 
     def estimates(self) -> dict:
         pub = self._pub
-        s = pub.snapshot
-        return {
-            "parameters": s.get("parameters") or {},
-            "baseline_ekf": s.get("baseline_ekf"),
-            "stage": s.get("stage", "stage1"),
-            "supervisor": s.get("supervisor") or {"active_stage": None, "reasons": {}, "windows": 0},
-            "capabilities": s.get("capabilities") or {},
-            "coaching": s.get("coaching"),
-            "resets": s.get("resets") or {},
-            "restored": pub.restored,
-            "bus_time": pub.bus_time,
-            "updated": pub.wall,
-        }
+        doc = pub.result.estimates_dict()
+        del doc["windows"]
+        doc.update(restored=pub.restored, bus_time=pub.bus_time, updated=pub.wall)
+        return jsonable(doc)
 
     def health(self) -> dict:
         reasons: list[str] = []
@@ -440,15 +396,15 @@ class Service:
         elif silent > self.settings.service.silence:
             reasons.append(f"no frames for {silent:.0f} s")
         else:
-            stale = sorted(n for n, f in pub.freshness.items() if f.get("stale"))
+            stale = sorted(n for n, f in pub.result.channels.items() if f.stale)
             if stale:
                 reasons.append(f"stale channels: {', '.join(stale)}")
-        invalid = pub.decode.get("invalid_channels") or []
+        invalid = pub.result.decode.get("invalid_channels") or []
         if invalid:
             reasons.append(f"invalid channels (bad counter or checksum): {', '.join(invalid)}")
         # each filter kind on its own: the EKF diverging must not hide that the UKF did
         reasons += [what for when, what in self._diverged.values() if now - when <= hold]
-        bad = sorted(n for n, p in (pub.snapshot.get("parameters") or {}).items() if p.get("status") == "invalid")
+        bad = sorted(n for n, p in pub.result.parameters.items() if p.status == INVALID)
         if bad:
             reasons.append(f"invalid estimates: {', '.join(bad)}")
         if self._dropped_at is not None and now - self._dropped_at <= hold:
@@ -468,7 +424,7 @@ class Service:
         return {
             "status": "degraded" if reasons else "ok",
             "reasons": reasons,
-            "stage": pub.snapshot.get("stage", "stage1"),
+            "stage": pub.result.stage,
             "uptime_s": self.uptime(),
         }
 
@@ -481,9 +437,7 @@ class Service:
 
     def status(self) -> dict:
         pub = self._pub
-        s = pub.snapshot
-        windows = s.get("windows") or []
-        current = windows[-1] if windows and windows[-1].get("end") is None else None
+        r = pub.result
         silent = self.silent_for()
         store: dict[str, Any] = {
             "path": str(self.settings.store.path),
@@ -499,7 +453,7 @@ class Service:
                 store["bytes"] = self.store.size()
             except OSError:
                 store["bytes"] = None
-        return clean(
+        return jsonable(
             {
                 "uptime_s": self.uptime(),
                 "started": self._started_wall,
@@ -517,18 +471,18 @@ class Service:
                 "queue": {"depth": self.queue.qsize(), "capacity": self.queue.maxsize, "dropped": self.intake.dropped},
                 "estimation": {
                     "frames": pub.fed,
-                    "samples": pub.samples,
+                    "samples": r.samples,
                     "errors": self._errors,
-                    "stage": s.get("stage", "stage1"),
-                    "bus_time": pub.bus_time,
+                    "stage": r.stage,
+                    "bus_time": r.bus_time,
                     "worker_restarts": self.worker_restarts,
-                    "clock": pub.clock,
-                    "resets": s.get("resets") or {},
-                    "capabilities": s.get("capabilities") or {},
+                    "clock": r.clock,
+                    "resets": r.resets,
+                    "capabilities": r.capabilities,
                 },
-                "decode": pub.decode,
-                "channels": pub.freshness,
-                "gating": {**(s.get("supervisor") or {}), "window": current, "windows_total": len(windows)},
+                "decode": r.decode,
+                "channels": r.channels,
+                "gating": {**r.supervisor, "window": r.current_window, "windows_total": len(r.windows)},
                 "raw_log": self.rawlog.stats() if self.rawlog is not None else {"enabled": False},
                 "store": store,
                 "simulation": self.sim.status() if self.sim is not None else None,
@@ -553,7 +507,7 @@ class Service:
             )
         items, total = store.history(parameter, since, until, limit, offset)
         nxt = offset + len(items)
-        return clean(
+        return jsonable(
             {
                 "items": items,
                 "total": total,
@@ -575,12 +529,13 @@ class Service:
     def metrics(self) -> dict:
         """Numbers for /metrics, read without locks."""
         pub = self._pub
+        r = pub.result
         rl = self.rawlog
         return {
             "frames": self.intake.received,
             "dropped": self.intake.dropped,
             "fed": pub.fed,
-            "samples": pub.samples,
+            "samples": r.samples,
             "queue_depth": self.queue.qsize(),
             "queue_capacity": self.queue.maxsize,
             "frames_per_s": self.frames_per_s,
@@ -588,11 +543,11 @@ class Service:
             "reconnects": self.link.info.reconnects,
             "bus_errors": self.link.info.errors,
             "errors": self._errors,
-            "decode": pub.decode,
-            "parameters": pub.snapshot.get("parameters") or {},
-            "stage": pub.snapshot.get("stage"),
-            "active_stage": (pub.snapshot.get("supervisor") or {}).get("active_stage"),
-            "resets": pub.snapshot.get("resets") or {},
+            "decode": r.decode,
+            "parameters": r.parameters,
+            "stage": r.stage,
+            "active_stage": r.supervisor.get("active_stage"),
+            "resets": r.resets,
             "uptime": self.uptime(),
             "raw_bytes": rl.stats()["bytes"] if rl is not None else 0,
             "raw_frames": rl.frames if rl is not None else 0,
@@ -601,6 +556,6 @@ class Service:
             "store_ok": self.store_state == "ok",
             "store_commits": self.store.commits if self.store else 0,
             "healthy": self.health()["status"] == "ok",
-            "channels_stale": sum(1 for f in pub.freshness.values() if f.get("stale")),
+            "channels_stale": sum(1 for f in r.channels.values() if f.stale),
             "channels": len(channels.NAMES),
         }

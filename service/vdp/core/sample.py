@@ -1,0 +1,32 @@
+"""One aligned sample: what the aligner hands the estimator at each tick.
+
+A :class:`Sample` is immutable.  Channel values are read one way only,
+``s.values[channels.X]`` (Python floats: cheaper than numpy one by one).  The
+aligner fills the channel fields; the estimator derives the rest (speed
+filter, gyro offsets) and passes on a copy with them set (:meth:`derived`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True, slots=True)
+class Sample:
+    t: float  # bus time of the tick [s]
+    values: tuple[float, ...]  # per channel index; NaN if unknown or stale
+    fresh: tuple[bool, ...]  # a value newer than the last tick's came in
+    age: tuple[float, ...]  # s since the value before the tick (inf: never seen)
+    gap: bool = False  # the first tick after a gap or a clock jump
+    # derived by the estimator: the speed filter (GNSS + IMU) ...
+    v_x: float = math.nan
+    v_std: float = math.nan
+    ax_bias: float = 0.0
+    # ... and the gyro offsets learnt while driving straight
+    yaw_bias: float = 0.0
+    roll_bias: float = 0.0
+
+    def derived(self, v_x: float, v_std: float, ax_bias: float, yaw_bias: float, roll_bias: float) -> Sample:
+        """A copy with the derived fields set (direct, not dataclasses.replace: once per tick)."""
+        return Sample(self.t, self.values, self.fresh, self.age, self.gap, v_x, v_std, ax_bias, yaw_bias, roll_bias)

@@ -1,0 +1,129 @@
+"""The package's import graph keeps data flowing one way:
+source -> decode -> align -> supervise/learn -> pipeline -> store/report -> live service -> API -> CLI.
+
+Read from the source (every import statement, also those inside functions), so a
+lazy import against the flow is caught as well as a top-level one.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PKG = Path(__file__).resolve().parents[1] / "service" / "vdp"
+
+# Stage of each module (longest prefix wins).  A module may import its own stage or an
+# earlier one.  Stage 0 is what every stage shares: errors, channel names, config, and
+# the plain data types that travel along the flow (Sample, Estimate, RunResult).
+STAGE = {
+    "vdp": 0,
+    "vdp.errors": 0,
+    "vdp.channels": 0,
+    "vdp.settings": 0,
+    "vdp.profile": 0,
+    "vdp.core.params": 0,
+    "vdp.core.result": 0,
+    "vdp.core.sample": 0,
+    "vdp.result": 0,
+    "vdp.io.logs": 1,  # source
+    "vdp.io": 2,  # decode
+    "vdp.io.bulk": 3,  # decodes and aligns blocks of a candump log
+    "vdp.buffer": 3,  # align
+    "vdp.core": 4,  # supervise, learn
+    "vdp.pipeline": 5,
+    "vdp.replay": 5,
+    "vdp.store": 6,
+    "vdp.report": 6,
+    "vdp.live": 7,
+    "vdp.api": 8,
+    "vdp.cli": 9,
+    "vdp.sim": 2,  # the simulator makes frames, as a source does: it may use the codec, no further
+}
+# the simulated bus feed is part of the live service and may drive the simulator
+ALLOWED = {
+    ("vdp.live.simfeed", "vdp.sim"),
+    # the block reader's entry point, replay_log, drives a replay (it would sit better in vdp.replay)
+    ("vdp.io.bulk", "vdp.replay"),
+}
+
+CORE_MAY_IMPORT = {"numpy", "scipy", "filterpy", "math", "dataclasses", "typing", "collections", "functools"}
+CORE_MAY_IMPORT |= {"logging", "__future__"}
+
+
+def module_name(path: Path) -> str:
+    rel = path.relative_to(PKG.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imports(path: Path) -> set[str]:
+    """Absolute names of everything ``path`` imports."""
+    mod = module_name(path)
+    package = mod if path.name == "__init__.py" else mod.rsplit(".", 1)[0]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if node.module:
+                out.add(target)
+            else:  # "from . import x" imports the module x itself
+                out.update(f"{target}.{a.name}" for a in node.names)
+    return out
+
+
+def stage(name: str) -> int | None:
+    best = None
+    for prefix in STAGE:
+        if (name == prefix or name.startswith(prefix + ".")) and (best is None or len(prefix) > len(best)):
+            best = prefix
+    return None if best is None else STAGE[best]
+
+
+def modules() -> dict[str, set[str]]:
+    return {module_name(p): imports(p) for p in sorted(PKG.rglob("*.py"))}
+
+
+def test_imports_never_run_against_the_flow():
+    bad = []
+    for mod, deps in modules().items():
+        here = stage(mod)
+        for dep in deps:
+            if not dep.startswith("vdp"):
+                continue
+            there = stage(dep)
+            allowed = any(mod.startswith(a) and dep.startswith(b) for a, b in ALLOWED)
+            if there is not None and there > here and not allowed:
+                bad.append(f"{mod} (stage {here}) imports {dep} (stage {there})")
+    assert not bad, "\n".join(bad)
+
+
+def test_the_core_imports_no_bus_web_storage_or_clock():
+    bad = []
+    for mod, deps in modules().items():
+        if not mod.startswith("vdp.core"):
+            continue
+        for dep in deps:
+            top = dep.split(".")[0]
+            if top == "vdp":
+                if not (dep.startswith("vdp.core") or dep in ("vdp.channels", "vdp.errors")):
+                    bad.append(f"{mod} imports {dep}")
+            elif top not in CORE_MAY_IMPORT:
+                bad.append(f"{mod} imports {dep}")
+    assert not bad, "\n".join(bad)
+
+
+def test_the_checker_sees_a_violation():
+    """The checks above would fail on a real back-edge (the graph reader is not blind)."""
+    deps = modules()
+    assert "vdp.core.result" in deps["vdp.core.learner"]
+    assert "vdp.io.decoder" in deps["vdp.pipeline"]
+    assert stage("vdp.api.app") > stage("vdp.store") > stage("vdp.core.learner") > stage("vdp.buffer")
