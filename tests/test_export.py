@@ -166,8 +166,9 @@ def test_plot_reads_at_a_glance(drive, repo_root):
     profile = load_profile(repo_root / "profiles" / "paper.toml")
     pipe = Pipeline(profile, EstimatorConfig())
     truth = report.load_truth(d / "drive.truth.json")
-    res = replay(open_log(log, channel=profile.bus_channel), pipe, truth=truth)
-    fig = report.figure(pipe.estimator.trace, res["windows"], truth, "t", res["parameters"], profile.priors)
+    res = replay(open_log(log, channel=profile.bus_channel), pipe)
+    doc = res.estimates_dict()  # windows since the log's start, as the trace below
+    fig = report.figure(res.trace_since_start(), doc["windows"], truth, "t", doc["parameters"], profile.priors)
     try:
         axes = fig.axes
         assert len(axes) == 6

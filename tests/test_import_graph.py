@@ -24,6 +24,7 @@ STAGE = {
     "vdp.core.result": 0,
     "vdp.core.sample": 0,
     "vdp.result": 0,
+    "vdp.io.dbcfix": 0,  # repairs DBC text as a profile is loaded
     "vdp.io.logs": 1,  # source
     "vdp.io": 2,  # decode
     "vdp.io.bulk": 3,  # decodes and aligns blocks of a candump log
@@ -60,6 +61,14 @@ def module_name(path: Path) -> str:
     return ".".join(parts)
 
 
+def is_module(name: str) -> bool:
+    parts = name.split(".")
+    if parts[0] != "vdp":
+        return False
+    base = PKG.joinpath(*parts[1:])
+    return base.with_suffix(".py").is_file() or (base / "__init__.py").is_file()
+
+
 def imports(path: Path) -> set[str]:
     """Absolute names of everything ``path`` imports."""
     mod = module_name(path)
@@ -75,10 +84,8 @@ def imports(path: Path) -> set[str]:
                 target = ".".join(base + ([node.module] if node.module else []))
             else:
                 target = node.module or ""
-            if node.module:
-                out.add(target)
-            else:  # "from . import x" imports the module x itself
-                out.update(f"{target}.{a.name}" for a in node.names)
+            for a in node.names:  # "from pkg import mod" imports the module pkg.mod
+                out.add(f"{target}.{a.name}" if is_module(f"{target}.{a.name}") else target)
     return out
 
 
