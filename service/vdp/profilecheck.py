@@ -431,7 +431,7 @@ def check_log(
             if pairs:
                 for s in al.push(msg.timestamp, pairs):
                     ts.append(s.t)
-                    rows.append(s.values.copy())
+                    rows.append(s.values)
     cov = coverage(dec)
     if strict_coverage and cov.seen * 2 < len(cov.wanted):
         raise ProfileError(f"{path}: the log does not fit profile {profile.path}: {cov.message()}")
