@@ -153,9 +153,9 @@ def test_both_stages_from_total_drive_and_brake_torque(tmp_path):
     pipe = Pipeline(prof, EstimatorConfig(baseline=False))
     for msg in sim.frames():
         pipe.feed(msg)
-    par, truth = pipe.snapshot()["parameters"], sim.truth["parameters"]
+    par, truth = pipe.result().parameters, sim.truth["parameters"]
     for name, tol in (("l_f", 0.01), ("h", 0.03), ("C_K", 0.03), ("C_alpha", 0.03), ("I_z", 0.05)):
-        assert abs(par[name]["value"] / truth[name] - 1) < tol, (name, par[name], truth[name])
+        assert abs(par[name].value / truth[name] - 1) < tol, (name, par[name], truth[name])
 
 
 # -- the speed reference without GNSS, and a coarse GNSS ---------------------------------------
@@ -211,6 +211,6 @@ def test_both_stages_without_gnss_on_a_rear_driven_car(tmp_path):
     pipe = Pipeline(prof, EstimatorConfig(baseline=False))
     for msg in sim.frames():
         pipe.feed(msg)
-    par, truth = pipe.snapshot()["parameters"], sim.truth["parameters"]
+    par, truth = pipe.result().parameters, sim.truth["parameters"]
     for name, tol in (("l_f", 0.01), ("h", 0.03), ("C_K", 0.03), ("C_alpha", 0.03), ("I_z", 0.05)):
-        assert abs(par[name]["value"] / truth[name] - 1) < tol, (name, par[name], truth[name])
+        assert abs(par[name].value / truth[name] - 1) < tol, (name, par[name], truth[name])
