@@ -44,7 +44,7 @@ def _run(case: str, tmp_path_factory) -> tuple[dict, dict]:
         log = tmp_path_factory.mktemp(case.replace("/", "-")) / "drive.log"
         write_log(sim.frames(), log, sim.bus_channel)
         pipe = Pipeline(sim.profile, EstimatorConfig())
-        _cache[case] = (replay(open_log(log, channel=sim.profile.bus_channel), pipe), sim.truth)
+        _cache[case] = (replay(open_log(log, channel=sim.profile.bus_channel), pipe).to_dict(), sim.truth)
     return _cache[case]
 
 
