@@ -157,7 +157,7 @@ def run(args) -> int:
     bad = lg.source.get("bad_lines", 0)
     if bad:
         print(f"{bad} malformed log line(s) skipped; see the JSON 'log' section for line numbers")
-    damage = result["log"].get("damage") or {}
+    damage = lg.source.get("damage") or {}
     if damage.get("places"):
         print(f"{args.log}: {damage['summary']}; see the JSON 'log' section")
     if args.json_out:
