@@ -1,7 +1,7 @@
 """Production bus layouts: the profile self-check's catch rate, and estimates from a car's own signals.
 
     python benchmarks/bus.py check --seeds 5        # each profile mistake, caught or not, per seed
-    python benchmarks/bus.py cars --seeds 5 --jobs 2  # Ford's own signals; total torques without GNSS; whole-mph GNSS
+    python benchmarks/bus.py cars --seeds 5 --jobs 2 [--case mph]  # Ford; total torques without GNSS; whole-mph GNSS
 
 ``check`` simulates the paper drive (70 s, realistic noise) per seed and runs
 ``vdp profile check`` (vdp.profilecheck.check_log) with the right profile and with each
@@ -142,6 +142,7 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--case", default="", help="cars: only the cases whose name contains this")
     a = ap.parse_args()
     seeds = list(range(a.first_seed, a.first_seed + a.seeds))
     if a.what == "check":
@@ -156,6 +157,8 @@ def main() -> int:
         return 0
     tmp = Path(tempfile.mkdtemp(prefix="vdp-bus-"))
     _cases(tmp)
+    for c in [c for c in CASES if a.case not in c]:
+        del CASES[c]
     jobs = [(c, s) for c in CASES for s in seeds]
     with ProcessPoolExecutor(a.jobs, initializer=_cases, initargs=(tmp,)) as ex:
         res = list(ex.map(car_one, jobs))

@@ -46,8 +46,8 @@ def test_ford_layout_round_trips_with_1_hz_whole_mph_gps():
     assert st["errors"] == {} and st["invalid_samples"] == {}
     assert gps == 12  # once a second, as the profile's cycle_ms says
     assert st["samples"]["speed"] == 12 and st["samples"]["wheel_torque_front"] > 1000
-    # whole mph: the speed filter's GNSS noise carries the rounding (0.447 m/s / sqrt 12)
-    assert pipe.estimator.cfg.speed.gnss_noise > 0.13
+    # whole mph: the speed filter's GNSS noise carries the rounding (half of 0.447 m/s)
+    assert pipe.estimator.cfg.speed.gnss_noise > 0.2
 
 
 def test_ford_quality_flags_keep_bad_samples_out():

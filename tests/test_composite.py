@@ -198,7 +198,7 @@ def test_coarse_gnss_speed_gets_its_rounding_noise(tmp_path):
     p = tmp_path / "mph.toml"
     p.write_text(text)
     noise = Pipeline(load_profile(p)).estimator.cfg.speed.gnss_noise
-    assert noise == pytest.approx(gnss_noise(0.05, 0.44704)) and noise > 0.13  # whole mph: 0.447 m/s steps
+    assert noise == pytest.approx(gnss_noise(0.05, 0.44704)) and noise > 0.2  # whole mph: 0.447 m/s steps
     fine = Pipeline(load_profile(ROOT / "profiles" / "paper.toml")).estimator.cfg.speed.gnss_noise
     assert fine == pytest.approx(0.05, rel=1e-4)  # 1 mm/s steps change nothing
 

@@ -24,6 +24,7 @@ from .core.result import Estimate
 from .core.sample import Sample
 from .io.decoder import FrameDecoder, estimator_config
 from .profile import Profile
+from .profilecheck import Monitor
 from .result import Clock, Freshness, LogInfo, RunResult
 
 log = logging.getLogger(__name__)
@@ -43,6 +44,9 @@ class Pipeline:
         self.aligner = Aligner(stale_after=self._stale_after(), tick=self.estimator.cfg.tick)
         self.ring = SampleRing(ring_capacity)
         self._taps: list[Callable[[Sample], None]] = []
+        # the profile self-check of a running service, on the samples the ring holds (profilecheck);
+        # vdp replay checks the log's first minutes instead and sets this to None
+        self.monitor: Monitor | None = Monitor(profile)
         self.frames = 0
         self.samples = 0
         self.started = time.monotonic()
@@ -159,8 +163,12 @@ class Pipeline:
         snap = self.estimator.snapshot()
         caps = self.capabilities()
         coach, params = self._coach(snap, caps)
+        ekf = snap.baseline_ekf
+        if self.monitor is not None:  # parameters resting on a channel the check doubts are not valid
+            self.monitor.update(self.ring)
+            params, ekf = self.monitor.mark(params), self.monitor.mark(ekf)
         return RunResult.of(
-            dataclasses.replace(snap, parameters=params),
+            dataclasses.replace(snap, parameters=params, baseline_ekf=ekf),
             capabilities=caps,
             coaching=coach,
             decode=self.decoder.stats.as_dict(),

@@ -174,7 +174,9 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
     if n < MIN_SAMPLES:
         rep.skipped["all"] = f"only {n} aligned samples ({rep.seconds:.1f} s): too little data to check the profile"
         return rep
-    win = max(int(round(0.5 / TICK)), 1)  # 0.5 s smoothing for derivatives
+    dt = float(np.median(np.diff(t))) if n > 1 else TICK
+    win = max(int(round(0.5 / max(dt, 1e-3))), 1)  # 0.5 s smoothing for derivatives
+    min_n = max(int(MIN_SAMPLES * TICK / max(dt, 1e-3)), 10)  # 1 s of data, whatever the rate
     wheels = [c for c in ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr") if c in have]
     v_wheel = None
     if wheels:
@@ -184,7 +186,7 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
     # 1. wheel speeds against the ground speed
     if v_wheel is not None and v_ref is not None:
         ok = np.isfinite(v_wheel) & np.isfinite(v_ref) & (v_ref > 3.0)
-        if ok.sum() >= MIN_SAMPLES:
+        if ok.sum() >= min_n:
             ratio = float(np.median(v_wheel[ok] / v_ref[ok]))
             rep.measured["wheel_speed_scale"] = ratio
             if not 0.94 < ratio < 1.06:  # slip and tyre growth stay within a few per cent
@@ -213,7 +215,7 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
         ok = np.isfinite(dv) & np.isfinite(ax) & (v > 1.0)
         ok[:win] = ok[-win:] = False
         strong = ok & (np.abs(dv) > 0.3)
-        if strong.sum() >= MIN_SAMPLES and np.std(dv[ok]) > 0.2:
+        if strong.sum() >= min_n and np.std(dv[ok]) > 0.2:
             # Both sides are noisy (dv/dt of a quantised speed too), so a least-squares slope
             # would be biased low: take the ratio of the spreads with the correlation's sign
             # (reduced major axis); means removed, for the road's grade and the sensor's offset.
@@ -252,20 +254,20 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
         dr = np.gradient(r_s, t)
         turn = np.isfinite(r_s) & np.isfinite(v) & (np.abs(r_s) > 0.04) & (v > 3.0) & (np.abs(dr) < 0.2)
         turn[:win] = turn[-win:] = False
-        if turn.sum() < MIN_SAMPLES:
+        if turn.sum() < min_n:
             rep.skipped["turns"] = "no steady turn (yaw rate above 0.04 rad/s at over 3 m/s)"
             turn = None
     steer_sign = None
     if turn is not None and "steering_angle" in have:
         d = _smooth(y[:, ch.DELTA], win)
         okd = turn & np.isfinite(d)
-        if okd.sum() >= MIN_SAMPLES:
+        if okd.sum() >= min_n:
             steer_sign = float(np.sign(np.dot(d[okd], yaw[okd])))
     ay_k = None
     if turn is not None and "accel_y" in have:
         ay = _smooth(y[:, ch.AY], win)
         ok = turn & np.isfinite(ay)
-        if ok.sum() >= MIN_SAMPLES:
+        if ok.sum() >= min_n:
             ay_k = _fit(v[ok] * yaw[ok], ay[ok])
             rep.measured["accel_y_per_v_r"] = ay_k
     if ay_k is not None and ay_k < -0.5:
@@ -317,7 +319,7 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
         d = _smooth(y[:, ch.DELTA], win)
         ay = y[:, ch.AY] if "accel_y" in have else v * yaw
         ok = turn & np.isfinite(d) & (np.abs(np.nan_to_num(ay)) < 4.0)
-        if ok.sum() >= MIN_SAMPLES:
+        if ok.sum() >= min_n:
             kin = veh.wheelbase * yaw[ok] / v[ok]  # the kinematic road-wheel angle
             q = float(np.median(np.abs(d[ok]) / np.abs(kin)))
             rep.measured["steer_per_kinematic"] = q
@@ -357,7 +359,7 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
             ok = np.isfinite(force) & np.isfinite(ax) & np.isfinite(v) & (v > 1.0)
             ok[:win] = ok[-win:] = False
             strong = ok & (np.abs(ax) > 0.5)
-            if strong.sum() >= MIN_SAMPLES:
+            if strong.sum() >= min_n:
                 # road loads: a constant (rolling resistance, grade) and a v^2 term (drag)
                 A = np.column_stack([ax[ok], np.ones(ok.sum()), v[ok] ** 2])
                 coef, *_ = np.linalg.lstsq(A, force[ok], rcond=None)
@@ -457,3 +459,51 @@ def coverage(dec) -> Coverage:
 def lines(rep: Report) -> list[str]:
     """What the CLI prints: one warning line per finding."""
     return [f"profile check: {f.message} (not valid: {', '.join(f.params)})" for f in rep.findings]
+
+
+class Monitor:
+    """The self-check of a running service: it keeps the aligned samples it is shown (10 Hz,
+    the newest ``keep`` seconds) and checks the profile every ``every`` seconds of bus time,
+    warning once per new finding.  :meth:`mark` applies the newest report to estimates."""
+
+    def __init__(self, profile: Profile, keep: float = 600.0, every: float = 30.0, rate: float = 0.1):
+        self.profile, self.keep, self.every, self.rate = profile, keep, every, rate
+        self.t: list[float] = []
+        self.y: list[np.ndarray] = []
+        self.last_t = -math.inf
+        self.next_check: float | None = None
+        self.report = check_profile(profile)
+        self._said: set[str] = set()
+        self._say()
+
+    def update(self, ring) -> None:
+        """Take the samples ``ring`` (a SampleRing) got since the last call; check when due."""
+        ts, ys = ring.latest()
+        new = ts > self.last_t
+        for t, y in zip(ts[new], ys[new]):
+            if not self.t or t - self.t[-1] >= self.rate:
+                self.t.append(float(t))
+                self.y.append(y.copy())
+        if len(ts) and new.any():
+            self.last_t = float(ts[-1])
+        while self.t and self.t[-1] - self.t[0] > self.keep:
+            self.t.pop(0)
+            self.y.pop(0)
+        if not self.t:
+            return
+        if self.next_check is None:
+            self.next_check = self.t[0] + self.every
+        if self.t[-1] >= self.next_check:
+            self.next_check = self.t[-1] + self.every
+            self.report = check_samples(self.profile, np.asarray(self.t), np.vstack(self.y))
+            self._say()
+
+    def _say(self) -> None:
+        for f in self.report.findings:
+            if f.check not in self._said:
+                self._said.add(f.check)
+                log.warning("profile check: %s (not valid: %s)", f.message, ", ".join(f.params))
+
+    def mark(self, params):
+        """``params`` (name -> Estimate) with those the newest report doubts marked not valid."""
+        return None if params is None else mark_invalid(params, self.report)

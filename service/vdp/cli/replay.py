@@ -119,6 +119,7 @@ def run(args) -> int:
         # a fresh pipeline (and recorders on it) for each attempt: a candump log that the
         # block reader hands back is replayed again frame by frame
         pipe = made["pipeline"] = Pipeline(profile, cfg)
+        pipe.monitor = None  # the check above read the log's first minutes; it stands for the replay
         made["recorder"] = SeriesRecorder(pipe) if args.series else None
         made["tap"] = ChannelTap(pipe) if args.channels else None
         return pipe

@@ -14,9 +14,10 @@ the measurement (``wheel_noise``), and while the free axle is braked the IMU
 carries the speed alone, with the bias learnt before.
 
 A GNSS speed in coarse steps (whole mph in Ford's GPS messages: 0.447 m/s) has a
-rounding error of up to half a step, uniform, so its noise is inflated by
-``step / sqrt(12)`` (:func:`gnss_noise`); otherwise the filter would trust it, and
-stage 1's C_K would come out "converged" and wrong.
+rounding error of up to half a step that stays put while the speed changes slowly, so its
+noise is inflated by half a step (:func:`gnss_noise`).  That is not all it takes: the
+error is correlated in time, which a white measurement noise cannot say, and stage 1's
+stds stay somewhat narrow on such a GNSS (BENCHMARKS.md, "Production bus layouts").
 """
 
 from __future__ import annotations
@@ -38,8 +39,13 @@ class SpeedConfig:
 
 
 def gnss_noise(base: float, step: float) -> float:
-    """GNSS speed noise [m/s] for a signal quantised in ``step`` m/s (rounding: uniform, step^2/12)."""
-    return math.sqrt(base * base + step * step / 12.0)
+    """GNSS speed noise [m/s] for a signal quantised in ``step`` m/s.
+
+    The rounding error is uniform (std step/sqrt 12) but not white: while the speed changes
+    by less than a step the error stays the same, so averaging many samples does not shrink
+    it as the filter assumes.  Half a step, its largest value, is taken as its std instead.
+    """
+    return math.sqrt(base * base + 0.25 * step * step)
 
 
 def wheel_reference(
