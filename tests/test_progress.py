@@ -100,3 +100,16 @@ def test_progress_grows_while_the_paper_drive_goes_on(tmp_path, repo_root):
     final = pipe.result()
     for n in STAGE1:
         assert final.parameters[n].progress == 1.0 and final.parameters[n].status == "converged"
+
+
+def test_a_flagged_estimate_is_not_learnt_whatever_its_std():
+    mismatch = {
+        "value": 1.4,
+        "std": 0.001,
+        "status": "converged",
+        "valid": False,
+        "samples": 900,
+        "reason": "model mismatch: residuals not white",
+    }
+    out = progress.assess(snap(l_f=mismatch), PRIORS, 0.02)["parameters"]["l_f"]
+    assert out["progress"] < 1.0 and "model mismatch" in out["hint"] and out["hint"].startswith("not valid")

@@ -116,7 +116,9 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
         status = p.get("status", "not_run")
         window_s = (p.get("samples") or 0) * tick
         info = information(p.get("value"), p.get("std"), priors[name].std, spec.converged_rel)
-        progress = 1.0 if status == "converged" else min(info, 0.99) if status != "invalid" else 0.0
+        flagged = p.get("reason") is not None and not p.get("valid", status == "converged")
+        # a flagged estimate (say, "model mismatch: ...") is not learnt, however small its std
+        progress = 1.0 if status == "converged" and not flagged else min(info, 0.99) if status != "invalid" else 0.0
         to_go = seconds_to_go(p.get("value"), p.get("std"), window_s, spec.converged_rel)
         out["parameters"][name] = {
             "progress": round(progress, 3),
@@ -148,6 +150,8 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
 def _hint(name, stage, status, p, to_go, prior_std, why_not, reasons, excitation, handed_over) -> str:
     if why_not:
         return f"cannot be learnt on this car: {why_not}"
+    if p.get("reason") is not None and not p.get("valid", status == "converged") and status != "invalid":
+        return f"not valid: {p['reason']}; more of the same driving will not fix it, the car differs from the model"
     if status == "converged":
         rel = (p.get("std") or 0) / abs(p["value"]) if p.get("value") else 0
         return f"enough: known to ±{100 * rel:.1f} % (1σ); nothing more to drive for it"
