@@ -293,10 +293,41 @@ _VEHICLE_KEYS = {
 }
 
 
+_MAX_NUM = 1e12  # no constant of a car comes near; beyond, products in the filters overflow
+
+
 def _num(where: str, key: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ProfileError(f"{where}: '{key}' must be a finite number, got {value!r}")
-    return float(value)
+    try:
+        v = float(value)  # an integer of 400 digits does not fit a float
+    except OverflowError:
+        v = math.inf
+    if not math.isfinite(v):
+        raise ProfileError(f"{where}: '{key}' must be a finite number, got {_short(value)}")
+    if abs(v) > _MAX_NUM:
+        raise ProfileError(f"{where}: '{key}' = {v:g} is out of range (at most {_MAX_NUM:g} in size)")
+    return v
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else f"{text[:20]}...({len(text)} characters)"
+
+
+# Plausible bounds of a road vehicle's known constants [SI]: a typo (or a unit slip) is named
+# here instead of making the filters diverge.
+_VEHICLE_RANGE = {
+    "mass": (50.0, 100000.0),
+    "wheelbase": (0.3, 30.0),
+    "wheel_radius": (0.05, 3.0),
+    "wheel_inertia": (1e-3, 1e4),
+    "roll_stiffness": (1.0, 1e9),
+    "roll_damping": (1e-3, 1e8),
+    "steering_ratio": (1.0, 100.0),
+    "track": (0.3, 5.0),
+    "g": (1.0, 30.0),
+}
 
 
 def _vehicle(where: str, raw: dict[str, Any]) -> Vehicle:
@@ -331,6 +362,15 @@ def _vehicle(where: str, raw: dict[str, Any]) -> Vehicle:
             if v <= 0:
                 raise ProfileError(f"{where} [vehicle]: '{key}' must be positive, got {v}")
             vals[key] = v
+    for key, (lo, hi) in _VEHICLE_RANGE.items():
+        v = vals.get(key)
+        if v is not None and not lo <= v <= hi:
+            src = f"{key}_per_deg" if key in ("roll_stiffness", "roll_damping") and key not in raw else key
+            shown = v * math.pi / 180.0 if src != key else v
+            raise ProfileError(
+                f"{where} [vehicle]: '{src}' = {shown:g} is not plausible for a road vehicle "
+                f"(expected {lo:g} to {hi:g} in SI units{', per radian' if src != key else ''})"
+            )
     return Vehicle(**vals)
 
 
@@ -505,16 +545,23 @@ def _checks(where: str, raw: Any) -> dict[str, MessageCheck]:
     return out
 
 
+_MAX_PROFILE = 1 << 20  # bytes: a profile is a page of TOML
+
+
 def load_profile(path: str | Path) -> Profile:
     """Read and validate a profile; every problem is a ProfileError naming the line's table."""
     path = Path(path)
     where = str(path)
     if not path.is_file():
         raise ProfileError(f"{where}: no such profile file (try profiles/paper.toml)")
+    if path.stat().st_size > _MAX_PROFILE:
+        raise ProfileError(f"{where}: {path.stat().st_size:,} bytes is not a profile (at most {_MAX_PROFILE:,})")
     try:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ProfileError(f"{where}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ProfileError(f"{where}: arrays or tables nested too deeply to be a profile") from None
     unknown = set(raw) - {"vehicle", "priors", "can", "channels", "checks", "drivetrain"}
     if unknown:
         raise ProfileError(

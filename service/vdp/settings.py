@@ -46,6 +46,8 @@ class RawLogSettings:
     dir: Path = Path("raw")
     max_bytes: int = 64 * 1024 * 1024  # per file
     max_files: int = 64  # oldest deleted beyond this; bounds disk use to max_bytes * max_files
+    # MiB of free space kept on the raw log's disk: under it the oldest files go (None: two files' worth)
+    min_free_mb: int | None = None
     prefix: str = "vdp"
 
 
@@ -184,6 +186,12 @@ def validate(s: Settings) -> Settings:
             f"{_where(src, 'raw_log', 'max_files')}: must be at least 2 (the open file "
             f"and one closed one), got {s.raw_log.max_files}"
         )
+    if s.raw_log.min_free_mb is not None and (
+        isinstance(s.raw_log.min_free_mb, bool)
+        or not isinstance(s.raw_log.min_free_mb, int)
+        or s.raw_log.min_free_mb < 0
+    ):
+        raise ConfigError(f"{_where(src, 'raw_log', 'min_free_mb')}: must be a whole number of MiB >= 0")
     if not s.raw_log.prefix or any(c in s.raw_log.prefix for c in "/\\ -"):
         raise ConfigError(f"{_where(src, 'raw_log', 'prefix')}: must be a plain word without '/', ' ' or '-'")
     _positive(src, "store", "commit_interval", s.store.commit_interval)

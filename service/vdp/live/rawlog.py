@@ -11,7 +11,11 @@ rotation; this listener adds what an unattended logger needs:
   at the next start: cut back to its last full line and closed like the others;
 - disk full (or any other OSError) stops logging and says why, and never
   reaches the receive thread: estimation and the API carry on.  Logging tries
-  again once there is room.
+  again after RETRY_MIN s, backing off to RETRY_MAX, and the frames it could
+  not write are counted (``lost``);
+- the newest data wins: when free space falls under ``min_free`` (at each
+  rotation, and before resuming after a full disk) the oldest closed files are
+  deleted, each with a warning, until it is back above the floor.
 """
 
 from __future__ import annotations
@@ -29,7 +33,8 @@ import can
 
 log = logging.getLogger(__name__)
 
-RETRY_AFTER = 30.0  # s between attempts to resume after a write error
+RETRY_MIN = 1.0  # s before the first attempt to resume after a write error
+RETRY_MAX = 30.0  # s: the wait doubles after each failed attempt, up to this
 _TAIL = 1 << 16  # bytes read back when salvaging a file cut mid-line
 
 
@@ -68,9 +73,13 @@ class _Rotating(can.SizedRotatingLogger):
 class RawLog(can.Listener):
     """A Notifier listener; ``on_message_received`` never raises."""
 
-    def __init__(self, directory: str | Path, max_bytes: int, max_files: int, prefix: str = "vdp"):
+    def __init__(
+        self, directory: str | Path, max_bytes: int, max_files: int, prefix: str = "vdp", min_free: int | None = None
+    ):
         self.dir = Path(directory)
         self.max_bytes = max_bytes
+        # free-space floor: the oldest files go before the disk fills (default: room for two files)
+        self.min_free = 2 * max_bytes if min_free is None else min_free
         self.max_files = max_files
         self.prefix = prefix
         self.current = self.dir / f"{prefix}-current.log"
@@ -84,7 +93,9 @@ class RawLog(can.Listener):
         self.error: str | None = None
         self.disk_full = False
         self._failed_at: float | None = None
+        self._retry = RETRY_MIN
         self.deleted = 0
+        self.deleted_for_space = 0  # of those, deleted to keep free space above min_free
 
     # -- life cycle -------------------------------------------------------------------------
     def open(self) -> None:
@@ -107,6 +118,7 @@ class RawLog(can.Listener):
         logger.rotator = self._rotate
         self._logger = logger
         self.error, self.disk_full, self._failed_at = None, False, None
+        self._retry = RETRY_MIN
         self._prune()
         log.info("raw CAN log: %s (rotating at %d bytes, keeping %d files)", self.dir, self.max_bytes, self.max_files)
 
@@ -163,20 +175,24 @@ class RawLog(can.Listener):
                 pass
 
     def maybe_resume(self, now: float | None = None) -> bool:
-        """After a failure, try again every RETRY_AFTER s once the disk has room for a file."""
+        """After a failure, try again (after RETRY_MIN s, backing off to RETRY_MAX), making room
+        by deleting the oldest closed files when the disk is under the free-space floor."""
         now = time.monotonic() if now is None else now
-        if self._logger is not None or self._failed_at is None or now - self._failed_at < RETRY_AFTER:
+        if self._logger is not None or self._failed_at is None or now - self._failed_at < self._retry:
             return False
         with self._lock:
+            why = self.error or "an error"
             self._failed_at = now
+            self._retry = min(2 * self._retry, RETRY_MAX)
             try:
-                if shutil.disk_usage(self.dir).free < 2 * self.max_bytes:
+                self._make_room()
+                if shutil.disk_usage(self.dir).free < min(self.min_free, 2 * self.max_bytes):
                     return False
                 self._open()
             except OSError as exc:
                 self._fail(exc)
                 return False
-        log.warning("raw CAN logging resumed in %s after: %s", self.dir, self.error or "an error")
+        log.warning("raw CAN logging resumed in %s after: %s (%d frames not written)", self.dir, why, self.lost)
         return True
 
     # -- helpers ---------------------------------------------------------------------------------
@@ -186,7 +202,8 @@ class RawLog(can.Listener):
         why = "disk full" if full else f"{type(exc).__name__}: {exc}"
         first = self.error is None
         self.error, self.disk_full = why, full
-        self._failed_at = time.monotonic()
+        if first:
+            self._failed_at = time.monotonic()
         logger, self._logger = self._logger, None
         if logger is not None and not closing:
             try:
@@ -256,7 +273,35 @@ class RawLog(can.Listener):
             return []
         return [p for _, p in sorted(names)]
 
+    def _make_room(self) -> None:
+        """Delete the oldest closed files while free space is under the floor (the newest data wins)."""
+        closed = self.closed_files()
+        while closed:
+            try:
+                free = shutil.disk_usage(self.dir).free
+            except OSError:
+                return
+            if free >= self.min_free:
+                return
+            p = closed.pop(0)
+            try:
+                size = p.stat().st_size
+                p.unlink()
+            except OSError as exc:
+                log.warning("could not delete old raw log %s to make room: %s", p, exc)
+                continue
+            self.deleted += 1
+            self.deleted_for_space += 1
+            log.warning(
+                "deleted the oldest raw log %s (%d bytes): %d bytes free, under the floor of %d",
+                p.name,
+                size,
+                free,
+                self.min_free,
+            )
+
     def _prune(self) -> None:
+        self._make_room()
         closed = self.closed_files()
         extra = len(closed) - (self.max_files - 1)  # the open file is one of max_files
         for p in closed[: max(extra, 0)]:
@@ -290,6 +335,8 @@ class RawLog(can.Listener):
             "frames": self.frames,
             "lost": self.lost,
             "deleted_files": self.deleted,
+            "deleted_for_space": self.deleted_for_space,
+            "min_free": self.min_free,
             "error": self.error,
             "disk_full": self.disk_full,
             "max_bytes": self.max_bytes,

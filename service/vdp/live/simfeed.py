@@ -24,6 +24,7 @@ from ..settings import SimulateSettings
 log = logging.getLogger(__name__)
 
 PAUSE_ABOVE = 0.5  # queue fill fraction at which the feed waits for the estimator
+RETRY_MIN, RETRY_MAX = 1.0, 30.0  # s between attempts to start a loop's simulation again
 
 
 class SimFeed:
@@ -45,6 +46,7 @@ class SimFeed:
         self.sim_time = 0.0
         self.done = False
         self.error: str | None = None
+        self.retries = 0  # failed attempts to start the scenario again
         # --sim-speed is a cap, not a promise: the feed waits when estimation falls behind,
         # and says so (once in the log, and in status() as the speed it really ran at)
         self.paused_s = 0.0
@@ -85,6 +87,7 @@ class SimFeed:
             "paused_s": self.paused_s,
             "done": self.done,
             "error": self.error,
+            "retries": self.retries,
             "truth": self.truth.get("parameters"),
         }
 
@@ -109,7 +112,9 @@ class SimFeed:
                     break
                 self.loops += 1
                 log.info("simulation: scenario %s done; starting it again", self.cfg.scenario)
-                sim = self._make(float(int(last) + 2))
+                sim = self._remake(float(int(last) + 2))
+                if sim is None:
+                    break
             self.done = not self._stop.is_set()
             if self.done:
                 log.info(
@@ -123,6 +128,27 @@ class SimFeed:
             log.exception("simulation stopped")
         finally:
             bus.shutdown()
+
+    def _remake(self, start: float):
+        """The next loop's simulation; if it cannot be made (its DBC gone or unreadable for a
+        moment), say why and retry with backoff instead of ending the feed.  None once stopped."""
+        wait = RETRY_MIN
+        while not self._stop.is_set():
+            try:
+                sim = self._make(start)
+            except Exception as exc:
+                self.error = f"cannot start the scenario again: {exc}"
+                self.retries += 1
+                log.error("simulation: %s; retrying in %.0f s", self.error, wait)
+                if self._stop.wait(wait):
+                    return None
+                wait = min(2 * wait, RETRY_MAX)
+                continue
+            if self.error is not None:
+                log.warning("simulation: running again after: %s", self.error)
+                self.error = None
+            return sim
+        return None
 
     def _send(self, sim, bus: can.BusABC) -> float | None:
         speed = self.cfg.speed
