@@ -51,9 +51,6 @@ ALLOWED = {
     ("vdp.live.simfeed", "vdp.sim"),
     # the block reader's entry point, replay_log, drives a replay (it would sit better in vdp.replay)
     ("vdp.io.bulk", "vdp.replay"),
-    # KNOWN BACK-EDGE, to move: io.decoder.speed_config/estimator_config build the estimator's
-    # speed settings from the profile (they belong in vdp.pipeline, which joins the two)
-    ("vdp.io.decoder", "vdp.core.speed"),
 }
 
 CORE_MAY_IMPORT = {"numpy", "scipy", "filterpy", "math", "dataclasses", "typing", "collections", "functools"}

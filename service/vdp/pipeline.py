@@ -13,6 +13,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -22,7 +23,7 @@ from .core import progress as coaching
 from .core.estimator import EstimatorConfig, TwoStageEstimator
 from .core.result import Estimate
 from .core.sample import Sample
-from .io.decoder import FrameDecoder, estimator_config
+from .io.decoder import FrameDecoder
 from .profile import Profile
 from .profilecheck import Monitor
 from .result import Clock, Freshness, LogInfo, RunResult
@@ -216,3 +217,23 @@ class Pipeline:
     def restore(self, params: Mapping[str, Estimate]) -> None:
         """Start from stored estimates instead of the priors."""
         self.estimator.restore(params)
+
+
+def speed_config(profile: Profile, db: Any, base: Any) -> Any:
+    """The speed filter's settings for this car: the GNSS noise inflated by the speed signal's
+    resolution, or the free-rolling axle as the reference when there is no GNSS."""
+    from .core.speed import gnss_noise
+
+    cm = profile.channels.get("speed")
+    if cm is not None:
+        sig = db.get_message_by_name(cm.message).get_signal_by_name(cm.fine or cm.signal)
+        step = abs(sig.conversion.scale * cm.scale * cm.factor(profile.vehicle)) if not sig.is_float else 0.0
+        return dataclasses.replace(base, gnss_noise=gnss_noise(base.gnss_noise, step), wheel_ref=None)
+    if getattr(profile, "speed_reference", None) == "wheels":
+        return dataclasses.replace(base, wheel_ref=profile.drivetrain.free_axle)
+    return base
+
+
+def estimator_config(profile: Profile, db: Any, cfg: Any) -> Any:
+    """``cfg`` (an EstimatorConfig) with this car's speed reference (:func:`speed_config`)."""
+    return dataclasses.replace(cfg, speed=speed_config(profile, db, cfg.speed))

@@ -10,7 +10,9 @@ messages whose needed signals are plain integers are read by a small function
 generated from the DBC layout (shifts and masks on one ``int.from_bytes``),
 about 3x faster than ``cantools.Message.decode`` (benchmarks/bench_reader.py).
 Multiplexed messages and float signals go through cantools.  A channel with a
-``fine`` signal (coarse + fine layouts) sums the two in the output loop.
+``fine`` signal (coarse + fine layouts) sums the two in the output loop.  What goes
+beyond one signal per channel (composite channels, status and plausibility) lives in
+:mod:`vdp.io.mapping`; the decoder hands it the decoded values.
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ from . import dbcfix
 from .checks import counter_ok, vdp_checksum
 from .logs import EXT_KEY as _EXT
 from .logs import channel_keys
+from .mapping import Composite as _Composite
+from .mapping import invalid as _invalid
 
 log = logging.getLogger(__name__)
 
@@ -557,57 +561,6 @@ class FrameDecoder:
         return channel not in self.invalid_channels
 
 
-class _Composite:
-    """Live state of a composite channel: each term's newest value and time."""
-
-    def __init__(self, comp: Any):
-        self.comp = comp
-        self.index = channels.INDEX[comp.channel]
-        n = len(comp.terms) + len(comp.conditions)
-        self.values: list[float | None] = [None] * n
-        self.times = [-math.inf] * n
-        self.n_terms = len(comp.terms)
-        self.weights = [t.weight for t in comp.terms]
-        self.when = [t.when for t in comp.terms]
-        self.product = comp.op == "product"
-
-    def label(self, j: int) -> str:
-        m = self.comp.terms[j].map if j < self.n_terms else self.comp.conditions[j - self.n_terms]
-        return f"{m.message}.{m.signal}"
-
-    def value(self, t: float) -> float | None:
-        """The channel's value at ``t`` if every term (and condition) is current, else None."""
-        oldest = t - self.comp.max_age
-        vals = self.values
-        for i, ti in enumerate(self.times):
-            if ti < oldest or vals[i] is None:
-                return None
-        if self.product:
-            out = self.weights[0]
-            for i in range(self.n_terms):
-                out *= vals[i]
-            return out
-        out = 0.0
-        for i in range(self.n_terms):
-            w = self.when[i]
-            if w is not None and int(vals[self.n_terms + w[0]]) not in w[1]:
-                continue  # this piece does not apply in the current gear or direction
-            out += self.weights[i] * vals[i]
-        return out
-
-
-def _invalid(valid: tuple, vals: tuple, v: float) -> str | None:
-    """Why a value is invalid by its status signal or plausible range (None: it is valid)."""
-    status_pos, values, ok_if_in, lo, hi, name = valid
-    if status_pos >= 0:
-        s = vals[status_pos]
-        if s is not None and (s in values) != ok_if_in:
-            return f"status {name}={s}"
-    if not lo <= v <= hi:
-        return "implausible"
-    return None
-
-
 def _key_of(db: Any, name: str) -> int:
     m = db.get_message_by_name(name)
     return m.frame_id | _EXT if m.is_extended_frame else m.frame_id
@@ -881,27 +834,3 @@ class DecodeListener(can.Listener):
 
     def stop(self) -> None:
         self.stopped = True
-
-
-def speed_config(profile: Profile, db: Any, base: Any) -> Any:
-    """The speed filter's settings for this car: the GNSS noise inflated by the speed signal's
-    resolution, or the free-rolling axle as the reference when there is no GNSS."""
-    import dataclasses
-
-    from ..core.speed import gnss_noise
-
-    cm = profile.channels.get("speed")
-    if cm is not None:
-        sig = db.get_message_by_name(cm.message).get_signal_by_name(cm.fine or cm.signal)
-        step = abs(sig.conversion.scale * cm.scale * cm.factor(profile.vehicle)) if not sig.is_float else 0.0
-        return dataclasses.replace(base, gnss_noise=gnss_noise(base.gnss_noise, step), wheel_ref=None)
-    if getattr(profile, "speed_reference", None) == "wheels":
-        return dataclasses.replace(base, wheel_ref=profile.drivetrain.free_axle)
-    return base
-
-
-def estimator_config(profile: Profile, db: Any, cfg: Any) -> Any:
-    """``cfg`` (an EstimatorConfig) with this car's speed reference (:func:`speed_config`)."""
-    import dataclasses
-
-    return dataclasses.replace(cfg, speed=speed_config(profile, db, cfg.speed))

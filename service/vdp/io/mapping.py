@@ -1,0 +1,65 @@
+"""Channel mapping: what turns decoded signal values into a canonical channel's samples,
+beyond one signal's scale and sign (which :mod:`vdp.io.decoder` applies as it decodes).
+
+- :class:`Composite`: the live state of a composite channel (vdp.profile.Composite): each
+  term's newest value, combined once per frame that carries a term;
+- :func:`invalid`: why a value is invalid by its status signal or plausible range.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from .. import channels
+
+
+class Composite:
+    """Live state of a composite channel: each term's newest value and time."""
+
+    def __init__(self, comp: Any):
+        self.comp = comp
+        self.index = channels.INDEX[comp.channel]
+        n = len(comp.terms) + len(comp.conditions)
+        self.values: list[float | None] = [None] * n
+        self.times = [-math.inf] * n
+        self.n_terms = len(comp.terms)
+        self.weights = [t.weight for t in comp.terms]
+        self.when = [t.when for t in comp.terms]
+        self.product = comp.op == "product"
+
+    def label(self, j: int) -> str:
+        m = self.comp.terms[j].map if j < self.n_terms else self.comp.conditions[j - self.n_terms]
+        return f"{m.message}.{m.signal}"
+
+    def value(self, t: float) -> float | None:
+        """The channel's value at ``t`` if every term (and condition) is current, else None."""
+        oldest = t - self.comp.max_age
+        vals = self.values
+        for i, ti in enumerate(self.times):
+            if ti < oldest or vals[i] is None:
+                return None
+        if self.product:
+            out = self.weights[0]
+            for i in range(self.n_terms):
+                out *= vals[i]
+            return out
+        out = 0.0
+        for i in range(self.n_terms):
+            w = self.when[i]
+            if w is not None and int(vals[self.n_terms + w[0]]) not in w[1]:
+                continue  # this piece does not apply in the current gear or direction
+            out += self.weights[i] * vals[i]
+        return out
+
+
+def invalid(valid: tuple, vals: tuple, v: float) -> str | None:
+    """Why a value is invalid by its status signal or plausible range (None: it is valid)."""
+    status_pos, values, ok_if_in, lo, hi, name = valid
+    if status_pos >= 0:
+        s = vals[status_pos]
+        if s is not None and (s in values) != ok_if_in:
+            return f"status {name}={s}"
+    if not lo <= v <= hi:
+        return "implausible"
+    return None
