@@ -126,6 +126,12 @@ _WINDOW_COLOR = {1: "tab:green", 2: "tab:orange"}
 _SYMBOL = {"C_K": "$C_K$", "h": "$h$", "l_f": "$l_f$", "C_alpha": r"$C_\alpha$", "I_x": "$I_x$", "I_z": "$I_z$"}
 
 
+def _wrap(text: str, width: int = 60) -> str:
+    import textwrap
+
+    return "\n".join(textwrap.wrap(text, width))
+
+
 def _column(rows, col: int, i: int):
     import numpy as np
 
@@ -161,11 +167,12 @@ def plot(
     title: str = "",
     params: dict | None = None,
     priors: dict | None = None,
+    capabilities: dict | None = None,
 ) -> None:
     """Write :func:`figure` to ``path`` (PNG, PDF or SVG by suffix)."""
     import matplotlib.pyplot as plt
 
-    fig = figure(trace, windows, truth, title, params, priors)
+    fig = figure(trace, windows, truth, title, params, priors, capabilities)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -177,6 +184,7 @@ def figure(
     title: str = "",
     params: dict | None = None,
     priors: dict | None = None,
+    capabilities: dict | None = None,
 ):
     """The paper's Figures 5 and 7 side by side: per parameter, the real value (when a truth or
     reference file gives it), the UKF with its ±2σ band and the EKF baseline over time, the
@@ -184,7 +192,8 @@ def figure(
 
     ``trace`` rows are (t, stage, UKF ((value, std) per parameter), [EKF ...]) in NAMES order;
     ``params`` (the result's UKF parameters) puts each final value and status in its panel;
-    ``priors`` (name -> object with value, std) marks the prior.
+    ``priors`` (name -> object with value, std) marks the prior; ``capabilities`` (per stage
+    "1"/"2": why it cannot run on this car, or None) explains an empty column.
     """
     import matplotlib
 
@@ -259,7 +268,12 @@ def figure(
             ax.grid(alpha=0.3)
             p = (params or {}).get(name) or {}
             if not ran:
-                why = "stage 1 never ran" if stage == 1 else "stage 2 never ran (it starts once stage 1 has converged)"
+                cannot = (capabilities or {}).get(str(stage))
+                why = (
+                    f"stage {stage} cannot run on this car:\n{_wrap(cannot)}"
+                    if cannot
+                    else f"stage {stage} had no window"
+                )
                 ax.text(
                     0.5,
                     0.5,

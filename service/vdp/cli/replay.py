@@ -187,6 +187,7 @@ def run(args) -> int:
             title=f"{Path(args.log).name}: {profile.vehicle.name}",
             params=doc["parameters"],
             priors=profile.priors,
+            capabilities=doc.get("capabilities"),
         )
         print(f"wrote {args.plot}")
     return 0
