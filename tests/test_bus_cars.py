@@ -103,3 +103,37 @@ def test_profile_new_drafts_the_ford_profile_from_its_dbc_and_a_log(tmp_path, ca
     # the check validates the draft: its placeholders (wheel radius 0.31 m for 0.35 m, mass) show
     assert main(["profile", "check", str(log), "--profile", str(out)]) == 1
     assert "wheel_radius" in capsys.readouterr().out
+
+
+def test_hyundai_start_up_saturation_never_reaches_the_estimator():
+    """A Kona EV's ESC and steering sensor send their ranges' ends while they start up."""
+    prof = load_profile(ROOT / "profiles" / "hyundai_elantra_2017.toml")
+    sim = Simulation(prof, "stage2", seed=1, duration=2.0, noise="none")
+    pipe = Pipeline(prof)
+    esp = pipe.decoder.db.get_message_by_name("ESP12")
+    sas = pipe.decoder.db.get_message_by_name("SAS11")
+    n_esp = n_sas = 0
+    for msg in sim.frames():
+        if msg.timestamp - sim.start_us / 1e6 < 0.5:  # the first half second: starting up
+            for m, sat in (
+                (esp, {"YAW_RATE": 40.96, "LAT_ACCEL": -10.23, "LONG_ACCEL": 10.24}),
+                (sas, {"SAS_Angle": 3276.7}),
+            ):
+                if msg.arbitration_id == m.frame_id:
+                    vals = m.decode(msg.data, decode_choices=False) | sat
+                    msg.data = bytearray(m.encode(vals))
+                    n_esp += m is esp
+                    n_sas += m is sas
+        pipe.feed(msg)
+    bad = pipe.decoder.stats.as_dict()["invalid_samples"]
+    assert n_esp > 10 and n_sas > 10
+    assert bad == {
+        "yaw_rate": {"implausible": n_esp},
+        "accel_x": {"implausible": n_esp},
+        "accel_y": {"implausible": n_esp},
+        "steering_angle": {"implausible": n_sas},
+    }
+    _, ys = pipe.ring.latest()
+    for idx, lim in ((channels.YAW, 0.71), (channels.AX, 10.0), (channels.AY, 10.0), (channels.DELTA, 1.0)):
+        col = ys[:, idx]
+        assert abs(col[col == col]).max() < lim
