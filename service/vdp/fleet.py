@@ -54,6 +54,7 @@ RUN_COLUMNS = {
     "frames": int,
     "decode_errors": int,  # frames the decoder rejected (dlc, range, counter, checksum, ...)
     "bad_lines": int,  # unreadable log lines skipped
+    "damage": str,  # what the reader could not read (a cut gzip, a bad BLF container), or null
     "wall_s": float,
     "log_size": int,  # of the file when it was run: a rerun redoes a log that changed
     "log_mtime_ns": int,
@@ -172,6 +173,7 @@ def rows_from_result(doc: Mapping[str, Any], task: Task, stamp: tuple[int, int] 
             frames=int(lg.get("frames") or 0),
             decode_errors=int(decode_errors),
             bad_lines=int(lg.get("bad_lines") or 0),
+            damage=(lg.get("damage") or {}).get("summary") or None,
             wall_s=float(lg.get("wall_s") or 0.0),
         )
         if stamp is not None:
