@@ -58,7 +58,8 @@ def decode_si(profile, db, msg: can.Message) -> dict[str, float]:
 
 def _maps(profile, db, frame_id: int):
     """(channel, ChannelMap) pairs, primary or alternative source, carried by ``frame_id``."""
-    for ch, cm in profile.channels.items():
+    # channels, and the composite channels' sources (drive_torque, brake_torque, ...)
+    for ch, cm in [*profile.channels.items(), *profile.sources.items()]:
         for m in (cm, cm.alt):
             if m is not None and db.get_message_by_name(m.message).frame_id == frame_id:
                 yield ch, m
@@ -66,7 +67,7 @@ def _maps(profile, db, frame_id: int):
 
 def quantum(profile, db, ch: str, frame_id: int | None = None) -> float:
     """Half a DBC step of channel ``ch`` (in the message ``frame_id``) in SI units."""
-    cm = profile.channels[ch]
+    cm = profile.channels[ch] if ch in profile.channels else profile.sources[ch]
     if frame_id is not None:
         cm = dict(_maps(profile, db, frame_id))[ch]
     sig = db.get_message_by_name(cm.message).get_signal_by_name(cm.fine or cm.signal)
