@@ -136,6 +136,9 @@ class Vehicle:
     steering_ratio: float  # steering-wheel angle / road-wheel angle [-]
     track: float  # b [m]
     g: float = 9.8
+    # CG to front axle measured on axle scales (optional): stage 2 then needs no stage 1
+    l_f: float | None = None  # [m]
+    l_f_std: float | None = None  # [m], its 1-sigma (default 1 % of l_f)
 
 
 @dataclass(frozen=True)
@@ -336,9 +339,12 @@ def _vehicle(where: str, raw: dict[str, Any]) -> Vehicle:
             f"{where} [vehicle]: missing table; add a [vehicle] section with "
             f"{', '.join(k for k in _VEHICLE_KEYS if k != 'g')}"
         )
-    unknown = set(raw) - set(_VEHICLE_KEYS) - {"roll_stiffness_per_deg", "roll_damping_per_deg"}
+    optional = {"l_f", "l_f_std"}  # a measured l_f (axle scales) and its 1-sigma
+    unknown = set(raw) - set(_VEHICLE_KEYS) - {"roll_stiffness_per_deg", "roll_damping_per_deg"} - optional
     if unknown:
-        raise ProfileError(f"{where} [vehicle]: unknown key(s) {sorted(unknown)}; allowed: {sorted(_VEHICLE_KEYS)}")
+        raise ProfileError(
+            f"{where} [vehicle]: unknown key(s) {sorted(unknown)}; allowed: {sorted(set(_VEHICLE_KEYS) | optional)}"
+        )
     vals: dict[str, Any] = {}
     # Table 6 gives k_phi and c_phi per degree; accept that form and convert (NOTES item 5).
     for src, dst in (("roll_stiffness_per_deg", "roll_stiffness"), ("roll_damping_per_deg", "roll_damping")):
@@ -371,6 +377,17 @@ def _vehicle(where: str, raw: dict[str, Any]) -> Vehicle:
                 f"{where} [vehicle]: '{src}' = {shown:g} is not plausible for a road vehicle "
                 f"(expected {lo:g} to {hi:g} in SI units{', per radian' if src != key else ''})"
             )
+    for key in sorted(optional & set(raw)):
+        v = _num(f"{where} [vehicle]", key, raw[key])
+        if v <= 0:
+            raise ProfileError(f"{where} [vehicle]: '{key}' must be positive, got {v}")
+        vals[key] = v
+    if "l_f_std" in vals and "l_f" not in vals:
+        raise ProfileError(f"{where} [vehicle]: 'l_f_std' needs 'l_f' (the measured CG to front axle distance)")
+    if "l_f" in vals and not vals["l_f"] < vals["wheelbase"]:
+        raise ProfileError(
+            f"{where} [vehicle]: 'l_f' = {vals['l_f']} m must be less than the wheelbase ({vals['wheelbase']} m)"
+        )
     return Vehicle(**vals)
 
 

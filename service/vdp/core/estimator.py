@@ -2,8 +2,9 @@
 
 Aligned samples go in through ``handle(t, sample)``; ``snapshot()`` gives the
 parameters (UKF, the method), the EKF baseline, the supervisor's state and the
-windows.  Stage 2 starts only once stage 1 has converged (the hand-over), and
-takes stage 1's l_f, h, C_K of the same filter kind as known constants.
+windows.  Stage 2 starts once l_f is known (the hand-over): measured in the
+profile, or stage 1's estimate valid even if h and C_K are not yet; it takes
+l_f (considered, with its std), h and C_K of the same filter kind.
 """
 
 from __future__ import annotations
@@ -113,13 +114,14 @@ class TwoStageEstimator:
             if stage == 2:
                 if l2.filter is None:
                     e = l1.snapshot()
-                    l2.set_stage1(e["l_f"].value, e["h"].value, e["C_K"].value, e["l_f"].std)
+                    l_f, l_f_std = self.l_f(kind)
+                    l2.set_stage1(l_f, e["h"].value, e["C_K"].value, l_f_std)
                 l2.handle(t, s)
             elif l2.filter is not None:
                 l2.end_window()
-        if not done and self.s1["ukf"].converged():
+        if not done and self.l_f_known():
             self.handover_t = t
-            log.info("stage 1 converged at t=%.2f s; stage 2 may start", t)
+            log.info("l_f known at t=%.2f s; stage 2 may start", t)
         if self._next_trace is None or t >= self._next_trace:
             self._next_trace = t + self.cfg.trace_every
             self.trace.append(self._trace_row(t, stage))
@@ -168,6 +170,19 @@ class TwoStageEstimator:
         )
 
     # -- helpers -------------------------------------------------------
+    def l_f_known(self) -> bool:
+        """Stage 2 needs l_f only (BENCHMARKS.md, sensitivity: h and C_K hardly move it): measured
+        in the profile, or stage 1's UKF estimate valid, whether or not h and C_K are."""
+        return getattr(self.vehicle, "l_f", None) is not None or self.s1["ukf"].snapshot()["l_f"].valid
+
+    def l_f(self, kind: str) -> tuple[float, float | None]:
+        """(l_f, std) for stage 2: the profile's measured value (1 % if no std given), else stage 1's."""
+        v = self.vehicle
+        if getattr(v, "l_f", None) is not None:
+            return v.l_f, v.l_f_std if v.l_f_std is not None else 0.01 * v.l_f
+        e = self.s1[kind].snapshot()["l_f"]
+        return e.value, e.std
+
     def parameters(self, kind: str = "ukf") -> dict[str, Estimate]:
         out = {}
         for learner in (self.s1[kind], self.s2[kind]):
@@ -197,7 +212,7 @@ class TwoStageEstimator:
                         n = max(n, p.samples or 1)
                 if n:
                     learner.set_params(vals, np.diag(np.square(stds)), n)
-        if self.s1["ukf"].converged():
+        if self.l_f_known():
             self.handover_t = self.t if self.t is not None else 0.0
 
     def _trace_row(self, t: float, stage) -> tuple:

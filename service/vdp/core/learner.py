@@ -49,6 +49,14 @@ PHI_WALK = 1e-4  # rad per sqrt(s)
 PHI_D_WALK = 0.005  # rad/s per sqrt(s)
 L_F_STD_MIN = 1e-4  # m: stage 1's l_f is never taken as exact (keeps the covariance positive definite)
 
+# A stage-2 window opens on a settled state: over the last SETTLE_TIME the yaw rate and the
+# road-wheel angle changed by less than these rates (a window opening just after a steering
+# step drove C_alpha and I_x the wrong way, estimation-findings.md)
+SETTLE_TIME = 0.2  # s
+SETTLED_YAW_ACC = 0.15  # rad/s^2
+SETTLED_STEER_RATE = math.radians(3.0)  # rad/s of road-wheel angle
+V_Y_START_STD = 0.05  # m/s: the steady-state start's own error (transients, slopes), beside C_alpha's share
+
 # Stage 1's batch check (core.batch): the blocks kept, how often the batch optimum is
 # solved, and how far (squared Mahalanobis distance, 3 parameters) the filter may sit
 # from it before it is re-seeded there (chi-square, 3 dof, 0.999: 16.3)
@@ -395,6 +403,7 @@ class Stage2(StageLearner):
     def reset(self) -> None:
         self.known = None
         self.l_f_std = None
+        self._settle: deque = deque()
         super().reset()
 
     def set_stage1(self, l_f: float, h: float, c_k: float, l_f_std: float | None = None) -> None:
@@ -427,6 +436,10 @@ class Stage2(StageLearner):
             cov, sd_then = self.cross
             P0[self._p, c] = P0[c, self._p] = cov * (sd / sd_then)
         return P0
+
+    def end_window(self) -> None:
+        super().end_window()
+        self._settle.clear()
 
     def l_f_correlation(self) -> np.ndarray | None:
         """Correlation of (C_alpha, I_z, I_x) with the considered l_f: the open window's, else
@@ -485,6 +498,48 @@ class Stage2(StageLearner):
         z = np.array([y[ch.YAW] - s.yaw_bias, y[ch.ROLL] - s.roll_bias, y[ch.AY]])
         return z, np.isfinite(z)
 
+    def _settled(self, t: float, z, mask, u) -> bool:
+        """Whether the car is in a settled state to open a window on: the yaw rate and the
+        steering have changed little over the last SETTLE_TIME (no step just behind it)."""
+        if not mask[0]:
+            return False
+        q = self._settle
+        q.append((t, z[0], u[lateral.U_DELTA]))
+        while q and t - q[0][0] > SETTLE_TIME + 1e-9:
+            q.popleft()
+        span = t - q[0][0]
+        if span < SETTLE_TIME - 0.5 * self.cfg.tick:
+            return False
+        yaw_acc = abs(q[-1][1] - q[0][1]) / span
+        steer_rate = abs(q[-1][2] - q[0][2]) / span
+        return yaw_acc <= SETTLED_YAW_ACC and steer_rate <= SETTLED_STEER_RATE
+
+    def _start(self, z, mask, u) -> tuple[np.ndarray, np.ndarray]:
+        """(x0, P0) from the data: the steady-state solution at the measured yaw rate and a_y.
+
+        Rear axle in steady cornering: F_yr = m a_y l_f / L (yaw moment balance, eq 10) and
+        F_yr = C_alpha (l_r r - v_y) / v_x (eq 12b), so v_y = l_r r - m a_y l_f v_x / (L C_alpha),
+        with the C_alpha kept so far; its uncertainty enters v_y's std and their correlation.
+        The roll angle from its balance with a_y, the roll rate as measured.
+        """
+        k = self.known
+        yaw = z[0] if mask[0] else 0.0
+        roll_rate = z[1] if mask[1] else 0.0
+        a_y = z[2] if mask[2] else 0.0
+        phi = lateral.quasi_static_roll(a_y, roll_rate, k) if mask[2] else 0.0
+        l_f = k.l_f
+        v_x = max(u[lateral.U_VX], lateral.V_MIN)
+        c_a = max(self.theta[0], lateral.PARAM_FLOOR[0])
+        g = k.m * a_y * l_f * v_x / k.L
+        v_y = (k.L - l_f) * yaw - g / c_a
+        x0 = np.concatenate([[v_y, yaw, phi, roll_rate], self.theta, [l_f]])
+        P0 = self._initial_cov()
+        dv_dc = g / (c_a * c_a)  # d v_y / d C_alpha
+        rest = slice(lateral.C_A, self._n)  # the parameters and the considered l_f
+        P0[lateral.V_Y, rest] = P0[rest, lateral.V_Y] = dv_dc * P0[lateral.C_A, rest]
+        P0[lateral.V_Y, lateral.V_Y] = V_Y_START_STD**2 + dv_dc**2 * P0[lateral.C_A, lateral.C_A]
+        return x0, P0
+
     def _step(self, t, s):
         if self.known is None:
             return
@@ -496,14 +551,15 @@ class Stage2(StageLearner):
         if self.filter is None or s.gap or dt is None or dt <= 0 or dt > self.cfg.max_gap:
             if self.filter is not None:
                 self._keep_params()
+                self.filter = None
+                self._settle.clear()
             z, mask = self.measurements(s)
-            yaw = z[0] if mask[0] else 0.0
-            roll_rate = z[1] if mask[1] else 0.0
-            # the roll angle, unmeasured, from its balance with the measured a_y (a window
-            # may open mid-corner); v_y would need the unknown C_alpha: 0 with a wide std
-            phi = lateral.quasi_static_roll(z[2], roll_rate, self.known) if mask[2] else 0.0
-            x0 = np.concatenate([[0.0, yaw, phi, roll_rate], self.theta, [self.known.l_f]])
-            self.filter = self._new_filter(x0, self._initial_cov(), self._R())
+            if s.gap:
+                self._settle.clear()
+            if not self._settled(t, z, mask, u):
+                self.t_last = t
+                return
+            self.filter = self._new_filter(*self._start(z, mask, u), self._R())
             self._us = [u]
             self.t_last = t
             return
