@@ -78,11 +78,10 @@ MISSES = {
     ("mb/bmw_320i", "C_alpha_front"),
     ("brush/small", "C_alpha_rear"),
     ("mb/bmw_320i", "C_alpha_rear"),
-    ("mb/bmw_320i", "h"),
-    ("brush/small", "parameters"),
-    ("mb/bmw_320i", "parameters"),
-    ("brush/small", "baseline_ekf"),
-    ("mb/bmw_320i", "baseline_ekf"),
+    # est: a model mismatch now makes these not valid (before: valid with the truth beyond 3 sigma),
+    # but the widened std does not yet reach the truth within 2 sigma
+    ("brush/small", "h"),
+    ("brush/small", "I_x"),
 }
 
 

@@ -114,3 +114,100 @@ def test_stage1_stays_physical_and_reaches_the_truth_with_priors_off(profile, sc
             assert abs(e["value"] - TRUTH[name]) <= tol * TRUTH[name], (key, name, e)
             if e["valid"]:
                 assert abs(e["value"] - TRUTH[name]) <= 3 * e["std"], (key, name, e)
+
+
+# -- stage 2's start and its hand-over ------------------------------------------------------
+def _stage2(profile, l_f=1.4):
+    from vdp.core.learner import Stage2
+
+    l2 = Stage2("ukf", profile.vehicle, profile.priors)
+    l2.set_stage1(l_f, 0.637, 10.0, 0.005)
+    return l2
+
+
+def test_a_window_opening_mid_corner_starts_v_y_at_the_steady_state(profile):
+    """Steady corner of the linear single track: v_y from the measured yaw rate and a_y, not 0."""
+    l2 = _stage2(profile)
+    k, c_a = l2.known, l2.theta[0]  # the start uses the C_alpha kept so far (the prior here)
+    v_x, yaw = 15.0, 0.2
+    a_y = v_x * yaw
+    l_r = k.L - k.l_f
+    want = l_r * yaw - k.m * a_y * k.l_f * v_x / (k.L * c_a)  # rear: F_yr = m a_y l_f / L = C_a alpha_r
+    z, mask = np.array([yaw, 0.0, a_y]), np.ones(3, dtype=bool)
+    x0, P0 = l2._start(z, mask, [0.05, v_x, v_x / 0.3, 0.0])
+    assert x0[lateral.V_Y] == pytest.approx(want, rel=1e-9) and abs(want) > 0.1
+    assert x0[lateral.PHI] > 0.0  # rolled into the corner's balance
+    # v_y's std carries C_alpha's, and they are correlated (positive definite)
+    assert np.sqrt(P0[0, 0]) > abs(want) * l2.prior_std[0] / c_a * 0.9
+    assert np.linalg.eigvalsh(P0).min() > 0
+
+
+def test_a_window_does_not_open_on_a_steering_step(profile):
+    l2 = _stage2(profile)
+    mask = np.ones(3, dtype=bool)
+    u = [0.0, 15.0, 50.0, 0.0]
+    # yaw rate rising at 1 rad/s^2: not settled
+    assert not any(l2._settled(0.02 * i, np.array([0.02 * i, 0, 0]), mask, u) for i in range(20))
+    l2._settle.clear()
+    assert [l2._settled(0.02 * i, np.array([0.2, 0, 3.0]), mask, u) for i in range(12)][-1]
+
+
+@pytest.mark.slow
+def test_a_measured_l_f_in_the_profile_runs_stage_2_without_stage_1(profile):
+    prof = dataclasses.replace(profile, vehicle=dataclasses.replace(profile.vehicle, l_f=1.4, l_f_std=0.01))
+    frames, truth = simulate(prof, "stage2", seed=2, noise="realistic", duration=30.0)
+    pipe = Pipeline(prof)
+    for msg in frames:
+        pipe.feed(msg)
+    snap = pipe.snapshot()
+    assert snap["parameters"]["l_f"]["status"] == "not_run"  # no straight-line excitation in this drive
+    for key in ("parameters", "baseline_ekf"):
+        e = snap[key]["C_alpha"]
+        assert e["samples"] > 500
+        assert e["value"] == pytest.approx(TRUTH["C_alpha"], rel=0.10), (key, e)
+        assert abs(e["value"] - TRUTH["C_alpha"]) <= 3 * e["std"], (key, e)
+
+
+# -- honest uncertainty -----------------------------------------------------------------------
+def test_innovations_larger_than_predicted_and_coloured_mark_stage_2_as_model_mismatch(profile):
+    from vdp.core.learner import Consistency
+
+    l2 = _stage2(profile)
+    l2.samples = 5000
+    l2.theta_P = np.diag(np.square(l2.theta * 0.005))  # narrow: would be converged
+    assert all(e.valid for e in l2.snapshot().values() if e.name != "I_x")
+    narrow = l2.snapshot()["C_alpha"].std
+    c = Consistency()
+    e = 0.0
+    rng = np.random.default_rng(1)
+    for _ in range(500):
+        e = 0.8 * e + rng.normal(0.0, 1.5)  # coloured, about 2.5x the predicted size
+        c.add(e * e + 1.0, 3, e)
+    l2.total = c
+    snap = l2.snapshot()
+    for name in ("C_alpha", "I_z"):
+        s = snap[name]
+        assert not s.valid and s.reason.startswith("model mismatch:"), s
+    assert snap["C_alpha"].std > 3 * narrow
+    # a white, predicted-size sequence leaves it alone
+    w = Consistency()
+    for _ in range(500):
+        x = rng.normal(0.0, 0.45)
+        w.add(3 * x * x, 3, x)
+    l2.total = w
+    assert l2.snapshot()["C_alpha"].valid and l2.snapshot()["C_alpha"].reason is None
+
+
+def test_profile_l_f_must_lie_inside_the_wheelbase(tmp_path, repo_root):
+    from vdp.errors import ProfileError
+
+    src = (repo_root / "profiles" / "paper.toml").read_text()
+    src = src.replace('dbc = "../dbc/vdp.dbc"', f'dbc = "{repo_root / "dbc" / "vdp.dbc"}"')
+    good = tmp_path / "good.toml"
+    good.write_text(src.replace("g = 9.8\n", "g = 9.8\nl_f = 1.38\nl_f_std = 0.005\n", 1))
+    v = load_profile(good).vehicle
+    assert (v.l_f, v.l_f_std) == (1.38, 0.005)
+    bad = tmp_path / "bad.toml"
+    bad.write_text(src.replace("g = 9.8\n", "g = 9.8\nl_f = 2.6\n", 1))
+    with pytest.raises(ProfileError, match="less than the wheelbase"):
+        load_profile(bad)

@@ -33,6 +33,7 @@ class Fit:
     cov: np.ndarray  # their covariance (inverse Gauss-Newton Hessian, prior included)
     cost: float  # data part of the cost: sum of weighted squared residuals
     dof: int  # residuals minus parameters
+    rho: float = 0.0  # lag-1 autocorrelation of the whitened residuals (0: white)
 
     @property
     def chi2(self) -> float:
@@ -118,8 +119,25 @@ def solve(
         except np.linalg.LinAlgError:
             continue
         if best is None or c < best[0]:
-            best = (c, Fit(t, 0.5 * (cov + cov.T), data, Z.size - n))
+            best = (c, Fit(t, 0.5 * (cov + cov.T), data, Z.size - n, whiteness(r, W)))
     return None if best is None else best[1]
+
+
+def whiteness(r: np.ndarray, W: np.ndarray) -> float:
+    """Lag-1 autocorrelation of the front-minus-rear residual.
+
+    A model that explains the data leaves white residuals (about 0); one that misses a
+    force leaves them following the manoeuvre (towards 1), and then the blocks are not
+    independent evidence: the data's information is overstated by about (1 + rho) / (1 - rho).
+    """
+    if len(r) < 3:
+        return 0.0
+    # front minus rear: the speed's slowly varying error, common to both axles, cancels
+    e = r[:, 0] - r[:, 1]
+    e = e - e.mean()
+    num = float(np.sum(e[1:] * e[:-1]))
+    den = float(np.sum(e * e))
+    return num / den if den > 0 else 0.0
 
 
 def linear_start(U: np.ndarray, Z: np.ndarray, k: longitudinal.Known) -> np.ndarray | None:

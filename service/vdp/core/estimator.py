@@ -173,7 +173,7 @@ class TwoStageEstimator:
     def l_f_known(self) -> bool:
         """Stage 2 needs l_f only (BENCHMARKS.md, sensitivity: h and C_K hardly move it): measured
         in the profile, or stage 1's UKF estimate valid, whether or not h and C_K are."""
-        return getattr(self.vehicle, "l_f", None) is not None or self.s1["ukf"].snapshot()["l_f"].valid
+        return getattr(self.vehicle, "l_f", None) is not None or self.s1["ukf"].snapshot()["l_f"].status == "converged"
 
     def l_f(self, kind: str) -> tuple[float, float | None]:
         """(l_f, std) for stage 2: the profile's measured value (1 % if no std given), else stage 1's."""

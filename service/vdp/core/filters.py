@@ -151,6 +151,10 @@ class JointFilter:
     def _update(self, z, R, mask, u) -> None:
         raise NotImplementedError
 
+    def innovation(self) -> tuple[np.ndarray, np.ndarray]:
+        """(y, S) of the last update: the innovation of the rows used and its predicted covariance."""
+        return np.atleast_1d(self._f.y), np.atleast_2d(self._f.S)
+
     # scaled wrappers of the model
     def _fx_s(self, xs, dt, u):
         return self._fx(xs * self.scale, dt, u) / self.scale
@@ -258,6 +262,7 @@ class EKF(JointFilter):
         S = Hx @ f.P @ Hx.T + R
         K = f.P @ Hx.T @ np.linalg.inv(S)
         K[self.consider] = 0.0
-        f.x = f.x + K @ (z - h(f.x))
+        f.y, f.S = z - h(f.x), S
+        f.x = f.x + K @ f.y
         IKH = np.eye(len(f.x)) - K @ Hx
         f.P = IKH @ f.P @ IKH.T + K @ R @ K.T
