@@ -261,7 +261,7 @@ def test_clock_faults_never_give_a_filter_a_bad_step(steps, scenario):
     frames = drive(scenario, 16.0, seed=4)
     faulty, marks = _with_clock_faults(frames)
 
-    def run(seq):
+    def run(seq, at):
         pipe = Pipeline(PAPER)
         if scenario == "stage2":  # stage 1 known and converged: the drive runs stage 2
             pipe.restore(
@@ -272,22 +272,27 @@ def test_clock_faults_never_give_a_filter_a_bad_step(steps, scenario):
             )
         counts = []
         for k, m in enumerate(seq):
-            if k in marks:
+            if k in at:
                 counts.append(len(steps["ukf"]))
             pipe.feed(m)
         return pipe, counts + [len(steps["ukf"])]
 
-    clean, _ = run(frames)
+    clean_marks = [i * len(frames) // 5 for i in range(1, 5)]  # the same fifths of the clean drive
+    clean, clean_counts = run(frames, clean_marks)
     n_clean = {k: len(v) for k, v in steps.items()}
     for v in steps.values():
         v.clear()
-    pipe, counts = run(faulty)
+    pipe, counts = run(faulty, marks)
     for kind, dts in steps.items():
         assert len(dts) > 0.8 * n_clean[kind] > 30, (kind, len(dts), n_clean[kind])
         bad = [dt for dt in dts if not 0.0 < dt <= 0.25]
         assert not bad, (kind, bad[:5])
-    # estimation went on after every fault: each fifth of the drive stepped the filters
-    assert all(b - a > 0.1 * n_clean["ukf"] for a, b in zip(counts, counts[1:])), counts
+    # estimation went on after every fault: each fifth of the drive stepped the filters about as
+    # often as the clean drive's (stage 1 leaves out blocks beyond the small-slip range, so a
+    # fifth of hard acceleration steps it less in both)
+    per = [b - a for a, b in zip(counts, counts[1:])]
+    per_clean = [b - a for a, b in zip(clean_counts, clean_counts[1:])]
+    assert all(p >= 0.5 * c > 0 for p, c in zip(per, per_clean)), (per, per_clean)
     res = pipe.result()
     assert res.clock.jumps >= 3
     assert all(e.value is None or math.isfinite(e.value) for e in res.parameters.values())
