@@ -159,7 +159,7 @@ def test_a_measured_l_f_in_the_profile_runs_stage_2_without_stage_1(profile):
     pipe = Pipeline(prof)
     for msg in frames:
         pipe.feed(msg)
-    snap = pipe.snapshot()
+    snap = pipe.result().to_dict()
     assert snap["parameters"]["l_f"]["status"] == "not_run"  # no straight-line excitation in this drive
     for key in ("parameters", "baseline_ekf"):
         e = snap[key]["C_alpha"]
