@@ -179,8 +179,6 @@ def test_every_shipped_profile_can_be_simulated(path):
     counters: dict[int, int] = {}
     for msg, (_t, name, values) in zip(frames, taps):
         si = decode_si(prof, db, msg)
-        # sources of composite channels (Ford's drive and brake torque) are checked in test_composite.py
-        values = {c: v for c, v in values.items() if c in channels.INDEX}
         assert set(si) == set(values)
         for ch, v in values.items():
             assert abs(si[ch] - v) <= quantum(prof, db, ch, msg.arbitration_id), (name, ch, si[ch], v)
