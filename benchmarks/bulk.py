@@ -15,7 +15,9 @@ the frames carry ids the profile does not use.  Then, on CPU time:
   runs) and with the EKF baseline beside it (``vdp replay``'s default).
 
 ``--one MODE`` runs one replay (bulk or per-frame, UKF only) and prints its CPU
-time and the process's peak RSS, for a memory and linearity check per length.
+time and the process's peak RSS, for a memory and linearity check per length;
+``--no-trace`` keeps no history of the estimates, as ``vdp batch`` (and ``vdp
+replay`` without ``--plot``) do.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ def bare(path: Path) -> tuple[int, float]:
     return n, clock() - t0
 
 
-def replay(path: Path, bulk: bool, ekf: bool, front_only: bool = False) -> tuple[float, dict]:
+def replay(path: Path, bulk: bool, ekf: bool, front_only: bool = False, trace: bool = True) -> tuple[float, dict]:
     from vdp.core.estimator import EstimatorConfig
     from vdp.io.bulk import replay_log
     from vdp.pipeline import Pipeline
@@ -50,7 +52,7 @@ def replay(path: Path, bulk: bool, ekf: bool, front_only: bool = False) -> tuple
     profile = load_profile(ROOT / "profiles" / "paper.toml")
 
     def make():
-        pipe = Pipeline(profile, EstimatorConfig(baseline=ekf))
+        pipe = Pipeline(profile, EstimatorConfig(baseline=ekf, trace_len=None if trace else 0))
         if front_only:
             pipe.estimator.handle = lambda t, s: None
         return pipe
@@ -65,6 +67,9 @@ def main() -> int:
     ap.add_argument("--minutes", type=float, default=60.0)
     ap.add_argument("--log", type=Path, default=None, help="where to build/keep the log (default /tmp)")
     ap.add_argument("--one", choices=("bulk", "per-frame"), help="one replay (UKF only): CPU time and peak RSS")
+    ap.add_argument(
+        "--no-trace", action="store_true", help="with --one: keep no history of the estimates (as vdp batch)"
+    )
     a = ap.parse_args()
     path = a.log or Path(f"/tmp/vdp-bulk-{a.minutes:g}min.log")
     if not path.exists():
@@ -74,7 +79,7 @@ def main() -> int:
         build_log(path, a.minutes, 4, 100.0)
         print(f"built {path} ({path.stat().st_size / 1e6:.0f} MB) in {time.perf_counter() - t0:.0f} s")
     if a.one:
-        t, doc = replay(path, a.one == "bulk", ekf=False)
+        t, doc = replay(path, a.one == "bulk", ekf=False, trace=not a.no_trace)
         rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
         lg = doc["log"]
         print(

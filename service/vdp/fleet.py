@@ -103,7 +103,9 @@ def replay_log(path: str, profile_path: str) -> dict:
     from .pipeline import Pipeline
 
     profile = _profile(profile_path)
-    cfg = EstimatorConfig(baseline=False)
+    # no EKF baseline (the UKF's numbers do not depend on it) and no trace: a plot's
+    # history would grow with the log (~70 MB over 4 hours), and batch draws no plots
+    cfg = EstimatorConfig(baseline=False, trace_len=0)
     result, _ = replay_file(path, lambda: Pipeline(profile, cfg), channel=profile.bus_channel)
     return result.to_dict()
 

@@ -107,7 +107,8 @@ def run(args) -> int:
     for line in profilecheck.lines(check):
         print(line)
     truth = report.load_truth(args.truth) if args.truth else None
-    cfg = EstimatorConfig(baseline=not args.no_ekf)
+    # the estimates' history is kept only for the plot: without one, memory stays flat on long logs
+    cfg = EstimatorConfig(baseline=not args.no_ekf, trace_len=None if args.plot else 0)
     try:
         size = Path(args.log).stat().st_size
     except OSError:
