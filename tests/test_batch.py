@@ -104,15 +104,17 @@ def fleet(tmp_path_factory, repo_root):
         write_log(frames, d / f"car1-{seed}.log")
     frames, _ = simulate(prof, "stage1", seed=3, noise="realistic", duration=20.0)
     write_log(frames, d / "car2-3.log")
-    # damaged: a gzip cut in the middle of its stream
+    # truncated: a gzip cut in the middle of its stream (what it holds is read, the loss recorded)
     raw = (d / "car2-3.log").read_bytes()
-    (d / "cut.log.gz").write_bytes(gzip.compress(raw)[:20000])
+    (d / "cut.log.gz").write_bytes(gzip.compress(raw)[:60000])
+    (d / "garbage.log").write_bytes(bytes(range(256)) * 40)  # damaged beyond reading: an error
     (d / "manifest.csv").write_text(
         "log,vehicle,profile\n"
         f"car1-1.log,car1,{prof}\n"
         f"car1-2.log,car1,{prof}\n"
         f"car2-3.log,car2,{prof}\n"
         f"cut.log.gz,car2,{prof}\n"
+        f"garbage.log,car2,{prof}\n"
         f"missing.log,car2,{prof}\n"
     )
     return d
@@ -145,25 +147,24 @@ def batch(d, workers=2):
 def test_batch_runs_the_fleet_records_bad_logs_and_resumes(fleet, repo_root):
     d = fleet
     first = batch(d)
-    assert first.returncode == 1, first.stderr  # the missing log failed, the rest went on
-    assert "5 logs: 0 already done, 5 to run" in first.stdout
+    assert first.returncode == 1, first.stderr  # two logs failed, the rest went on
+    assert "6 logs: 0 already done, 6 to run" in first.stdout
     runs = pq.read_table(d / "out" / "runs.parquet").to_pylist()
     by_log = {}
     for r in runs:
         by_log.setdefault(os.path.basename(r["log"]), []).append(r)
-    assert set(by_log) == {"car1-1.log", "car1-2.log", "car2-3.log", "cut.log.gz", "missing.log"}
+    assert set(by_log) == {"car1-1.log", "car1-2.log", "car2-3.log", "cut.log.gz", "garbage.log", "missing.log"}
     (miss,) = by_log["missing.log"]
     assert miss["status"] == "error" and "no such file" in miss["error"] and miss["parameter"] is None
-    # a cut gzip replays what is readable, and its rows say what was lost
+    (bad,) = by_log["garbage.log"]
+    assert bad["status"] == "error" and "garbage.log" in bad["error"]
     cut = by_log["cut.log.gz"]
-    assert [r["parameter"] for r in cut] == ["l_f", "h", "C_K", "C_alpha", "I_z", "I_x"]
-    assert all(r["error"] is None and "gzip stream ends early" in r["damage"] for r in cut)
+    assert len(cut) == 6 and all(r["error"] is None and "ends early" in r["damage"] for r in cut)
     assert 0 < cut[0]["frames"] < by_log["car2-3.log"][0]["frames"]
     good = by_log["car1-1.log"]
     assert [r["parameter"] for r in good] == ["l_f", "h", "C_K", "C_alpha", "I_z", "I_x"]
-    assert all(
-        r["error"] is None and r["damage"] is None and r["frames"] > 10000 and r["duration_s"] > 19 for r in good
-    )
+    assert all(r["error"] is None and r["damage"] is None and r["frames"] > 10000 for r in good)
+    assert all(r["duration_s"] > 19 for r in good)
 
     # the same numbers as vdp replay --json on the same log and profile
     out = d / "one.json"
@@ -180,16 +181,17 @@ def test_batch_runs_the_fleet_records_bad_logs_and_resumes(fleet, repo_root):
     assert lf["drives"] == 2 and lf["runs"] == 2
     xs = [r["value"] for r in runs if r["vehicle"] == "car1" and r["parameter"] == "l_f"]
     assert min(xs) <= lf["value"] <= max(xs)
-    # car2: its whole log and the cut one's readable part (too short for a valid l_f)
-    assert veh[("car2", "l_f")]["runs"] == 2 and veh[("car2", "l_f")]["drives"] == 1
+    car2 = [r for r in runs if r["vehicle"] == "car2" and r["parameter"] == "l_f"]
+    assert veh[("car2", "l_f")]["runs"] == len(car2) == 2  # car2-3 and its cut copy
+    assert veh[("car2", "l_f")]["drives"] == sum(r["status"] == "converged" for r in car2) >= 1
 
-    # rerun: the four logs that ran are skipped, the one that failed is tried again;
-    # it has turned up meanwhile
+    # rerun: the four logs read are skipped, the two that failed are tried again;
+    # the missing one has turned up meanwhile
     (d / "missing.log").write_bytes((d / "car1-2.log").read_bytes())
     parts = {p.name: p.stat().st_mtime_ns for p in (d / "out" / "parts").glob("*.parquet")}
     again = batch(d, workers=1)
-    assert again.returncode == 0, again.stderr
-    assert "5 logs: 4 already done, 1 to run" in again.stdout, again.stdout + again.stderr
+    assert again.returncode == 1, again.stderr  # the garbage still fails
+    assert "6 logs: 4 already done, 2 to run" in again.stdout, again.stdout + again.stderr
     after = {p.name: p.stat().st_mtime_ns for p in (d / "out" / "parts").glob("*.parquet")}
     assert sum(parts[k] == after[k] for k in parts) == 4
     runs = pq.read_table(d / "out" / "runs.parquet").to_pylist()
@@ -197,7 +199,7 @@ def test_batch_runs_the_fleet_records_bad_logs_and_resumes(fleet, repo_root):
     assert sum(r["log"].endswith("missing.log") for r in runs) == 6
     assert veh[("car1", "l_f")]["runs"] == 2  # the earlier vehicles.parquet
     veh = {(v["vehicle"], v["parameter"]): v for v in pq.read_table(d / "out" / "vehicles.parquet").to_pylist()}
-    assert veh[("car2", "l_f")]["runs"] == 3  # car1-2's bytes, now also as car2's missing.log
+    assert veh[("car2", "l_f")]["runs"] == 3  # car2-3, the cut copy, and car1-2's bytes as missing.log
 
 
 @pytest.mark.slow
