@@ -135,7 +135,7 @@ def test_listeners_never_raise_and_estimation_errors_are_counted(tmp_path):
         wait_frames(svc, 20)
         status = svc.status()
         assert status["estimation"]["errors"] == 10 and status["estimation"]["frames"] == 20
-        assert svc._worker.is_alive() and svc.link.up
+        assert svc.estimation.alive and svc.link.up
     finally:
         tx.shutdown()
         svc.stop()

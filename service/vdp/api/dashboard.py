@@ -14,13 +14,14 @@ from importlib.resources import files
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, FastAPI, HTTPException, Query, Request
+from fastapi import APIRouter, FastAPI, Query, Request
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse, PlainTextResponse
 from fastapi.staticfiles import StaticFiles
 
 from ..core.params import SPECS
 from ..export import FORMATS, Constants, render
+from .deps import Svc
 
 log = logging.getLogger(__name__)
 
@@ -94,16 +95,8 @@ def _local(page: HTMLResponse) -> HTMLResponse:
     return page
 
 
-def _service(request: Request):
-    svc = getattr(request.app.state, "service", None)
-    if svc is None:
-        raise HTTPException(503, "the service is starting")
-    return svc
-
-
 @router.get("/dashboard/meta", summary="what the dashboard needs once: vehicle, parameters, priors")
-def meta(request: Request) -> dict[str, Any]:
-    svc = _service(request)
+def meta(svc: Svc) -> dict[str, Any]:
     prof = svc.profile
     return {
         "vehicle": prof.vehicle.name,
@@ -125,8 +118,7 @@ def meta(request: Request) -> dict[str, Any]:
     summary="the current estimates as a CommonRoad, CARLA, JSON or TOML parameter file",
     responses={200: {"content": {m: {} for _, m in FORMATS.values()}}},
 )
-def export(request: Request, format: Annotated[Format, Query(description="the file layout")]) -> PlainTextResponse:
-    svc = _service(request)
+def export(svc: Svc, format: Annotated[Format, Query(description="the file layout")]) -> PlainTextResponse:
     params = svc.estimates()["parameters"]
     text = render(format, params, Constants.of(svc.profile.vehicle), source="vdp serve")
     suffix, media = FORMATS[format]

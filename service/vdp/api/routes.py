@@ -1,0 +1,64 @@
+"""The JSON routes: health, estimates and their history, status, reset."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from fastapi import APIRouter, Body, Depends, Query
+
+from ..core.params import NAMES
+from . import models
+from .deps import Svc, authorize
+
+Parameter = Literal[NAMES]  # type: ignore[valid-type]
+_ERR = {"model": models.Problem}
+
+router = APIRouter()
+
+
+@router.get("/health", response_model=models.Health, summary="ok, or degraded with the reasons")
+def health(svc: Svc) -> Any:
+    return svc.health()
+
+
+@router.get("/estimates", response_model=models.Estimates, summary="current estimates (UKF and EKF baseline)")
+def estimates(svc: Svc) -> Any:
+    return svc.estimates()
+
+
+@router.get(
+    "/estimates/history",
+    response_model=models.History,
+    responses={400: _ERR, 503: _ERR},
+    summary="committed estimates over time, oldest first, paged",
+)
+def history(
+    svc: Svc,
+    parameter: Annotated[Parameter | None, Query(description="one parameter, or all")] = None,
+    since: Annotated[float | None, Query(description="unix time [s], inclusive", allow_inf_nan=False)] = None,
+    until: Annotated[float | None, Query(description="unix time [s], exclusive", allow_inf_nan=False)] = None,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+    offset: Annotated[int, Query(ge=0, le=2**53)] = 0,
+) -> Any:
+    return svc.history(parameter, since, until, limit, offset)
+
+
+@router.get("/status", response_model=models.Status, summary="bus, decoding, channels, gating, logs, store")
+def status(svc: Svc) -> Any:
+    return svc.status()
+
+
+@router.post(
+    "/reset",
+    response_model=models.ResetResult,
+    dependencies=[Depends(authorize)],
+    responses={400: _ERR, 401: _ERR, 403: _ERR, 503: _ERR},
+    summary="clear stage 1, 2 or all (bearer token; disabled without one)",
+)
+def reset(
+    svc: Svc,
+    stage: Annotated[Literal["1", "2", "all"] | None, Query(description="1, 2 or all")] = None,
+    body: Annotated[models.ResetBody | None, Body()] = None,
+) -> Any:
+    which = stage if stage is not None else (str(body.stage) if body is not None else "all")
+    return svc.reset(None if which == "all" else int(which))

@@ -1,0 +1,213 @@
+"""The estimation loop: the only thread (``vdp-estimate``) that touches the pipeline.
+
+It takes frames and commands (reset, restore, tests' probes) from one queue,
+in arrival order, and every ``publish_interval`` publishes an immutable
+:class:`Published` snapshot.  Readers (store writer, API) only ever see the
+latest snapshot, so a request never waits for a filter step.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable, Mapping
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..errors import VdpError
+from ..result import RunResult
+
+log = logging.getLogger(__name__)
+
+_STOP = object()
+COMMAND_TIMEOUT = 10.0  # s an API command waits for the worker
+
+
+class Unavailable(VdpError):
+    """The service cannot answer this now (worker busy or stopped, store refused)."""
+
+
+@dataclass(frozen=True)
+class Published:
+    """One consistent view of the estimator, taken on the worker thread."""
+
+    seq: int
+    wall: float
+    result: RunResult
+    fed: int
+    restored: bool = False
+
+    @property
+    def bus_time(self) -> float | None:
+        return self.result.bus_time
+
+
+@dataclass
+class _Command:
+    fn: Callable[[Any], Any]
+    future: Future = field(default_factory=Future)
+
+
+def _same(a: float | None, b: float | None) -> bool:
+    return a is not None and b is not None and math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-12)
+
+
+class Estimation:
+    def __init__(self, pipeline, frames: queue.Queue, publish_interval: float):
+        self.pipeline = pipeline
+        self.queue = frames
+        self.publish_interval = publish_interval
+        self.errors = 0  # frames on which estimation raised, and failed snapshots
+        self.fed = 0
+        self.restarts = 0
+        self.restored = False  # the estimator started from stored estimates
+        self._seq = itertools.count(1)
+        self._pub = Published(0, time.time(), pipeline.result(), 0)
+        self._dirty = True
+        self._thread: threading.Thread | None = None
+        self._resets_seen: dict = {}
+        self._diverged: dict[str, tuple[float, str]] = {}  # filter kind -> (monotonic time, what)
+
+    # -- life cycle ------------------------------------------------------------------------------
+    def restore(self, estimates: Mapping) -> str | None:
+        """Start from stored estimates (before :meth:`start`); the error if the estimator did not
+        take them (claiming "restored" over the priors would be a lie)."""
+        self.pipeline.restore(estimates)
+        now = self.pipeline.result().parameters
+        off = [k for k, e in estimates.items() if k not in now or not _same(now[k].value, e.value)]
+        if off:
+            return f"the estimator did not take the stored estimates of {', '.join(sorted(off))}"
+        self.restored = True
+        return None
+
+    def start(self) -> None:
+        self.publish()
+        self._spawn()
+
+    def _spawn(self) -> None:
+        self._thread = threading.Thread(target=self._work, name="vdp-estimate", daemon=True)
+        self._thread.start()
+
+    @property
+    def alive(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def ensure_running(self) -> None:
+        """Start the worker again if it ever died (called by the keeper)."""
+        if self._thread is not None and not self._thread.is_alive():
+            self.restarts += 1
+            log.error("the estimation worker stopped; starting it again (restart %d)", self.restarts)
+            self._spawn()
+
+    def stop(self, timeout: float = 60.0) -> None:
+        """Estimate what is queued, publish, and end the worker."""
+        if self.alive:
+            self.queue.put(_STOP)
+            self._thread.join(timeout=timeout)
+
+    # -- the worker --------------------------------------------------------------------------------
+    def _work(self) -> None:
+        q, feed = self.queue, self.pipeline.feed
+        interval = self.publish_interval
+        next_pub = time.monotonic() + interval
+        while True:
+            try:
+                item = q.get(timeout=interval)
+            except queue.Empty:
+                item = None
+            if item is _STOP:
+                self.publish()
+                return
+            if isinstance(item, _Command):
+                self._run(item)
+                next_pub = time.monotonic() + interval
+                continue
+            if item is not None:
+                try:
+                    # candump logs keep microseconds: rounding here makes the live estimate
+                    # and a replay of the raw log see the very same numbers.
+                    item.timestamp = round(item.timestamp, 6)
+                    feed(item)
+                except Exception:
+                    self.errors += 1
+                    if self.errors == 1 or self.errors % 1000 == 0:
+                        log.exception("estimation failed on a frame (%d so far); carrying on", self.errors)
+                self.fed += 1
+                self._dirty = True
+            now = time.monotonic()
+            if now >= next_pub:
+                if self._dirty:
+                    self.publish()
+                next_pub = now + interval
+
+    def _run(self, cmd: _Command) -> None:
+        if not cmd.future.set_running_or_notify_cancel():
+            return
+        try:
+            result = cmd.fn(self.pipeline)
+        except BaseException as exc:
+            self.publish()
+            cmd.future.set_exception(exc)
+        else:
+            # publish first: a caller woken by the result (sync) reads the snapshot at once
+            self.publish()
+            cmd.future.set_result(result)
+
+    def publish(self) -> None:
+        """Take a snapshot (on the worker thread, or before it runs)."""
+        try:
+            pub = Published(
+                seq=next(self._seq),
+                wall=time.time(),
+                result=self.pipeline.result(trace=True),
+                fed=self.fed,
+                restored=self.restored,
+            )
+        except Exception:
+            self.errors += 1
+            log.exception("taking a snapshot failed")
+            return
+        self._dirty = False
+        self._note_resets(pub.result.resets)
+        self._pub = pub
+
+    def _note_resets(self, resets: Mapping[str, int]) -> None:
+        for kind, n in resets.items():
+            if isinstance(n, int) and n > self._resets_seen.get(kind, 0):
+                self._diverged[kind] = (
+                    time.monotonic(),
+                    f"the {kind.upper()} filter diverged and was reset to its "
+                    f"last good estimate ({n} time{'s' if n > 1 else ''} so far)",
+                )
+            self._resets_seen[kind] = n
+
+    # -- any thread --------------------------------------------------------------------------------
+    @property
+    def latest(self) -> Published:
+        return self._pub
+
+    def diverged(self, hold: float) -> list[str]:
+        """Divergences of the last ``hold`` seconds, one per filter kind (the EKF's never hides the UKF's)."""
+        now = time.monotonic()
+        return [what for when, what in self._diverged.values() if now - when <= hold]
+
+    def call(self, fn: Callable[[Any], Any], timeout: float = COMMAND_TIMEOUT) -> Any:
+        """Run ``fn(pipeline)`` on the worker, after every frame already queued."""
+        if not self.alive:
+            raise Unavailable("the estimation worker is not running")
+        cmd = _Command(fn)
+        try:
+            self.queue.put(cmd, timeout=timeout)
+        except queue.Full:
+            raise Unavailable("the estimation queue is full; try again") from None
+        try:
+            return cmd.future.result(timeout=timeout)
+        except FutureTimeout:
+            cmd.future.cancel()
+            raise Unavailable(f"the estimation worker did not answer within {timeout:.0f} s") from None

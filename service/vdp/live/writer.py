@@ -1,0 +1,116 @@
+"""The store writer: the latest published estimates into the SQLite store, one transaction a batch.
+
+It opens the store (a store of another profile or schema is refused, never
+overwritten: estimation goes on from the priors, unsaved), hands what it held
+back for restoring, commits each new snapshot once, and keeps the store's
+state for /health and /status.  History queries read through it.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import Any
+
+from ..errors import StoreError
+from ..settings import StoreSettings
+from ..store import Store, Stored
+from .estimation import Published, Unavailable
+
+log = logging.getLogger(__name__)
+
+
+class StoreWriter:
+    def __init__(self, cfg: StoreSettings, fingerprint: str, profile_name: str):
+        self.cfg = cfg
+        self.fingerprint = fingerprint
+        self.profile_name = profile_name
+        self.store: Store | None = None
+        self.state = "closed"  # ok, refused, error, closed
+        self.error: str | None = None
+        self.last_commit: float | None = None
+        self._lock = threading.Lock()
+        self._committed_seq = -1
+
+    def open(self) -> dict[str, Stored]:
+        """Open the store; return the stored estimates worth restoring (none if it was refused)."""
+        cfg = self.cfg
+        try:
+            self.store = Store(cfg.path, self.fingerprint, self.profile_name, cfg.synchronous, cfg.history_max_rows)
+        except StoreError as exc:
+            self.store, self.state, self.error = None, "refused", str(exc)
+            log.error("estimate store refused, starting from the priors and not saving: %s", exc)
+            return {}
+        self.state, self.error = "ok", None
+        return {k: v for k, v in self.store.load().items() if v.estimate.samples and v.estimate.value is not None}
+
+    def commit(self, pub: Published) -> None:
+        """Commit ``pub`` if it is new: one transaction per batch.  A failure is kept and retried."""
+        with self._lock:
+            store = self.store
+            if store is None or pub.seq == self._committed_seq:
+                return
+            try:
+                store.save(pub.result.parameters, t=pub.wall, bus_t=pub.bus_time)
+            except StoreError as exc:
+                if self.state != "error":
+                    log.error("%s; will retry", exc)
+                self.state, self.error = "error", str(exc)
+                return
+            if self.state == "error":
+                log.info("estimate store writable again")
+            self.state, self.error = "ok", None
+            self.last_commit = time.time()
+            self._committed_seq = pub.seq
+
+    def close(self) -> None:
+        with self._lock:
+            if self.store is not None:
+                self.store.close()
+                self.store = None
+                self.state = "closed"
+
+    # -- read side (any thread) ----------------------------------------------------------------
+    @property
+    def ok(self) -> bool:
+        return self.state == "ok"
+
+    @property
+    def commits(self) -> int:
+        store = self.store
+        return store.commits if store is not None else 0
+
+    def status(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "path": str(self.cfg.path),
+            "state": self.state,
+            "error": self.error,
+            "last_commit": self.last_commit,
+        }
+        store = self.store
+        if store is not None:
+            out["commits"] = store.commits
+            try:
+                out["bytes"] = store.size()
+            except OSError:
+                out["bytes"] = None
+        return out
+
+    def history(
+        self, parameter: str | None, since: float | None, until: float | None, limit: int, offset: int
+    ) -> dict[str, Any]:
+        store = self.store
+        if store is None:
+            raise Unavailable(
+                f"no estimate history: the store is {self.state}" + (f" ({self.error})" if self.error else "")
+            )
+        items, total = store.history(parameter, since, until, limit, offset)
+        nxt = offset + len(items)
+        return {
+            "items": items,
+            "total": total,
+            "limit": limit,
+            "offset": offset,
+            "next_offset": nxt if nxt < total else None,
+        }

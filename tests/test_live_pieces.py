@@ -1,0 +1,138 @@
+"""Each piece of the live service on its own: ingest, the estimation loop, the store writer."""
+
+from __future__ import annotations
+
+import dataclasses
+import queue
+import time
+
+import can
+import pytest
+
+from test_api import FakePipeline, make_settings, send, wait_for
+from vdp.errors import StoreError
+from vdp.live.estimation import Estimation, Published, Unavailable
+from vdp.live.ingest import Ingest
+from vdp.live.writer import StoreWriter
+from vdp.profile import load_profile
+from vdp.store import Store, profile_fingerprint
+
+
+@pytest.fixture(scope="module")
+def paper(repo_root):
+    return load_profile(repo_root / "profiles" / "paper.toml")
+
+
+def test_ingest_puts_every_frame_in_the_queue_and_the_raw_log(tmp_path, paper):
+    settings = make_settings(tmp_path)
+    ing = Ingest(settings, paper)
+    ing.open_rawlog()
+    ing.start()
+    tx = can.Bus(interface="virtual", channel=ing.bus_cfg.channel, preserve_timestamps=True)
+    try:
+        wait_for(lambda: ing.link.up, "the bus to open")
+        send(tx, 30)
+        wait_for(lambda: ing.intake.received == 30, "30 frames")
+        ing.tick()
+        got = [ing.queue.get_nowait() for _ in range(30)]
+        assert [m.timestamp for m in got] == pytest.approx([1000.0 + 0.01 * k for k in range(30)])
+        assert ing.rawlog.frames == 30 and ing.silent_for() is not None
+        st = ing.status()
+        assert st["bus"]["frames"] == 30 and st["queue"]["depth"] == 0 and st["simulation"] is None
+        assert ing.backlog() == 0.0
+    finally:
+        tx.shutdown()
+        ing.stop()
+        ing.close()
+    assert ing.rawlog.stats()["bytes"] > 0
+
+
+def frame(k: int, first: int = 40) -> can.Message:
+    return can.Message(timestamp=1000.0 + 0.01 * k, arbitration_id=0x123, data=bytes([first + k % 10] * 8))
+
+
+def test_estimation_feeds_in_order_publishes_and_survives_bad_frames():
+    class Picky(FakePipeline):
+        def feed(self, msg):
+            super().feed(msg)
+            if msg.data[0] == 45:
+                raise ValueError("a frame the pipeline chokes on")
+
+    frames: queue.Queue = queue.Queue()
+    est = Estimation(Picky(), frames, publish_interval=0.05)
+    assert est.latest.seq == 0 and not est.alive
+    with pytest.raises(Unavailable):
+        est.call(lambda p: None)  # not started
+    est.start()
+    try:
+        for k in range(20):
+            frames.put(frame(k))
+        seen = est.call(lambda p: p.frames)  # runs after the frames queued before it
+        assert seen == 20 and est.fed == 20 and est.errors == 2  # data[0] == 45 twice
+        pub = est.latest
+        assert isinstance(pub, Published) and pub.fed == 20 and pub.result.frames == 20
+        assert pub.result.parameters["l_f"].value == pytest.approx(1.0 + 49 / 100)  # the last frame's byte
+    finally:
+        est.stop()
+    assert not est.alive and est.latest.fed == 20
+
+
+def test_a_dead_estimation_worker_is_started_again():
+    frames: queue.Queue = queue.Queue()
+    est = Estimation(FakePipeline(), frames, publish_interval=0.05)
+    est.start()
+    est.stop()  # the thread ends as if it had died
+    assert not est.alive
+    est.ensure_running()
+    try:
+        assert est.alive and est.restarts == 1
+        frames.put(frame(1))
+        assert est.call(lambda p: p.frames) == 1
+    finally:
+        est.stop()
+
+
+def test_restoring_checks_the_estimator_took_the_values():
+    class Deaf(FakePipeline):
+        def restore(self, params):
+            self.restored = params  # ... and ignores them
+
+    stored = {"l_f": dataclasses.replace(FakePipeline().result().parameters["l_f"], value=1.77)}
+    ok = Estimation(FakePipeline(), queue.Queue(), 0.05)
+    assert ok.restore(stored) is None and ok.restored
+    deaf = Estimation(Deaf(), queue.Queue(), 0.05)
+    assert "l_f" in deaf.restore(stored) and not deaf.restored
+
+
+def test_store_writer_commits_each_snapshot_once_and_reads_history(tmp_path, paper):
+    settings = make_settings(tmp_path)
+    fp = profile_fingerprint(paper)
+    w = StoreWriter(settings.store, fp, "paper")
+    assert w.open() == {} and w.ok and w.state == "ok"
+    pipe = FakePipeline()
+    pipe.feed(frame(1))  # one sample: estimates worth keeping
+    pub = Published(1, 100.0, pipe.result(), 0)
+    w.commit(pub)
+    w.commit(pub)  # the same snapshot again: nothing new to write
+    assert w.commits == 1 and w.last_commit is not None
+    page = w.history("l_f", None, None, 10, 0)
+    assert page["total"] == 1 and page["items"][0]["value"] == pipe.lf and page["next_offset"] is None
+    w.close()
+    assert w.state == "closed" and w.commits == 0
+    again = StoreWriter(settings.store, fp, "paper")
+    stored = again.open()
+    assert set(stored) == set(pipe.result().parameters) - {"I_x"}  # I_x had no value: not worth restoring
+    again.close()
+
+
+def test_store_writer_refuses_another_profiles_store_and_keeps_going(tmp_path):
+    settings = make_settings(tmp_path)
+    Store(settings.store.path, "0" * 64, "another car").close()
+    w = StoreWriter(settings.store, "1" * 64, "paper")
+    assert w.open() == {} and w.state == "refused" and "another vehicle profile" in w.error
+    w.commit(Published(1, time.time(), FakePipeline().result(), 0))  # no store: nothing, no error
+    with pytest.raises(Unavailable, match="refused"):
+        w.history(None, None, None, 10, 0)
+    assert w.status()["state"] == "refused"
+    with pytest.raises(StoreError):
+        Store(settings.store.path, "1" * 64, "paper")  # the file is still the other car's
