@@ -95,8 +95,8 @@ def _profile(path: str):
     return prof
 
 
-def replay_log(path: str, profile_path: str) -> dict:
-    """``vdp replay PATH --profile PROFILE --no-ekf --json``'s document (the UKF's
+def replay_log(path: str, profile_path: str) -> Any:
+    """The RunResult of ``vdp replay PATH --profile PROFILE --no-ekf`` (the UKF's
     numbers do not depend on the EKF baseline running beside it)."""
     from .core.estimator import EstimatorConfig
     from .io.bulk import replay_log as replay_file
@@ -107,7 +107,7 @@ def replay_log(path: str, profile_path: str) -> dict:
     # history would grow with the log (~70 MB over 4 hours), and batch draws no plots
     cfg = EstimatorConfig(baseline=False, trace_len=0)
     result, _ = replay_file(path, lambda: Pipeline(profile, cfg), channel=profile.bus_channel)
-    return result.to_dict()
+    return result
 
 
 def run_task(task: Task) -> list[dict]:
@@ -115,13 +115,13 @@ def run_task(task: Task) -> list[dict]:
     stamp = file_stamp(task.log)
     t0 = time.monotonic()
     try:
-        doc = replay_log(task.log, task.profile)
+        res = replay_log(task.log, task.profile)
     except VdpError as exc:
         return [error_row(task, str(exc), stamp)]
     except Exception as exc:  # a bug, not the log: keep the rest of the fleet going, say where
         log.error("%s: replay failed:\n%s", task.log, traceback.format_exc())
         return [error_row(task, f"internal error: {type(exc).__name__}: {exc}", stamp)]
-    rows = rows_from_result(doc, task, stamp)
+    rows = rows_from_result(res, task, stamp)
     wall = time.monotonic() - t0
     for r in rows:
         r["wall_s"] = wall
@@ -136,47 +136,47 @@ def error_row(task: Task, error: str, stamp: tuple[int, int] | None) -> dict:
     return row
 
 
-def rows_from_result(doc: Mapping[str, Any], task: Task, stamp: tuple[int, int] | None = None) -> list[dict]:
-    """One row per parameter from a ``vdp replay --json`` document."""
-    lg = doc.get("log") or {}
-    dec = lg.get("decode") or {}
-    duration = float(lg.get("duration_s") or 0.0)
-    by_kind = dec.get("errors_by_kind") or {}
+def rows_from_result(res: Any, task: Task, stamp: tuple[int, int] | None = None) -> list[dict]:
+    """One row per parameter from a replay's :class:`vdp.result.RunResult`."""
+    lg = res.log
+    src = lg.source if lg is not None else {}
+    duration = lg.duration_s if lg is not None else 0.0
+    by_kind = res.decode.get("errors_by_kind") or {}
     decode_errors = sum(n for k, n in by_kind.items() if k not in {"unknown_id", "error_frame"})
-    caps = doc.get("capabilities") or {}
-    # bus time each stage spent in windows (an open window runs to the end of the log)
+    # bus time each stage spent in windows (an open window runs to the newest frame)
     window = {1: 0.0, 2: 0.0}
-    for w in doc.get("windows") or ():
-        end = w["end"] if w.get("end") is not None else duration
-        window[w["stage"]] = window.get(w["stage"], 0.0) + max(end - w["start"], 0.0)
+    for w in res.windows:
+        end = w.end if w.end is not None else res.bus_time
+        if end is not None:
+            window[w.stage] = window.get(w.stage, 0.0) + max(end - w.start, 0.0)
     rows = []
     for name in PARAMETERS:
-        e = (doc.get("parameters") or {}).get(name)
+        e = res.parameters.get(name)
         if e is None:
             continue
-        status = e.get("status")
-        stage = e.get("stage")
-        reason = caps.get(str(stage)) if status == "not_run" else REASONS.get(status)
+        reason = e.reason
+        if reason is None:
+            reason = res.capabilities.get(str(e.stage)) if e.status == "not_run" else REASONS.get(e.status)
         row: dict[str, Any] = dict.fromkeys(RUN_COLUMNS)
         row.update(
             log=task.log,
             vehicle=task.vehicle,
             profile=task.profile,
             parameter=name,
-            value=_num(e.get("value")),
-            std=_num(e.get("std")),
-            unit=e.get("unit"),
-            status=status,
+            value=_num(e.value),
+            std=_num(e.std),
+            unit=e.unit,
+            status=e.status,
             reason=reason,
-            valid=bool(e.get("valid")),
-            stage=stage,
-            window_s=window.get(stage, 0.0),
-            duration_s=duration,
-            frames=int(lg.get("frames") or 0),
+            valid=bool(e.valid),
+            stage=e.stage,
+            window_s=window.get(e.stage, 0.0),
+            duration_s=float(duration),
+            frames=int(lg.frames if lg is not None else res.frames),
             decode_errors=int(decode_errors),
-            bad_lines=int(lg.get("bad_lines") or 0),
-            damage=(lg.get("damage") or {}).get("summary") or None,
-            wall_s=float(lg.get("wall_s") or 0.0),
+            bad_lines=int(src.get("bad_lines") or 0),
+            damage=(src.get("damage") or {}).get("summary") or None,
+            wall_s=float(lg.wall_s if lg is not None else 0.0),
         )
         if stamp is not None:
             row["log_size"], row["log_mtime_ns"] = stamp
