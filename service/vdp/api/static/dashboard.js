@@ -87,7 +87,7 @@ function yRange(pts, prior) {
   let lo = Infinity, hi = -Infinity;
   const recent = pts.slice(Math.floor(pts.length / 3));
   for (const [, v, sd] of recent) {
-    const w = sd !== null && sd < 0.5 * prior.std ? 2 * sd : 0;
+    const w = sd !== null && sd < 0.25 * prior.std ? 2 * sd : 0;
     lo = Math.min(lo, v - w); hi = Math.max(hi, v + w);
   }
   for (const [, v] of pts) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
@@ -111,21 +111,37 @@ function draw(svg, pts, prior) {
   const [lo, hi] = yRange(pts, prior);
   const x = (t) => ((t - t0) / Math.max(t1 - t0, 1e-9)) * W;
   const y = (v) => H - ((Math.min(Math.max(v, lo), hi) - lo) / (hi - lo)) * H;
-  let up = "", down = "", line = "";
-  pts.forEach(([t, v, sd], i) => {
-    const s = sd === null ? 0 : 2 * sd;
-    up += `${i ? "L" : "M"}${x(t).toFixed(1)},${y(v + s).toFixed(1)}`;
+  const bandPath = (part) => {
+    let up = "", down = "";
+    part.forEach(([t, v, sd], i) => {
+      up += `${i ? "L" : "M"}${x(t).toFixed(1)},${y(v + (sd === null ? 0 : 2 * sd)).toFixed(1)}`;
+    });
+    for (let i = part.length - 1; i >= 0; i--) {
+      const [t, v, sd] = part[i];
+      down += `L${x(t).toFixed(1)},${y(v - (sd === null ? 0 : 2 * sd)).toFixed(1)}`;
+    }
+    const e = document.createElementNS(ns, "path");
+    e.setAttribute("d", up + down + "Z");
+    return e;
+  };
+  let line = "";
+  pts.forEach(([t, v], i) => {
     line += `${i ? "L" : "M"}${x(t).toFixed(1)},${y(v).toFixed(1)}`;
   });
-  for (let i = pts.length - 1; i >= 0; i--) {
-    const [t, v, sd] = pts[i];
-    down += `L${x(t).toFixed(1)},${y(v - (sd === null ? 0 : 2 * sd)).toFixed(1)}`;
+  // the ±2σ band at full strength from where the data has narrowed it (below half the prior's
+  // std); before that it is the prior's width, drawn faintly so it does not flood the plot
+  const faint = bandPath(pts);
+  faint.setAttribute("class", "band faint");
+  svg.append(faint);
+  const from = pts.findIndex(([, , sd]) => sd !== null && sd < 0.5 * prior.std);
+  if (from >= 0 && pts.length - from >= 2) {
+    const band = bandPath(pts.slice(from));
+    band.setAttribute("class", "band");
+    svg.append(band);
   }
-  const band = document.createElementNS(ns, "path");
-  band.setAttribute("class", "band"); band.setAttribute("d", up + down + "Z");
   const path = document.createElementNS(ns, "path");
   path.setAttribute("class", "line"); path.setAttribute("d", line);
-  svg.append(band, path);
+  svg.append(path);
   // the prior's mean as a dashed line, or an arrow label when it is off the axes
   const pl = document.createElementNS(ns, "text");
   pl.setAttribute("x", 4);
