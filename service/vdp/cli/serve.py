@@ -125,10 +125,19 @@ def run(args) -> int:
 
     from ..api import check_host, create_app
     from ..live import Service
+    from ..live.lock import service_lock
 
     settings = _settings(args)
     check_host(settings.api.host)
     sock = _bind(settings.api.host, settings.api.port)
+    try:
+        # one service per store and raw-log directory: a second one is refused here, untouched files
+        lock = service_lock(settings).acquire()
+    except BaseException:
+        sock.close()
+        raise
+    _raise_nofile()
+    logging.getLogger("asyncio").addFilter(_AcceptErrors())
     service = Service(settings)
     terminate = _Terminate()
     previous = signal.signal(signal.SIGTERM, terminate)
@@ -136,11 +145,16 @@ def run(args) -> int:
         service.start()
         verbose = logging.getLogger().level <= logging.INFO
         config = uvicorn.Config(
-            create_app(settings, service),
+            _guard_hosts(create_app(settings, service), settings.api.host),
             log_level="info" if verbose else "warning",
             access_log=verbose,
             lifespan="on",
             timeout_graceful_shutdown=5,
+            # the API must never starve the logger of file descriptors or CPU: bounded connections
+            # (503 beyond), and idle ones closed after a few seconds
+            limit_concurrency=_concurrency(),
+            timeout_keep_alive=TIMEOUT_KEEP_ALIVE,
+            http=_idle_closing_protocol(),
         )
         terminate.server = server = uvicorn.Server(config)
         host, port = sock.getsockname()[:2]
@@ -171,5 +185,138 @@ def run(args) -> int:
     finally:
         service.stop()
         sock.close()
+        lock.release()
         signal.signal(signal.SIGTERM, previous)
     return 0
+
+
+LIMIT_CONCURRENCY = 2048  # connections and requests in flight at most; beyond, uvicorn answers 503 at once
+FD_RESERVE = 256  # open files kept for everything but API sockets: raw logs, the store, the bus
+TIMEOUT_KEEP_ALIVE = 5  # s an idle connection stays open, also one that never sends a request
+
+
+def _concurrency() -> int:
+    """LIMIT_CONCURRENCY, or fewer when the open-file limit leaves less room beside FD_RESERVE."""
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+    except (ImportError, ValueError, OSError):
+        return LIMIT_CONCURRENCY
+    if soft == resource.RLIM_INFINITY:
+        return LIMIT_CONCURRENCY
+    return max(32, min(LIMIT_CONCURRENCY, soft - FD_RESERVE))
+
+
+def _idle_closing_protocol():
+    """uvicorn's h11 protocol, with the keep-alive timer also started when a connection opens:
+    uvicorn times out idle connections only after a first response, so a client that connects
+    and says nothing would hold its socket (and a file descriptor) for ever."""
+    from uvicorn.protocols.http.h11_impl import H11Protocol
+
+    class IdleClosing(H11Protocol):
+        def connection_made(self, transport) -> None:  # type: ignore[override]
+            super().connection_made(transport)
+            self.timeout_keep_alive_task = self.loop.call_later(
+                self.timeout_keep_alive, self.timeout_keep_alive_handler
+            )
+
+    return IdleClosing
+
+
+class _AcceptErrors(logging.Filter):
+    """asyncio logs a traceback for every accept() that fails for lack of file descriptors
+    (about 110 MB in 30 s under a connection flood); let one through a minute, with a count."""
+
+    EVERY = 60.0
+
+    def __init__(self):
+        super().__init__()
+        self._last = -self.EVERY
+        self._dropped = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if "accept" not in str(record.msg):
+            return True
+        import time
+
+        now = time.monotonic()
+        if now - self._last < self.EVERY:
+            self._dropped += 1
+            return False
+        self._last = now
+        record.msg = (
+            f"{record.msg} ({self._dropped} more like it not shown; connections are bounded and idle ones closed)"
+        )
+        record.exc_info = None
+        record.exc_text = None
+        self._dropped = 0
+        return True
+
+
+_LOCAL = ("127.0.0.1", "::1", "localhost")
+
+
+def _raise_nofile() -> None:
+    """Soft limit of open files up to the hard one: sockets must never take the raw log's last fd."""
+    try:
+        import resource
+
+        soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+        want = hard if hard != resource.RLIM_INFINITY else 65536
+        if soft != resource.RLIM_INFINITY and soft < want:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (want, hard))
+    except (ImportError, ValueError, OSError) as exc:
+        log.warning("could not raise the open-file limit: %s", exc)
+
+
+def _guard_hosts(app, host: str):
+    """Beyond localhost, answer only requests whose Host header is an address or a name of this machine.
+
+    A page on another site can make a browser on the car's network send requests here under
+    a DNS name of the attacker's (DNS rebinding); those are refused (400).  An IP address as
+    Host is never that attack, so any is accepted.  VDP_ALLOWED_HOSTS (comma-separated) adds
+    names, e.g. the logger's DNS name.
+    """
+    if host in _LOCAL:
+        return app
+    names = {"localhost", socket.gethostname(), socket.getfqdn()}
+    extra = os.environ.get("VDP_ALLOWED_HOSTS", "")
+    names.update(n.strip() for n in extra.split(",") if n.strip())
+    names = {n.lower() for n in names}
+    log.info("accepting Host headers: IP addresses and %s", ", ".join(sorted(names)))
+    return HostGuard(app, frozenset(names))
+
+
+class HostGuard:
+    """ASGI middleware: 400 for a Host header that is neither an IP address nor an allowed name."""
+
+    def __init__(self, app, names: frozenset[str]):
+        self.app = app
+        self.names = names
+
+    def allowed(self, host: str) -> bool:
+        import ipaddress
+
+        if host.startswith("["):  # [v6]:port
+            name = host[1 : host.find("]")] if "]" in host else host
+        else:
+            name = host.rsplit(":", 1)[0] if host.count(":") == 1 else host
+        name = name.lower()
+        if name in self.names:
+            return True
+        try:
+            ipaddress.ip_address(name)
+        except ValueError:
+            return False
+        return True
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] == "http":
+            host = next((v.decode("latin-1") for k, v in scope["headers"] if k == b"host"), "")
+            if not self.allowed(host):
+                from starlette.responses import PlainTextResponse
+
+                await PlainTextResponse(f"Host {host!r} is not one of this logger's names\n", 400)(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
