@@ -1,4 +1,4 @@
-"""FrameDecoder: profile validation, SI conversion, bad-frame accounting, listener."""
+"""FrameDecoder: profile validation, SI conversion, bad-frame accounting."""
 
 from __future__ import annotations
 
@@ -7,8 +7,6 @@ import json
 import logging
 import math
 import struct
-import threading
-import time
 from pathlib import Path
 
 import can
@@ -18,36 +16,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import REAL
+from helpers.bus import EXTRA, EXTRA_DB, PAPER, VDP_DB, frame
 from vdp import channels
 from vdp.errors import ProfileError
-from vdp.io.checks import vdp_checksum
-from vdp.io.decoder import DecodeListener, FrameDecoder, compile_extractor
-from vdp.profile import ChannelMap, MessageCheck, load_profile
+from vdp.io.decoder import FrameDecoder, compile_extractor
+from vdp.profile import ChannelMap, MessageCheck
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data"
-PAPER = load_profile(ROOT / "profiles" / "paper.toml")
-EXTRA = load_profile(DATA / "extra.toml")
 TOYOTA_DBC = REAL / "toyota_new_mc_pt_generated.dbc"
-VDP_DB = cantools.database.load_file(str(PAPER.dbc), strict=True)
-EXTRA_DB = cantools.database.load_file(str(EXTRA.dbc), strict=True)
 DEG = math.pi / 180.0
 I = channels.INDEX
-
-
-def frame(db, name, t=0.0, counter=None, fix_checksum=True, channel=None, **values) -> can.Message:
-    """Encode a message of ``db``; unspecified signals are 0, checksum made valid."""
-    msg = db.get_message_by_name(name)
-    vals = {s.name: 0 for s in msg.signals}
-    if counter is not None:
-        vals["COUNTER"] = counter
-    vals.update(values)
-    data = bytearray(msg.encode(vals, strict=False))
-    if fix_checksum and "CHECKSUM" in vals:
-        data[7] = vdp_checksum(msg.frame_id, data)
-    return can.Message(
-        timestamp=t, arbitration_id=msg.frame_id, is_extended_id=msg.is_extended_frame, data=data, channel=channel
-    )
 
 
 def as_dict(pairs):
@@ -477,60 +456,6 @@ def test_checks_can_be_disabled():
     for _ in range(5):
         assert dec.decode(frame(VDP_DB, "IMU_RATES", counter=3, fix_checksum=False, YAW_RATE=2.0))
     assert not dec.stats.errors
-
-
-# -- listener ---------------------------------------------------------------------
-
-
-def test_listener_never_raises_and_counts():
-    dec = FrameDecoder(PAPER, VDP_DB)
-    got = []
-
-    def sink(t, pairs):
-        got.append((t, pairs))
-        if len(got) == 2:
-            raise RuntimeError("sink broke")
-
-    lst = DecodeListener(dec, sink)
-    for c in range(3):
-        lst.on_message_received(frame(VDP_DB, "GNSS_VELOCITY", t=float(c), GNSS_SPEED=1.0 + c))
-    assert [t for t, _ in got] == [0.0, 1.0, 2.0] and lst.failures == 1
-    lst.on_message_received("not a message")  # type: ignore[arg-type]
-    assert lst.failures == 2
-    lst.on_error(can.CanError("bus off"))
-    assert lst.bus_errors == 1
-    lst.stop()
-    lst.on_message_received(frame(VDP_DB, "GNSS_VELOCITY", t=3.0, GNSS_SPEED=1.0))
-    assert len(got) == 3
-
-
-def test_listener_with_notifier_on_virtual_bus():
-    dec = FrameDecoder(PAPER, VDP_DB)
-    got = []
-    done = threading.Event()
-
-    def sink(t, pairs):
-        got.append(as_dict(pairs))
-        if len(got) == 2:
-            raise ValueError("a broken sink must not kill the notifier")
-        if len(got) == 3:
-            done.set()
-
-    chan = f"vdp-test-{id(got)}"
-    with can.Bus(interface="virtual", channel=chan) as rx, can.Bus(interface="virtual", channel=chan) as tx:
-        notifier = can.Notifier(rx, [DecodeListener(dec, sink)], timeout=0.05)
-        try:
-            for k in range(3):
-                tx.send(frame(VDP_DB, "GNSS_VELOCITY", GNSS_SPEED=float(k + 1)))
-            tx.send(can.Message(arbitration_id=0x7DF, is_extended_id=False, data=b"\x01"))
-            assert done.wait(5.0)
-            deadline = time.monotonic() + 5.0
-            while dec.stats.frames < 4 and time.monotonic() < deadline:
-                time.sleep(0.01)
-        finally:
-            notifier.stop()
-    assert [g["speed"] for g in got] == [pytest.approx(1.0), pytest.approx(2.0), pytest.approx(3.0)]
-    assert dec.stats.unknown == {0x7DF: 1}
 
 
 def test_stats_as_dict_is_json():

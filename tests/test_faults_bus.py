@@ -19,8 +19,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from test_api import make_settings, wait_frames, wait_up
-from test_decoder import EXTRA, EXTRA_DB, PAPER, VDP_DB, frame
+from helpers.bus import EXTRA, EXTRA_DB, PAPER, VDP_DB, frame
+from helpers.live import make_settings, wait_frames, wait_up
 from vdp.core import filters
 from vdp.core.estimator import EstimatorConfig
 from vdp.core.result import Estimate

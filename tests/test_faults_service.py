@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from test_api import make_settings, wait_for, wait_frames, wait_up
-from test_decoder import PAPER
+from helpers.bus import PAPER
+from helpers.live import make_settings, wait_for, wait_frames, wait_up
 from vdp.api import create_app
 from vdp.core import filters
 from vdp.core.result import Estimate

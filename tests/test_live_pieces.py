@@ -9,7 +9,7 @@ import time
 import can
 import pytest
 
-from test_api import FakePipeline, make_settings, send, wait_for
+from helpers.live import FakePipeline, make_settings, send, wait_for
 from vdp.errors import StoreError
 from vdp.live.estimation import Estimation, Published, Unavailable
 from vdp.live.ingest import Ingest

@@ -27,9 +27,9 @@ from pathlib import Path
 import can
 import pytest
 
-from test_api import make_settings, wait_for, wait_up
-from test_decoder import PAPER
-from test_e2e_netns import netns_reason
+from helpers.bus import PAPER
+from helpers.live import make_settings, wait_for, wait_up
+from helpers.netns import netns_reason
 from vdp.api import create_app
 from vdp.cli.serve import _bind
 from vdp.live import Service

@@ -11,7 +11,7 @@ import can
 import pytest
 from fastapi.testclient import TestClient
 
-from test_api import FakePipeline, make_settings, send, wait_frames, wait_up
+from helpers.live import FakePipeline, make_settings, send, wait_frames, wait_up
 from vdp.api import create_app
 from vdp.errors import BusError
 from vdp.io.logs import open_log

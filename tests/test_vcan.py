@@ -15,7 +15,7 @@ import textwrap
 
 import pytest
 
-from test_e2e_netns import HELPERS, ROOT, run_in_netns
+from helpers.netns import HELPERS, ROOT, run_in_netns
 
 pytestmark = [pytest.mark.slow, pytest.mark.netns, pytest.mark.timeout(900)]
 

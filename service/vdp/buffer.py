@@ -2,7 +2,7 @@
 
 Frames of different messages arrive at their own times and periods.  The
 :class:`Aligner` turns them into :class:`Sample` rows on a fixed tick grid
-(10 ms by default): each channel is linearly interpolated to the tick from the
+(the estimator's tick, 20 ms): each channel is linearly interpolated to the tick from the
 values around it, or held if no later value has come yet.  A tick is emitted
 once bus time has passed it by ``delay``, so the value after the tick is
 usually known.  A channel silent for longer than its ``stale_after`` is NaN in

@@ -21,10 +21,6 @@ class LogFormatError(VdpError):
     """A log file is missing, empty, truncated or not in a readable format."""
 
 
-class DecodeError(VdpError):
-    """A CAN frame could not be turned into a sample (counted, never fatal live)."""
-
-
 class BusError(VdpError):
     """The CAN bus could not be opened or failed while receiving."""
 

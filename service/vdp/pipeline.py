@@ -50,7 +50,6 @@ class Pipeline:
         self.monitor: Monitor | None = Monitor(profile)
         self.frames = 0
         self.samples = 0
-        self.started = time.monotonic()
         self.last_bus_time: float | None = None
         cap = self.capabilities()
         for stage, why in cap.items():

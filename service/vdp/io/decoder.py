@@ -46,8 +46,6 @@ BAD_RUN_INVALID = 3  # consecutive counter/checksum failures that flag a message
 ALT_AFTER_CYCLES = 5.0  # primary silent this many cycle times: use the alternative source
 DEFAULT_CYCLE = 0.1  # [s] until a message without GenMsgCycleTime has shown its period
 
-Sink = Callable[[float, list[tuple[int, float]]], Any]
-
 
 class DecodeStats:
     """Counters of one decoder.  Written by the decoding thread, read by anyone:
@@ -798,39 +796,3 @@ def _cantools_extractor(
         return tuple(out)
 
     return extract
-
-
-class DecodeListener(can.Listener):
-    """python-can listener: decode each frame and hand ``(timestamp, pairs)`` to ``sink``.
-
-    Never raises out of ``on_message_received``: an exception there kills
-    python-can's Notifier thread.  Failures are logged (the first, then every
-    1000th) and counted in ``failures``.
-    """
-
-    def __init__(self, decoder: FrameDecoder, sink: Sink):
-        self.decoder = decoder
-        self.sink = sink
-        self.failures = 0
-        self.bus_errors = 0
-        self.stopped = False
-
-    def on_message_received(self, msg: can.Message) -> None:
-        if self.stopped:
-            return
-        try:
-            pairs = self.decoder.decode(msg)
-            if pairs:
-                self.sink(msg.timestamp, pairs)
-        except Exception:
-            self.failures += 1
-            if self.failures == 1 or self.failures % 1000 == 0:
-                log.exception("decoding or handling a frame failed (%d so far)", self.failures)
-
-    def on_error(self, exc: Exception) -> None:
-        self.bus_errors += 1
-        if self.bus_errors == 1 or self.bus_errors % 1000 == 0:
-            log.error("CAN receive error (%d so far): %s", self.bus_errors, exc)
-
-    def stop(self) -> None:
-        self.stopped = True

@@ -82,7 +82,7 @@ class Service:
         self.estimation.start()
         self.ingest.start()
         self._stop.clear()
-        self._keeper = threading.Thread(target=self._keep, name="vdp-keep", daemon=True)
+        self._keeper = threading.Thread(target=self._keeper_loop, name="vdp-keep", daemon=True)
         self._keeper.start()
         self.running = True
 
@@ -119,7 +119,7 @@ class Service:
         )
 
     # -- keeper thread ----------------------------------------------------------------------------
-    def _keep(self) -> None:
+    def _keeper_loop(self) -> None:
         every = self.settings.store.commit_interval
         while not self._stop.wait(every):
             try:

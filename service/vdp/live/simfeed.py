@@ -37,7 +37,7 @@ class SimFeed:
         self.backlog = backlog
         kw = {} if cfg.noise is None else {"noise": cfg.noise}
         self._make = lambda start: Simulation(profile, cfg.scenario, cfg.seed, start_time=start, **kw)
-        # Start on a whole second: the estimator's 10 ms sample grid then sits at the same phase
+        # Start on a whole second: the estimator's sample grid then sits at the same phase
         # of the frames every run, so a simulated drive gives the same numbers each time.
         self._sim = self._make(float(int(time.time())))  # validates scenario and noise now
         self.truth = self._sim.truth
