@@ -161,6 +161,9 @@ def test_a_measured_l_f_in_the_profile_runs_stage_2_without_stage_1(profile):
         pipe.feed(msg)
     snap = pipe.result().to_dict()
     assert snap["parameters"]["l_f"]["status"] == "not_run"  # no straight-line excitation in this drive
+    seen = snap["supervisor"]["learners"]["ukf"]  # what the learners expose for progress and coaching
+    assert seen["stage2"]["seconds_in_windows"] > 10 and seen["stage1"]["seconds_in_windows"] == 0
+    assert seen["stage2"]["all_windows"]["updates"] > 200 and seen["stage2"]["model_mismatch"] is None
     for key in ("parameters", "baseline_ekf"):
         e = snap[key]["C_alpha"]
         assert e["samples"] > 500

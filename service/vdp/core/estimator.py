@@ -164,10 +164,38 @@ class TwoStageEstimator:
             parameters=self.parameters("ukf"),
             baseline_ekf=self.parameters("ekf") if "ekf" in self.s1 else None,
             stage=self.stage(),
-            supervisor=self.supervisor.state(),
+            supervisor={**self.supervisor.state(), "learners": self.learners()},
             windows=tuple(WindowSpan(w.stage, w.start, w.end, w.samples) for w in self.supervisor.windows),
             resets={k: self.s1[k].resets + self.s2[k].resets for k in self.s1},
         )
+
+    def learners(self) -> dict:
+        """What each learner has seen, plainly (for progress and coaching, and for a reader who
+        wants to know why a parameter is not valid): per filter kind and stage."""
+        tick = self.cfg.tick
+        out = {}
+        for kind in self.s1:
+            l1, l2 = self.s1[kind], self.s2[kind]
+            f = l1.fit
+            out[kind] = {
+                "stage1": {
+                    "seconds_in_windows": round(l1.samples * tick, 2),
+                    "blocks_used": len(l1._blocks),
+                    "blocks_beyond_small_slip": l1.gated,
+                    "reseeds_from_batch_optimum": l1.reseeds,
+                    "batch_chi2_per_dof": None if f is None else round(f.chi2, 3),
+                    "batch_whiteness_lag1": None if f is None else round(f.rho, 3),
+                    "model_mismatch": l1.mismatch()[1],
+                },
+                "stage2": {
+                    "seconds_in_windows": round(l2.samples * tick, 2),
+                    "windows_restarted": l2.restarts,
+                    "window": l2.window.as_dict(),
+                    "all_windows": l2.total.as_dict(),
+                    "model_mismatch": l2.mismatch()[1],
+                },
+            }
+        return out
 
     # -- helpers -------------------------------------------------------
     def l_f_known(self) -> bool:
