@@ -113,3 +113,18 @@ def test_a_flagged_estimate_is_not_learnt_whatever_its_std():
     }
     out = progress.assess(snap(l_f=mismatch), PRIORS, 0.02)["parameters"]["l_f"]
     assert out["progress"] < 1.0 and "model mismatch" in out["hint"] and out["hint"].startswith("not valid")
+
+
+def test_next_names_the_stage_behind_or_the_one_being_driven():
+    conv = {"value": 1.4, "std": 0.001, "status": "converged", "samples": 900}
+    half = {"value": 10.0, "std": 0.5, "status": "uncertain", "samples": 900}
+    c2 = {"value": 6.7e4, "std": 500.0, "status": "converged", "samples": 900}
+    # stage 2 started once l_f was known; C_K is still uncertain: stage 1's driving is next
+    s = snap(stage="done", reasons={"1": "speed below 5.0 m/s", "2": "open"}, l_f=conv, h=conv, C_K=half)
+    s["parameters"].update({"C_alpha": c2, "I_z": c2, "I_x": {**c2, "status": "not_identifiable"}})
+    out = progress.assess(s, PRIORS, 0.02)
+    assert out["stages"]["2"]["progress"] == 1.0 and out["stages"]["1"]["progress"] < 1.0
+    assert "accelerate" in out["next"] and "too slow" in out["next"]
+    # while a window is open, the driver is told to keep going with it
+    s["supervisor"]["reasons"] = {"1": "open", "2": "little steering excitation"}
+    assert progress.assess(s, PRIORS, 0.02)["next"].startswith("keep going: on a straight")

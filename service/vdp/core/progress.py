@@ -181,17 +181,26 @@ def _hint(name, stage, status, p, to_go, prior_std, why_not, reasons, excitation
 
 
 def _next(snapshot, out, reasons, caps) -> str:
-    """The one manoeuvre to drive next, in a driver's words."""
-    stage = snapshot.get("stage", "stage1")
-    if stage == "done" or (caps.get("1") and caps.get("2")):
-        if caps.get("1") and caps.get("2"):
-            return "nothing to drive: this car's bus lacks what both stages need (see the stages)"
-        return "done: every parameter is learnt or known not to be learnable from driving; drive normally"
-    n = 1 if stage == "stage1" and not caps.get("1") else 2
-    if caps.get(str(n)):
-        return f"stage {n} cannot run on this car: {caps[str(n)]}"
-    reason = reasons.get(str(n))
-    if reason == "open":
-        return f"keep going: {DRIVE[n]}"
-    fix = _fix(reason)
+    """The one manoeuvre to drive next, in a driver's words: the stage whose window is open now
+    (never switch a driver mid-manoeuvre), else the one furthest behind (stage 1 on a tie)."""
+    if caps.get("1") and caps.get("2"):
+        return "nothing to drive: this car's bus lacks what both stages need (see the stages)"
+    waits = snapshot.get("stage", "stage1") == "stage1"  # stage 2 waits for l_f
+    todo = [
+        n for n in (1, 2) if not caps.get(str(n)) and not (n == 2 and waits) and out["stages"][str(n)]["progress"] < 1.0
+    ]
+    if not todo:
+        if waits and caps.get("1"):
+            return (
+                f"stage 1 cannot run on this car ({caps['1']}); stage 2 needs its l_f, or a measured l_f in the profile"
+            )
+        cannot = [f"stage {n} cannot run on this car: {caps[str(n)]}" for n in ("1", "2") if caps.get(n)]
+        return "done: every parameter is learnt or known not to be learnable from driving; drive normally" + (
+            f" ({'; '.join(cannot)})" if cannot else ""
+        )
+    open_now = [n for n in todo if reasons.get(str(n)) == "open"]
+    if open_now:
+        return f"keep going: {DRIVE[open_now[0]]}"
+    n = min(todo, key=lambda k: (out["stages"][str(k)]["progress"], k))
+    fix = _fix(reasons.get(str(n)))
     return DRIVE[n][0].upper() + DRIVE[n][1:] + (f" — now: {fix}" if fix else "")
