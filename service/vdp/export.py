@@ -14,6 +14,7 @@ import math
 from dataclasses import asdict, dataclass
 
 from .core.params import BY_NAME, NAMES
+from .core.result import INVALID, NOT_IDENTIFIABLE, NOT_RUN
 from .errors import ConfigError
 
 FORMATS = {
@@ -22,7 +23,7 @@ FORMATS = {
     "json": ("json", "application/json"),
     "toml": ("toml", "application/toml"),
 }
-UNUSABLE = ("not_run", "invalid", "not_identifiable")  # the prior, garbage, or mostly the prior
+UNUSABLE = (NOT_RUN, INVALID, NOT_IDENTIFIABLE)  # the prior, garbage, or mostly the prior
 
 
 @dataclass(frozen=True)
@@ -61,7 +62,7 @@ def usable(params: dict) -> tuple[dict[str, dict], list[str]]:
     keep, skipped = {}, []
     for name in NAMES:
         p = params.get(name) or {}
-        if p.get("value") is None or p.get("status", "not_run") in UNUSABLE:
+        if p.get("value") is None or p.get("status", NOT_RUN) in UNUSABLE:
             skipped.append(name)
         else:
             keep[name] = p
@@ -213,7 +214,7 @@ def _plain(params: dict, const: Constants | None = None, source: str = "") -> di
             "value": _finite(p.get("value")),
             "std": _finite(p.get("std")),
             "unit": p.get("unit", BY_NAME[name].unit),
-            "status": p.get("status", "not_run"),
+            "status": p.get("status", NOT_RUN),
             "valid": bool(p.get("valid", False)),
             "description": BY_NAME[name].description,
         }

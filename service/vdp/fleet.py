@@ -20,19 +20,21 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from .core.params import NAMES
+from .core.result import CONVERGED, INVALID, NOT_IDENTIFIABLE, NOT_RUN, UNCERTAIN
 from .errors import VdpError
 
 log = logging.getLogger(__name__)
 
-PARAMETERS = ("l_f", "h", "C_K", "C_alpha", "I_z", "I_x")
+PARAMETERS = NAMES
 Z_FLAG = 3.0  # |z| of a drive against the others' combination that flags it as disagreeing
 P_CONSISTENT = 0.01  # chi^2 p-value below which a vehicle's drives are called inconsistent
 
 # what a status means when the parameter has no number worth using (the README's table)
 REASONS = {
-    "uncertain": "std still above the convergence threshold",
-    "not_identifiable": "the data did not halve the prior std: the value is mostly the prior's",
-    "invalid": "non-finite or outside a sane range",
+    UNCERTAIN: "std still above the convergence threshold",
+    NOT_IDENTIFIABLE: "the data did not halve the prior std: the value is mostly the prior's",
+    INVALID: "non-finite or outside a sane range",
 }
 
 # runs.parquet, one row per log x parameter (an error: one row, parameter null)
@@ -156,7 +158,7 @@ def rows_from_result(res: Any, task: Task, stamp: tuple[int, int] | None = None)
             continue
         reason = e.reason
         if reason is None:
-            reason = res.capabilities.get(str(e.stage)) if e.status == "not_run" else REASONS.get(e.status)
+            reason = res.capabilities.get(str(e.stage)) if e.status == NOT_RUN else REASONS.get(e.status)
         row: dict[str, Any] = dict.fromkeys(RUN_COLUMNS)
         row.update(
             log=task.log,
@@ -202,7 +204,7 @@ def usable(row: Mapping[str, Any]) -> bool:
     """A drive's parameter enters the combination only if vdp called it converged."""
     v, s = row.get("value"), row.get("std")
     return (
-        row.get("status") == "converged"
+        row.get("status") == CONVERGED
         and v is not None
         and s is not None
         and math.isfinite(v)

@@ -42,6 +42,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 from . import channels
+from .core.params import NAMES
 from .errors import ProfileError
 
 log = logging.getLogger(__name__)
@@ -119,7 +120,7 @@ CHANNEL_KINDS.update(SOURCES)
 TERM = "term"
 CHANNEL_KINDS[TERM] = tuple({k for _, k in UNIT_FACTORS.values()})
 
-PARAMETERS = ("l_f", "h", "C_K", "C_alpha", "I_z", "I_x")
+PARAMETERS = NAMES  # the six unknowns (core.params): each needs a prior
 
 
 @dataclass(frozen=True)

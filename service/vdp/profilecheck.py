@@ -33,14 +33,13 @@ from pathlib import Path
 import numpy as np
 
 from . import channels as ch
+from .core.params import STAGE2
 from .core.result import Estimate
 from .errors import ProfileError
 from .profile import PARAMETERS, Profile
 
 log = logging.getLogger(__name__)
 
-STAGE1 = ("l_f", "h", "C_K")
-STAGE2 = ("C_alpha", "I_z", "I_x")
 # Stage 2 takes stage 1's l_f, h and C_K as known: a fault under stage 1 spoils both.
 DEPENDS: dict[str, tuple[str, ...]] = {
     "wheel_speed": PARAMETERS,

@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+from ..core.result import CONVERGED
 from ..errors import ConfigError
 from .paths import check_output
 
@@ -215,6 +216,6 @@ def _coaching(result) -> list[str]:
         + f"; next: {coach['next']}"
     ]
     for name, p in result.parameters.items():
-        if p.status != "converged" and p.hint:
+        if p.status != CONVERGED and p.hint:
             lines.append(f"  {name}: {p.hint}")
     return lines

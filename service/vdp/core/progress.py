@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 
 from .params import BY_NAME, NAMES, STAGE1, STAGE2
+from .result import CONVERGED, INVALID, NOT_IDENTIFIABLE, NOT_RUN, UNCERTAIN
 
 STAGE_PARAMS = {1: STAGE1, 2: STAGE2}
 
@@ -113,18 +114,18 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
     for name in NAMES:
         spec, p = BY_NAME[name], params.get(name) or {}
         stage = spec.stage
-        status = p.get("status", "not_run")
+        status = p.get("status", NOT_RUN)
         window_s = (p.get("samples") or 0) * tick
         info = information(p.get("value"), p.get("std"), priors[name].std, spec.converged_rel)
-        flagged = p.get("reason") is not None and not p.get("valid", status == "converged")
+        flagged = p.get("reason") is not None and not p.get("valid", status == CONVERGED)
         # a flagged estimate (say, "model mismatch: ...") is not learnt, however small its std
-        progress = 1.0 if status == "converged" and not flagged else min(info, 0.99) if status != "invalid" else 0.0
+        progress = 1.0 if status == CONVERGED and not flagged else min(info, 0.99) if status != INVALID else 0.0
         to_go = seconds_to_go(p.get("value"), p.get("std"), window_s, spec.converged_rel)
         out["parameters"][name] = {
             "progress": round(progress, 3),
             "information": round(info, 3),
             "window_s": round(window_s, 2),
-            "seconds_to_go": None if to_go is None or status != "uncertain" else round(to_go, 1),
+            "seconds_to_go": None if to_go is None or status != UNCERTAIN else round(to_go, 1),
             "hint": _hint(
                 name, stage, status, p, to_go, priors[name].std, caps.get(str(stage)), reasons, excitation, handed_over
             ),
@@ -133,7 +134,7 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
         per = out["parameters"]
         # the mean over the stage's parameters; one the data was judged unable to pin no longer
         # holds its stage back (the estimator calls the stage done then, too)
-        counted = [1.0 if params.get(n, {}).get("status") == "not_identifiable" else per[n]["progress"] for n in names]
+        counted = [1.0 if params.get(n, {}).get("status") == NOT_IDENTIFIABLE else per[n]["progress"] for n in names]
         ex = excitation.get(str(stage)) or {}
         out["stages"][str(stage)] = {
             "progress": round(sum(counted) / len(counted), 3),
@@ -150,18 +151,18 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
 def _hint(name, stage, status, p, to_go, prior_std, why_not, reasons, excitation, handed_over) -> str:
     if why_not:
         return f"cannot be learnt on this car: {why_not}"
-    if p.get("reason") is not None and not p.get("valid", status == "converged") and status != "invalid":
+    if p.get("reason") is not None and not p.get("valid", status == CONVERGED) and status != INVALID:
         return f"not valid: {p['reason']}; more of the same driving will not fix it, the car differs from the model"
-    if status == "converged":
+    if status == CONVERGED:
         rel = (p.get("std") or 0) / abs(p["value"]) if p.get("value") else 0
         return f"enough: known to ±{100 * rel:.1f} % (1σ); nothing more to drive for it"
-    if status == "invalid":
+    if status == INVALID:
         return "the estimate left its sane range; it restarts from its last good value — keep driving"
     if stage == 2 and not handed_over:
         why = str(reasons.get("2") or "waiting for stage 1")
         return f"{why}: first " + DRIVE[1]
     reason = reasons.get(str(stage))
-    if status == "not_identifiable":
+    if status == NOT_IDENTIFIABLE:
         extra = _EXTRA.get(name)
         return (
             "this driving has not narrowed it (std still above half the prior's): "
