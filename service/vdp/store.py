@@ -12,13 +12,21 @@ A store belongs to one vehicle profile (its fingerprint) and one schema
 version.  Opening it with another raises :class:`StoreError` and leaves the
 file alone: mixing another car's estimates in would be wrong, and deleting
 the user's data silently would be worse.
+
+A damaged store (SQLite reports corruption, or its quick check fails, say a
+page overwritten in the middle or the meta table's index broken) is moved
+aside, kept under ``NAME.damaged-<UTC time>``, and a fresh store starts;
+``recovered`` says what happened.  A full disk or an I/O error is a
+:class:`StoreError` with ``retry = True``: the file is fine, try again later.
 """
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import logging
+import os
 import sqlite3
 import threading
 import time
@@ -33,6 +41,38 @@ log = logging.getLogger(__name__)
 
 SCHEMA_VERSION = 1
 _APP_ID = 0x56445031  # "VDP1" in PRAGMA application_id: tells a vdp store from any other SQLite file
+_CORRUPT = 11  # SQLITE_CORRUPT: a damaged page
+_FULL, _IOERR, _CANTOPEN = 13, 10, 14  # SQLITE_FULL, SQLITE_IOERR, SQLITE_CANTOPEN: the file may be fine
+
+
+class _Damaged(Exception):
+    """The store's file is damaged (never leaves this module)."""
+
+
+def _kind(exc: sqlite3.Error) -> str:
+    """ "damaged", "space" (disk full or I/O: try again later) or "" for other errors."""
+    code = getattr(exc, "sqlite_errorcode", None)
+    text = str(exc).lower()
+    if code is not None:
+        code &= 0xFF  # extended codes carry the primary one in the low byte
+    if code == _CORRUPT or "malformed" in text:
+        return "damaged"
+    if code in (_FULL, _IOERR, _CANTOPEN) or "disk is full" in text or "disk i/o error" in text:
+        return "space"
+    return ""
+
+
+def _unavailable(path: Path, exc: BaseException) -> StoreError:
+    """A StoreError for a store that is fine but cannot be written now; the caller retries."""
+    full = "full" in str(exc).lower() or getattr(exc, "errno", None) in (errno.ENOSPC, errno.EDQUOT)
+    why = "the disk is full" if full else f"I/O error ({exc})"
+    err = StoreError(
+        f"{path}: cannot be used now: {why}; estimates are not saved until it can, and vdp "
+        "tries again by itself (free some space on that disk)"
+    )
+    err.retry = True  # type: ignore[attr-defined]
+    return err
+
 
 _SCHEMA = """
 CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -105,28 +145,83 @@ class Store:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise StoreError(f"{self.path}: cannot create its directory: {exc.strerror or exc}") from None
+        self.recovered: str | None = None  # set when a damaged file was moved aside at open
+        try:
+            self._open(synchronous)
+        except _Damaged as why:
+            moved = self._move_aside()
+            self.recovered = f"the store was damaged ({why}); kept as {moved.name}, started a fresh one"
+            log.error("%s: %s", self.path, self.recovered)
+            try:
+                self._open(synchronous)
+            except _Damaged as again:
+                raise StoreError(f"{self.path}: a fresh store is damaged too ({again}); is the disk failing?") from None
+
+    def _open(self, synchronous: str) -> None:
         self._w = self._connect()
         try:
             self._w.execute(f"PRAGMA synchronous={synchronous.upper()}")
+            check = self._w.execute("PRAGMA quick_check(1)").fetchone()[0]
+            if check != "ok":
+                raise _Damaged(f"quick check: {check}")
             self._check_or_create()
+            self._r = self._connect()
+            for row in self._w.execute("SELECT name, value, std, valid, status FROM estimates"):
+                self._last[row[0]] = tuple(row[1:])
+        except sqlite3.Error as exc:
+            self._w.close()
+            kind = _kind(exc)
+            if kind == "damaged":
+                raise _Damaged(str(exc)) from None
+            if kind == "space":
+                raise _unavailable(self.path, exc) from None
+            raise StoreError(f"{self.path}: cannot open: {exc}") from None
         except BaseException:
             self._w.close()
             raise
-        self._r = self._connect()
-        for row in self._w.execute("SELECT name, value, std, valid, status FROM estimates"):
-            self._last[row[0]] = tuple(row[1:])
+
+    def _move_aside(self) -> Path:
+        """Rename the store (and its -wal/-shm) to NAME.damaged-<UTC time>: kept, never deleted."""
+        for con in (getattr(self, "_w", None), getattr(self, "_r", None)):
+            if con is not None:
+                try:
+                    con.close()
+                except sqlite3.Error:
+                    pass
+        stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+        dest = self.path.with_name(f"{self.path.name}.damaged-{stamp}")
+        n = 1
+        while dest.exists():
+            n += 1
+            dest = self.path.with_name(f"{self.path.name}.damaged-{stamp}-{n}")
+        try:
+            for suffix in ("-wal", "-shm"):
+                side = self.path.with_name(self.path.name + suffix)
+                if side.exists():
+                    os.replace(side, dest.with_name(dest.name + suffix))
+            os.replace(self.path, dest)
+        except OSError as exc:
+            raise StoreError(f"{self.path}: damaged, and cannot be moved aside: {exc.strerror or exc}") from None
+        return dest
 
     # -- opening ------------------------------------------------------------------------
     def _connect(self) -> sqlite3.Connection:
         try:
             con = sqlite3.connect(self.path, timeout=10.0, isolation_level=None, check_same_thread=False)
         except sqlite3.Error as exc:
+            if _kind(exc) == "space":
+                raise _unavailable(self.path, exc) from None
             raise StoreError(f"{self.path}: cannot open: {exc}") from None
         try:
             con.execute("PRAGMA busy_timeout=10000")
             mode = con.execute("PRAGMA journal_mode=WAL").fetchone()[0]
         except sqlite3.DatabaseError as exc:
             con.close()
+            kind = _kind(exc)
+            if kind == "damaged":
+                raise _Damaged(str(exc)) from None
+            if kind == "space":
+                raise _unavailable(self.path, exc) from None
             raise StoreError(
                 f"{self.path}: not a vdp store ({exc}); move it away or set [store] path to a new file"
             ) from None
@@ -155,7 +250,10 @@ class Store:
                 con.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
                 con.execute("COMMIT")
             except BaseException:
-                con.execute("ROLLBACK")
+                try:
+                    con.execute("ROLLBACK")
+                except sqlite3.Error:
+                    pass  # SQLite rolled back by itself (a full disk does): keep the first error
                 raise
             log.info("created estimate store %s for profile %s", self.path, self.profile_name or "?")
             return

@@ -64,6 +64,9 @@ class Collector:
         yield counter("raw_log_frames", "frames written to the raw log", m["raw_frames"])
         yield counter("raw_log_lost", "frames not written while raw logging was stopped", m["raw_lost"])
         yield counter("store_commits", "batches committed to the estimate store", m["store_commits"])
+        yield counter(
+            "store_recoveries", "damaged estimate stores moved aside for a fresh one", m.get("store_recoveries", 0)
+        )
         yield gauge("queue_depth", "frames waiting for the estimator", m["queue_depth"])
         yield gauge("queue_capacity", "size of the estimation queue", m["queue_capacity"])
         yield gauge("frames_per_second", "receive rate over the last seconds", m["frames_per_s"])

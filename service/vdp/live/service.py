@@ -196,6 +196,8 @@ class Service:
             reasons.append(self.restore_error)
         if not self.writer.ok:
             reasons.append(f"estimate store {self.writer.state}: {self.writer.error or ''}".rstrip(": "))
+        if self.writer.recovered:
+            reasons.append(f"estimate store recovered: {self.writer.recovered}")
         if not self.estimation.alive:
             reasons.append("estimation worker not running")
         sim = ing.sim
@@ -308,6 +310,7 @@ class Service:
             "raw_ok": rl is None or rl.error is None,
             "store_ok": self.writer.ok,
             "store_commits": self.writer.commits,
+            "store_recoveries": self.writer.recoveries,
             "healthy": self.health()["status"] == "ok",
             "channels_stale": sum(1 for f in r.channels.values() if f.stale),
             "channels": len(channels.NAMES),

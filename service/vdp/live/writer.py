@@ -20,6 +20,8 @@ from .estimation import Published, Unavailable
 
 log = logging.getLogger(__name__)
 
+RETRY_MIN, RETRY_MAX = 1.0, 60.0  # s between attempts to open a store that was unavailable (disk full)
+
 
 class StoreWriter:
     def __init__(self, cfg: StoreSettings, fingerprint: str, profile_name: str):
@@ -32,22 +34,50 @@ class StoreWriter:
         self.last_commit: float | None = None
         self._lock = threading.Lock()
         self._committed_seq = -1
+        # a damaged store moved aside at open (kept for the process's life: the file needs a look)
+        self.recovered: str | None = None
+        self.recoveries = 0
+        self.reopen_attempts = 0
+        self._retry_wait = RETRY_MIN
+        self._retry_at = 0.0
 
     def open(self) -> dict[str, Stored]:
         """Open the store; return the stored estimates worth restoring (none if it was refused)."""
+        if not self._try_open():
+            return {}
+        return {k: v for k, v in self.store.load().items() if v.estimate.samples and v.estimate.value is not None}
+
+    def _try_open(self) -> bool:
         cfg = self.cfg
         try:
-            self.store = Store(cfg.path, self.fingerprint, self.profile_name, cfg.synchronous, cfg.history_max_rows)
+            store = Store(cfg.path, self.fingerprint, self.profile_name, cfg.synchronous, cfg.history_max_rows)
         except StoreError as exc:
-            self.store, self.state, self.error = None, "refused", str(exc)
-            log.error("estimate store refused, starting from the priors and not saving: %s", exc)
-            return {}
-        self.state, self.error = "ok", None
-        return {k: v for k, v in self.store.load().items() if v.estimate.samples and v.estimate.value is not None}
+            if getattr(exc, "retry", False):  # disk full or I/O: the file is fine, try again later
+                first = self.state != "unavailable"
+                self.store, self.state, self.error = None, "unavailable", str(exc)
+                self._retry_at = time.monotonic() + self._retry_wait
+                self._retry_wait = min(2 * self._retry_wait, RETRY_MAX)
+                if first:
+                    log.error("estimate store unavailable, starting from the priors: %s", exc)
+            else:
+                self.store, self.state, self.error = None, "refused", str(exc)
+                log.error("estimate store refused, starting from the priors and not saving: %s", exc)
+            return False
+        if store.recovered:
+            self.recovered = f"{store.path}: {store.recovered}"
+            self.recoveries += 1
+        if self.state == "unavailable":
+            log.warning("estimate store %s usable again", cfg.path)
+        self.store, self.state, self.error = store, "ok", None
+        self._retry_wait = RETRY_MIN
+        return True
 
     def commit(self, pub: Published) -> None:
         """Commit ``pub`` if it is new: one transaction per batch.  A failure is kept and retried."""
         with self._lock:
+            if self.store is None and self.state == "unavailable" and time.monotonic() >= self._retry_at:
+                self.reopen_attempts += 1
+                self._try_open()
             store = self.store
             if store is None or pub.seq == self._committed_seq:
                 return
@@ -87,6 +117,8 @@ class StoreWriter:
             "state": self.state,
             "error": self.error,
             "last_commit": self.last_commit,
+            "recovered": self.recovered,
+            "recoveries": self.recoveries,
         }
         store = self.store
         if store is not None:
