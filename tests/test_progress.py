@@ -128,3 +128,18 @@ def test_next_names_the_stage_behind_or_the_one_being_driven():
     # while a window is open, the driver is told to keep going with it
     s["supervisor"]["reasons"] = {"1": "open", "2": "little steering excitation"}
     assert progress.assess(s, PRIORS, 0.02)["next"].startswith("keep going: on a straight")
+
+
+def test_what_the_learners_report_is_used():
+    half = {"value": 10.0, "std": 0.5, "status": "uncertain", "samples": 10}
+    s = snap(C_K=half, reasons={"1": "open", "2": "waiting for stage 1 to converge"})
+    s["supervisor"]["learners"] = {
+        "ukf": {"stage1": {"seconds_in_windows": 42.0, "blocks_used": 30, "blocks_beyond_small_slip": 90}}
+    }
+    out = progress.assess(s, PRIORS, 0.02)
+    c_k = out["parameters"]["C_K"]
+    assert c_k["window_s"] == 42.0  # the learner's own seconds, not samples x tick
+    assert "ease off" in c_k["hint"] and "75 %" in c_k["hint"]
+    assert out["stages"]["1"]["blocks_beyond_small_slip"] == 90 and out["stages"]["1"]["window_s"] == 42.0
+    s["supervisor"]["learners"]["ukf"]["stage1"]["blocks_beyond_small_slip"] = 5
+    assert "ease off" not in progress.assess(s, PRIORS, 0.02)["parameters"]["C_K"]["hint"]

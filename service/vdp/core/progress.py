@@ -110,12 +110,19 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
         gate2.startswith("waiting") or gate2 == "no data yet"
     )
 
+    # what the UKF learners say they have seen (est's supervisor.learners), when given
+    seen = (sup.get("learners") or {}).get("ukf") or {}
+    hard = _too_hard(seen.get("stage1") or {})
+
     out: dict = {"parameters": {}, "stages": {}}
     for name in NAMES:
         spec, p = BY_NAME[name], params.get(name) or {}
         stage = spec.stage
         status = p.get("status", NOT_RUN)
-        window_s = (p.get("samples") or 0) * tick
+        learner = seen.get(f"stage{stage}") or {}
+        window_s = learner.get("seconds_in_windows")
+        if window_s is None:
+            window_s = (p.get("samples") or 0) * tick
         info = information(p.get("value"), p.get("std"), priors[name].std, spec.converged_rel)
         flagged = p.get("reason") is not None and not p.get("valid", status == CONVERGED)
         # a flagged estimate (say, "model mismatch: ...") is not learnt, however small its std
@@ -130,6 +137,8 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
                 name, stage, status, p, to_go, priors[name].std, caps.get(str(stage)), reasons, excitation, handed_over
             ),
         }
+        if stage == 1 and hard and status in (UNCERTAIN, NOT_IDENTIFIABLE):
+            out["parameters"][name]["hint"] += f"; {hard}"
     for stage, names in STAGE_PARAMS.items():
         per = out["parameters"]
         # the mean over the stage's parameters; one the data was judged unable to pin no longer
@@ -143,9 +152,24 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
             "gate": reasons.get(str(stage)),
             "excited_s": ex.get("seconds"),
             "observed_s": ex.get("of"),
+            "window_s": (seen.get(f"stage{stage}") or {}).get("seconds_in_windows"),
         }
+    s1 = seen.get("stage1") or {}
+    if "blocks_used" in s1:
+        out["stages"]["1"]["blocks_used"] = s1["blocks_used"]
+        out["stages"]["1"]["blocks_beyond_small_slip"] = s1.get("blocks_beyond_small_slip")
     out["next"] = _next(snapshot, out, reasons, caps)
     return out
+
+
+def _too_hard(stage1: dict) -> str | None:
+    """Stage 1 leaves out blocks beyond the tyres' small-slip range (C_K is the small-slip
+    stiffness): when most of the driving is, the driver should ease off, not push harder."""
+    used, beyond = stage1.get("blocks_used") or 0, stage1.get("blocks_beyond_small_slip") or 0
+    if used + beyond < 20 or beyond < used:
+        return None
+    share = 100 * beyond / (used + beyond)
+    return f"ease off a little: {share:.0f} % of the acceleration and braking so far was too hard to use"
 
 
 def _hint(name, stage, status, p, to_go, prior_std, why_not, reasons, excitation, handed_over) -> str:
