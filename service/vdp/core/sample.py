@@ -1,19 +1,19 @@
 """One aligned sample: what the aligner hands the estimator at each tick.
 
-A :class:`Sample` is immutable.  Channel values are read one way only,
-``s.values[channels.X]`` (Python floats: cheaper than numpy one by one).  The
-aligner fills the channel fields; the estimator derives the rest (speed
-filter, gyro offsets) and passes on a copy with them set (:meth:`derived`).
+A :class:`Sample` is immutable (a named tuple: built once per tick, cheaply).
+Channel values are read one way only, ``s.values[channels.X]`` (Python floats:
+cheaper than numpy one by one).  The aligner fills the channel fields; the
+estimator derives the rest (speed filter, gyro offsets) and passes on a copy
+with them set (:meth:`derived`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 
-@dataclass(frozen=True, slots=True)
-class Sample:
+class Sample(NamedTuple):
     t: float  # bus time of the tick [s]
     values: tuple[float, ...]  # per channel index; NaN if unknown or stale
     fresh: tuple[bool, ...]  # a value newer than the last tick's came in
@@ -28,5 +28,5 @@ class Sample:
     roll_bias: float = 0.0
 
     def derived(self, v_x: float, v_std: float, ax_bias: float, yaw_bias: float, roll_bias: float) -> Sample:
-        """A copy with the derived fields set (direct, not dataclasses.replace: once per tick)."""
+        """A copy with the derived fields set."""
         return Sample(self.t, self.values, self.fresh, self.age, self.gap, v_x, v_std, ax_bias, yaw_bias, roll_bias)
