@@ -140,3 +140,31 @@ def test_the_real_rav4_drive_passes_its_profile_check():
     rep, cov = check_log(log, load_profile(ROOT / "profiles" / "toyota_rav4.toml"))
     assert cov.seen == len(cov.wanted) == 3 and rep.findings == []
     assert 0.8 < rep.measured["accel_x_per_dv_dt"] < 1.25  # the flipped ACCEL_X is right
+
+
+def test_the_real_rav4_drive_replays_without_decode_errors():
+    """comma2k19 stored frames in fixed-width byte arrays, which drop trailing zero bytes; the
+    RAV4 profile's pad_short gives them back, and the padded values fit their neighbours."""
+    from conftest import REAL
+    from vdp.io.decoder import FrameDecoder
+    from vdp.io.logs import open_log
+
+    log = REAL / "rav4-2018-highway-60s.log.gz"
+    if not log.is_file():
+        pytest.skip(f"no real drive at {log}")
+    pytest.importorskip("opendbc")
+    prof = load_profile(ROOT / "profiles" / "toyota_rav4.toml")
+    dec = FrameDecoder(prof)
+    last: dict[int, float] = {}
+    jumps: dict[bool, dict[int, float]] = {True: {}, False: {}}  # short frame? -> channel -> largest step
+    with open_log(log, channel=prof.bus_channel) as src:
+        for msg in src:
+            short = len(msg.data) < 8
+            for idx, v in dec.decode(msg):
+                if idx in last:
+                    jumps[short][idx] = max(jumps[short].get(idx, 0.0), abs(v - last[idx]))
+                last[idx] = v
+    st = dec.stats.as_dict()
+    assert st["errors"] == {} and st["padded"] == 93 and st["invalid_samples"] == {}
+    # a padded value steps from the one before no further than full frames' values do
+    assert jumps[True] and all(j <= jumps[False][idx] for idx, j in jumps[True].items())

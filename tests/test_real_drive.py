@@ -155,5 +155,6 @@ def test_full_minute_decodes_and_claims_nothing(tmp_path, capsys):
     dec = log["decode"]
     assert set(dec["samples"]) == POWERTRAIN
     # the log has 100 frames shorter than their DBC length; those of mapped messages are rejected
-    assert set(dec["errors_by_kind"]) == {"unknown_id", "dlc"} and 0 < dec["errors_by_kind"]["dlc"] <= 100
+    # 93 frames lost their trailing zero bytes in comma2k19's arrays: the profile pads them (pad_short)
+    assert set(dec["errors_by_kind"]) == {"unknown_id"} and 0 < dec["padded"] <= 100
     check_no_claims(text, res)

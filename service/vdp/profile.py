@@ -255,6 +255,7 @@ class Profile:
     drivetrain: Drivetrain | None = None  # None: not given (per-axle torques mapped directly)
     sources: dict[str, ChannelMap] = field(default_factory=dict)  # drive_torque, brake_torque, ...
     cycle_ms: dict[str, int] = field(default_factory=dict)  # message periods the DBC does not give
+    pad_short: bool = False  # frames shorter than their DBC length get zero bytes appended
 
     @property
     def dbcs(self) -> tuple[Path, ...]:
@@ -594,9 +595,11 @@ def load_profile(path: str | Path) -> Profile:
         raise ProfileError(
             f"{where} [can]: missing 'dbc' (a path relative to the profile, or opendbc:NAME, or a list of them)"
         )
-    unknown = set(can) - {"dbc", "channel", "cycle_ms"}
+    unknown = set(can) - {"dbc", "channel", "cycle_ms", "pad_short"}
     if unknown:
-        raise ProfileError(f"{where} [can]: unknown key(s) {sorted(unknown)}; allowed: channel, cycle_ms, dbc")
+        raise ProfileError(
+            f"{where} [can]: unknown key(s) {sorted(unknown)}; allowed: channel, cycle_ms, dbc, pad_short"
+        )
     cycles = can.get("cycle_ms", {})
     if not isinstance(cycles, dict) or not all(
         isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in cycles.values()
@@ -653,7 +656,14 @@ def load_profile(path: str | Path) -> Profile:
         drivetrain=drivetrain,
         sources=sources,
         cycle_ms=dict(cycles),
+        pad_short=_pad_short(where, can.get("pad_short", False)),
     )
+
+
+def _pad_short(where: str, v: Any) -> bool:
+    if not isinstance(v, bool):
+        raise ProfileError(f"{where} [can]: 'pad_short' must be true or false, got {v!r}")
+    return v
 
 
 def _drivetrain(where: str, raw: Any) -> Drivetrain | None:

@@ -109,6 +109,8 @@ class _Plan:
     def __init__(self, dplan: Any, msg: Any, need: list[tuple[str, bool, bool]], ranges: dict | None = None):
         self.p = dplan
         self.length = msg.length
+        self.pad = False  # [can] pad_short (set by the reader)
+        self.n_pad = 0  # short frames padded in the block being decoded
         self.fid = dplan.frame_id
         self.checked = False  # compared with the decoder's own extractor on the first frames seen
         self.fields = []  # per needed signal: (little endian, shift, mask, half or 0, scale, offset, scaled, lo, hi)
@@ -264,6 +266,8 @@ class BulkSource:
                 and all(o[0] < channels.N for o in p.outputs)  # composite channels' terms: the per-frame path
             )
             out[key] = _Plan(p, msg, need, getattr(dec, "ranges", None)) if ok else None
+            if out[key] is not None:  # [can] pad_short: a short frame's missing bytes are zeros here too
+                out[key].pad = bool(getattr(dec, "_pad", False))
         return out
 
     def _block(self, buf: bytes, lineno: int, pipe: Any, plans: dict, keep_arr: np.ndarray, state: dict) -> int:
@@ -444,6 +448,7 @@ class BulkSource:
             pipe.frames += n
             if n_dlc:
                 dst.errors[(k, "dlc")] = dst.errors.get((k, "dlc"), 0) + n_dlc
+            dst.padded += vp.n_pad
             if n_range:
                 dst.errors[(k, "range")] = dst.errors.get((k, "range"), 0) + n_range
             if last_count is not None:
@@ -488,6 +493,11 @@ class BulkSource:
         """Decode one plan's frames of a block, or None if it needs the per-frame decoder."""
         p = vp.p
         ok_dlc = dlc == vp.length
+        vp.n_pad = 0
+        if vp.pad:  # bytes beyond a frame's length are zero in ``data`` already
+            short = dlc < vp.length
+            vp.n_pad = int(short.sum())
+            ok_dlc |= short
         n_dlc = int((~ok_dlc).sum())
         b = data[ok_dlc]
         if not vp.checked and len(b):

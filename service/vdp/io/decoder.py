@@ -62,6 +62,7 @@ class DecodeStats:
         self._plain = plain  # plans that emit every output of every good frame: counted per frame
         self.invalid: tuple[str, ...] = ()  # channels flagged invalid right now
         self.invalid_samples: dict[tuple[str, str], int] = {}  # (channel, reason) -> values dropped
+        self.padded = 0  # short frames given their trailing zero bytes back ([can] pad_short)
         self._names = names  # plan key -> DBC message name
 
     @property
@@ -109,6 +110,7 @@ class DecodeStats:
             "samples": {name: n for name, n in zip(channels.NAMES, self.samples) if n},
             "invalid_channels": list(self.invalid),
             "invalid_samples": _by_channel(self.invalid_samples.copy()),
+            "padded": self.padded,
         }
 
 
@@ -187,6 +189,7 @@ class FrameDecoder:
         self.db = db
         self._dbc_name = " + ".join(Path(d).name for d in getattr(profile, "dbcs", (profile.dbc,)))
         self._want = channel_keys(profile.bus_channel) if profile.bus_channel else None
+        self._pad = bool(getattr(profile, "pad_short", False))
         self._validate()
         self._plans: dict[int, _Plan] = {}
         self.ranges: dict[tuple[str, str], tuple[float, float]] = {}
@@ -436,8 +439,12 @@ class FrameDecoder:
             return []
         data = msg.data
         if len(data) != plan.length:
-            st.error(key, "dlc")
-            return []
+            if not (self._pad and len(data) < plan.length):
+                st.error(key, "dlc")
+                return []
+            # a log converted from fixed-width byte arrays lost the frame's trailing zero bytes
+            data = bytes(data) + bytes(plan.length - len(data))
+            st.padded += 1
         try:
             vals = plan.extract(data)
         except Exception:  # never from generated code; cantools may surprise
