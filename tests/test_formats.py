@@ -1,6 +1,6 @@
 """One simulated drive in every log format python-can writes replays to the same estimates.
 
-The drive: 15 s of the paper's stage-1 manoeuvre (stage 1 opens a window and converges
+The drive: 20 s of the paper's stage-1 manoeuvre (stage 1 opens a window and converges
 in that time), written by the simulator's writer (candump directly, the rest through
 can.Logger) and replayed with ``open_log`` on bus channel can0, so each format's
 channel naming must map back to can0 (tests/test_logs.py checks the frames themselves).
@@ -45,7 +45,7 @@ FORMATS = [
 
 @pytest.fixture(scope="module")
 def drive(tmp_path_factory):
-    frames = list(Simulation(PROFILE, "stage1", seed=3, noise="realistic", duration=15.0).frames())
+    frames = list(Simulation(PROFILE, "stage1", seed=3, noise="realistic", duration=20.0).frames())
     return frames, tmp_path_factory.mktemp("formats")
 
 
