@@ -22,6 +22,13 @@ EDGE = 1e-9  # keeps a transform of a value on its bound finite
 LOGIT_MAX = 30.0  # |logit| beyond this would round the value onto its bound
 
 
+def _slice(idx: np.ndarray):
+    """A slice for sorted contiguous indices, else the index array itself."""
+    if idx.size and np.all(np.diff(idx) == 1):
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
+
+
 class Bounds:
     """Elementwise transforms of a state: ``log`` indices (x > 0) and ``logit`` ones (lo < x < hi)."""
 
@@ -37,16 +44,19 @@ class Bounds:
         fixed[self.logit] = False
         self.free = np.flatnonzero(fixed)  # untransformed indices
         self.transformed = ~fixed
+        # contiguous index sets as slices: numpy's fancy indexing costs more than the arithmetic here
+        self._log = _slice(self.log)
+        self._logit = _slice(self.logit)
+        self._free = _slice(self.free)
 
     def to_si(self, t):
         t = np.asarray(t, dtype=float)
         x = t.copy()
         if self.log.size:
-            x[..., self.log] = np.exp(np.clip(t[..., self.log], -700.0, 700.0))
+            x[..., self._log] = np.exp(t[..., self._log])  # > 709 is inf: the filter's check catches it
         if self.logit.size:
-            x[..., self.logit] = self.lo + self.span / (
-                1.0 + np.exp(-np.clip(t[..., self.logit], -LOGIT_MAX, LOGIT_MAX))
-            )
+            q = np.minimum(np.maximum(t[..., self._logit], -LOGIT_MAX), LOGIT_MAX)
+            x[..., self._logit] = self.lo + self.span / (1.0 + np.exp(-q))
         return x
 
     def from_si(self, x):
@@ -64,10 +74,10 @@ class Bounds:
         t = np.asarray(t, dtype=float)
         d = np.ones_like(t)
         if self.log.size:
-            d[..., self.log] = np.exp(np.clip(t[..., self.log], -700.0, 700.0))
+            d[..., self._log] = np.exp(t[..., self._log])
         if self.logit.size:
-            q = 1.0 / (1.0 + np.exp(-np.clip(t[..., self.logit], -LOGIT_MAX, LOGIT_MAX)))
-            d[..., self.logit] = self.span * q * (1.0 - q)
+            q = 1.0 / (1.0 + np.exp(-np.minimum(np.maximum(t[..., self._logit], -LOGIT_MAX), LOGIT_MAX)))
+            d[..., self._logit] = self.span * q * (1.0 - q)
         return d
 
     def cov_to_si(self, t, P):
@@ -81,7 +91,7 @@ class Bounds:
     # -- model functions seen through the transform ---------------------------
     def wrap_fx(self, fx):
         """fx on transformed states: the transformed entries are constants of fx, kept as they are."""
-        free = self.free
+        free = self._free
 
         def f(t, dt, u):
             y = fx(self.to_si(t), dt, u)

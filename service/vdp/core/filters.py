@@ -131,6 +131,8 @@ class JointFilter:
             raise FilterError(f"{self.kind}: non-finite state or covariance")
         if np.diagonal(f.P).min() <= 0.0:
             raise FilterError(f"{self.kind}: covariance lost positive definiteness")
+        if self.kind == "ukf":
+            return  # its next sigma points take the Cholesky factor, and fail on an indefinite P
         try:  # a positive diagonal is not enough (the EKF's update keeps it while P turns indefinite)
             np.linalg.cholesky(f.P)
         except np.linalg.LinAlgError:

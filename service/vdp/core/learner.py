@@ -73,7 +73,8 @@ DIVERGED_NIS = 25.0  # mean NIS per row over Consistency.RECENT updates beyond w
 # solved, and how far (squared Mahalanobis distance, 3 parameters) the filter may sit
 # from it before it is re-seeded there (chi-square, 3 dof, 0.999: 16.3)
 BATCH_BLOCKS = 3000  # 5 min of stage-1 windows in 0.1 s blocks
-BATCH_EVERY = 20  # blocks (2 s of window)
+BATCH_EVERY = 40  # blocks (4 s of window)
+BATCH_FAR_EVERY = 4  # every this many checks the prior's mean is a start too (the far start costs the most)
 RESEED_M2 = 16.3
 
 
@@ -386,6 +387,7 @@ class Stage1(StageLearner):
         self._since_batch = 0
         self.fit: batch.Fit | None = None
         self.reseeds = 0
+        self._checks = 0
         self.gated = 0  # blocks left out: beyond the small-slip range
         self.spread: np.ndarray | None = None  # model_error()
         self.filter = self._new_filter(self.theta, self.theta_P, self._R0())
@@ -547,7 +549,10 @@ class Stage1(StageLearner):
         prior = np.array([self.priors[n].value for n in self.names])
         t0 = b.from_si(prior)
         P0 = np.diag(np.square(self.prior_std / b.grad(t0)))
-        starts = [self.filter.x.copy(), t0]
+        self._checks += 1
+        starts = [self.filter.x.copy()]
+        if self._checks % BATCH_FAR_EVERY == 1:
+            starts.append(t0)
         lin = batch.linear_start(U, Z, k)
         if lin is not None:
             starts.append(b.from_si(lin))
