@@ -41,6 +41,7 @@ from .mapping import invalid as _invalid
 
 log = logging.getLogger(__name__)
 
+MAX_UNKNOWN = 4096  # distinct unknown ids counted one by one
 KINDS = ("unknown_id", "dlc", "remote", "error_frame", "range", "nonfinite", "mux", "counter", "checksum", "decode")
 BAD_RUN_INVALID = 3  # consecutive counter/checksum failures that flag a message invalid
 ALT_AFTER_CYCLES = 5.0  # primary silent this many cycle times: use the alternative source
@@ -56,7 +57,8 @@ class DecodeStats:
         self.decoded = 0  # frames accepted (all mapped signals good)
         self.error_frames = 0
         self.skipped_channel = 0  # frames of another bus channel
-        self.unknown: dict[int, int] = {}  # plan key -> count
+        self.unknown: dict[int, int] = {}  # plan key -> count (the first MAX_UNKNOWN distinct ids)
+        self.unknown_other = 0  # frames of further unknown ids: a burst of random ids cannot grow the table
         self.errors: dict[tuple[int, str], int] = {}  # (plan key, kind) -> count
         self._counted = [0] * channels.N  # samples of plans with conditional outputs
         self._plain = plain  # plans that emit every output of every good frame: counted per frame
@@ -78,7 +80,10 @@ class DecodeStats:
         """Frames of undecoded ids that never reached decode() (filtered at the source)."""
         unk = self.unknown
         for key, n in counts.items():
-            unk[key] = unk.get(key, 0) + n
+            if key in unk or len(unk) < MAX_UNKNOWN:
+                unk[key] = unk.get(key, 0) + n
+            else:
+                self.unknown_other += n
             self.frames += n
 
     def error(self, key: int, kind: str) -> None:
@@ -93,7 +98,7 @@ class DecodeStats:
         for (key, kind), n in sorted(errors.items()):
             by_id.setdefault(_hex(key), {})[kind] = n
             by_kind[kind] = by_kind.get(kind, 0) + n
-        by_kind["unknown_id"] = sum(unknown.values())
+        by_kind["unknown_id"] = sum(unknown.values()) + self.unknown_other
         by_kind["error_frame"] = self.error_frames
         return {
             "frames": self.frames,
@@ -104,6 +109,7 @@ class DecodeStats:
                 {"id": _hex(k), "count": n} for k, n in sorted(unknown.items(), key=lambda kv: -kv[1])[:top]
             ],
             "unknown_distinct": len(unknown),
+            "unknown_untracked": self.unknown_other,  # frames of ids beyond the first MAX_UNKNOWN
             "errors": by_id,
             "errors_by_kind": {k: v for k, v in by_kind.items() if v},
             "messages": {_hex(k): self._names[k] for k, _ in errors if k in self._names},
@@ -425,7 +431,10 @@ class FrameDecoder:
         plan = self._plans.get(key)
         if plan is None:
             unk = st.unknown
-            unk[key] = unk.get(key, 0) + 1
+            if key in unk or len(unk) < MAX_UNKNOWN:
+                unk[key] = unk.get(key, 0) + 1
+            else:
+                st.unknown_other += 1
             return []
         t = msg.timestamp
         if not plan.fixed_period:

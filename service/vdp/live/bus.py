@@ -100,6 +100,30 @@ def enlarge_receive_buffer(bus: can.BusABC, size: int = RECEIVE_BUFFER) -> int |
         return None
 
 
+def tolerate_garbage(bus: can.BusABC, on_garbage: Callable[[BaseException], None]) -> None:
+    """Make a datagram that does not unpack to a CAN frame a skipped, counted event.
+
+    python-can's udp_multicast bus raises CanOperationError("could not unpack ...") from
+    recv() for any stray datagram on its group; to the Notifier that is a failed bus, and
+    the reconnect that follows loses every frame sent meanwhile, uncounted.  Other errors
+    (the socket itself failing) still raise.
+    """
+    inner = getattr(bus, "_recv_internal", None)
+    if inner is None:
+        return
+
+    def recv(timeout):
+        try:
+            return inner(timeout)
+        except can.CanOperationError as exc:
+            if "unpack" not in str(exc):
+                raise
+            on_garbage(exc)
+            return None, False
+
+    bus._recv_internal = recv  # type: ignore[method-assign]
+
+
 def open_bus(cfg: BusSettings) -> can.BusABC:
     kw = bus_kwargs(cfg)
     try:
@@ -118,6 +142,7 @@ class LinkState:
     retry_in: float | None = None
     listen_only: bool | None = None  # None: the interface has no such mode
     receive_buffer: int | None = None  # bytes of kernel receive buffer (None: not a socket)
+    garbage: int = 0  # datagrams that held no CAN frame (udp_multicast), skipped without a reconnect
 
 
 class BusLink:
@@ -149,6 +174,7 @@ class BusLink:
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
         self._warned_buffer = False
+        self._garbage_said = -60.0
         if cfg.listen_only and cfg.interface not in LISTEN_ONLY and cfg.interface not in ("virtual", "udp_multicast"):
             log.info(
                 "python-can's %s interface has no listen-only mode; vdp never transmits, and for "
@@ -187,6 +213,7 @@ class BusLink:
             "retry_in": i.retry_in,
             "listen_only": i.listen_only,
             "receive_buffer": i.receive_buffer,
+            "garbage": i.garbage,
         }
 
     # -- called from the receive thread -----------------------------------------------------------
@@ -246,6 +273,7 @@ class BusLink:
         self._failed.clear()
         bus = self.opener(self.cfg)
         self._buffer(bus)
+        tolerate_garbage(bus, self._garbage)
         try:
             notifier = can.Notifier(bus, self.listeners, timeout=POLL)
         except Exception as exc:
@@ -253,6 +281,21 @@ class BusLink:
             raise BusError(f"cannot start receiving from {self.cfg.interface} '{self.cfg.channel}': {exc}") from exc
         with self._lock:
             self.bus, self.notifier = bus, notifier
+
+    def _garbage(self, exc: BaseException) -> None:
+        """A datagram that is no CAN frame: count it; one warning a minute, never a reconnect."""
+        i = self.info
+        i.garbage += 1
+        now = time.monotonic()
+        if now - self._garbage_said >= 60.0:
+            self._garbage_said = now
+            log.warning(
+                "%s '%s': skipped a datagram that is no CAN frame (%s; %d so far)",
+                self.cfg.interface,
+                self.cfg.channel,
+                exc.__cause__ or exc,
+                i.garbage,
+            )
 
     def _buffer(self, bus: can.BusABC) -> None:
         try:

@@ -2,7 +2,7 @@
 
 Two services on the same files would each rename the other's open raw log
 and interleave commits.  ``InstanceLock`` takes an exclusive ``flock`` on
-``STORE.lock`` beside the store and ``.vdp.lock`` in the raw-log directory;
+``STORE.lock`` beside the store and ``RAW.lock`` beside the raw-log directory;
 the kernel drops it when the process ends however it ends (``kill -9``
 included), so a stale lock file never blocks a restart.  The lock file holds
 the owner's pid, to name it in the refusal.
@@ -51,7 +51,7 @@ class InstanceLock:
             owner = _read_pid(path)
             who = f"another vdp serve (pid {owner})" if owner else "another vdp serve"
             raise ConfigError(
-                f"the {what} {path.with_suffix('') if what == 'estimate store' else path.parent} is in use by "
+                f"the {what} {path.with_suffix('')} is in use by "
                 f"{who}; stop it first, or give this one its own --db and --raw-dir"
             ) from None
         os.ftruncate(fd, 0)
@@ -78,7 +78,9 @@ def service_lock(settings) -> InstanceLock:
     store = Path(settings.store.path)
     targets = [("estimate store", store.with_name(store.name + ".lock"))]
     if settings.raw_log.enabled:
-        targets.append(("raw log directory", Path(settings.raw_log.dir) / ".vdp.lock"))
+        raw = Path(settings.raw_log.dir)
+        # beside the directory, not in it: whatever reads every file in there finds only logs
+        targets.append(("raw log directory", raw.with_name(raw.name + ".lock")))
     return InstanceLock(targets)
 
 
