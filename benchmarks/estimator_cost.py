@@ -1,0 +1,50 @@
+"""CPU time of the estimator against the whole in-memory pipeline, on the `paper` drive.
+
+    PYTHONPATH=TREE/service python benchmarks/estimator_cost.py LABEL
+
+Run it with PYTHONPATH on two trees (say, before and after a change), back to back: it
+prints, per seed, the pipeline's CPU time, the part spent inside
+``TwoStageEstimator.handle``, and that part's share.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> int:
+    from vdp.pipeline import Pipeline
+    from vdp.profile import load_profile
+    from vdp.sim.run import simulate
+
+    logging.disable(logging.WARNING)
+    prof = load_profile(ROOT / "profiles" / "paper.toml")
+    cells = []
+    for seed in (1, 2):
+        frames = list(simulate(prof, "paper", seed=seed, noise="realistic")[0])
+        pipe = Pipeline(prof)
+        est = pipe.estimator
+        spent = [0.0]
+
+        def timed(t, s, _handle=est.handle):
+            t0 = time.process_time()
+            _handle(t, s)
+            spent[0] += time.process_time() - t0
+
+        est.handle = timed
+        t0 = time.process_time()
+        for m in frames:
+            pipe.feed(m)
+        total = time.process_time() - t0
+        cells.append(f"seed {seed}: pipeline {total:.2f} s, estimator {spent[0]:.2f} s ({spent[0] / total:.0%})")
+    print((sys.argv[1] + ": " if len(sys.argv) > 1 else "") + "; ".join(cells))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
