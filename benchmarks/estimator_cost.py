@@ -31,7 +31,7 @@ def main() -> int:
         est = pipe.estimator
         spent = [0.0]
 
-        def timed(t, s, _handle=est.handle):
+        def timed(t, s, _handle=est.handle, spent=spent):
             t0 = time.process_time()
             _handle(t, s)
             spent[0] += time.process_time() - t0
