@@ -51,7 +51,9 @@ UDP_SCRIPT = HELPERS + textwrap.dedent(r"""
     out["metrics"] = get(port, "/metrics")
     proc.send_signal(signal.SIGTERM)
     out["exit"] = proc.wait(60)
-    out["raw"] = sorted(os.path.join(tmp, "raw", n) for n in os.listdir(os.path.join(tmp, "raw")))
+    # the raw files only, not the directory's lock file (.vdp.lock)
+    raw = os.path.join(tmp, "raw")
+    out["raw"] = sorted(os.path.join(raw, n) for n in os.listdir(raw) if not n.startswith("."))
     out["serve_err"] = open(os.path.join(tmp, "serve.err")).read()[-3000:]
     print(json.dumps(out))
 """)
