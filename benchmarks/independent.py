@@ -203,6 +203,10 @@ def run_one(job) -> dict:
                     elif not ok:
                         t_in = None
                 if t_in is not None:
+                    # the trace keeps bus time; the result's windows are from the log's start
+                    start = res["log"].get("start_time") or 0.0
+                    if t_in > 1e6 and first[spec.stage] < 1e6:
+                        t_in -= start
                     d["t_conv"] = max(0.0, t_in - first[spec.stage])
             rows[name] = d
         out[kind] = rows
