@@ -5,8 +5,9 @@
 Simulates (once, in /tmp) ``--logs`` paper drives (112 s each, seeds 1..N, with
 4 unrelated ids at 100 Hz), then runs ``vdp batch DIR --out OUT --redo`` once
 per worker count and prints the wall time of the whole command and of the
-task phase (``ran N logs in X s``, after the cluster is up).  Wall time: the
-figures move with other load on the machine.
+task phase (``ran N logs in X s``, after the cluster is up), and the CPU time
+the workers spent on the logs (runs.parquet's ``cpu_s``).  Wall time moves with
+other load on the machine; CPU time much less.
 """
 
 from __future__ import annotations
@@ -58,9 +59,14 @@ def main() -> int:
             return 1
         tasks = float(m.group(2))
         base = base or tasks
+        import pyarrow.parquet as pq
+
+        runs = pq.read_table(a.dir / f"out-{w}" / "runs.parquet").to_pylist()
+        cpu = sum({r["log"]: r["cpu_s"] or 0.0 for r in runs}.values())
         print(
             f"{w} worker(s): {a.logs} logs in {wall:.1f} s (command), tasks {tasks:.1f} s, "
-            f"{a.logs / tasks:.2f} logs/s, speed-up {base / tasks:.2f}"
+            f"{a.logs / tasks:.2f} logs/s, speed-up {base / tasks:.2f}; CPU of the tasks {cpu:.1f} s "
+            f"(wall/CPU {w * tasks / cpu:.2f} per worker)"
         )
     return 0
 
