@@ -73,7 +73,7 @@ DIVERGED_NIS = 25.0  # mean NIS per row over Consistency.RECENT updates beyond w
 # solved, and how far (squared Mahalanobis distance, 3 parameters) the filter may sit
 # from it before it is re-seeded there (chi-square, 3 dof, 0.999: 16.3)
 BATCH_BLOCKS = 3000  # 5 min of stage-1 windows in 0.1 s blocks
-BATCH_EVERY = 40  # blocks (4 s of window)
+BATCH_EVERY = 20  # blocks (2 s of window)
 BATCH_FAR_EVERY = 4  # every this many checks the prior's mean is a start too (the far start costs the most)
 RESEED_M2 = 16.3
 
