@@ -177,3 +177,17 @@ def test_the_simulator_retries_when_it_cannot_start_a_loop_again(monkeypatch):
     finally:
         feed.stop()
     assert feed.loops >= 3 and feed.retries == 2 and feed.error is None
+
+
+def test_the_free_space_floor_is_read_from_the_config(tmp_path):
+    from dataclasses import replace
+
+    from vdp.live.ingest import Ingest
+    from vdp.settings import load_settings
+
+    cfg = tmp_path / "vdp.toml"
+    cfg.write_text((ROOT / "deploy" / "vdp.toml").read_text().replace("# min_free_mb = 256", "min_free_mb = 256"))
+    s = load_settings(cfg)
+    assert s.raw_log.min_free_mb == 256
+    s = replace(s, raw_log=replace(s.raw_log, dir=tmp_path / "raw"))
+    assert Ingest(s, load_profile(PROFILE)).rawlog.min_free == 256 << 20

@@ -36,7 +36,8 @@ class Ingest:
         self.queue: queue.Queue = queue.Queue(maxsize=sv.queue_size)
         self.intake = Intake(self.queue)
         raw = settings.raw_log
-        self.rawlog = RawLog(raw.dir, raw.max_bytes, raw.max_files, raw.prefix) if raw.enabled else None
+        floor = None if raw.min_free_mb is None else raw.min_free_mb << 20
+        self.rawlog = RawLog(raw.dir, raw.max_bytes, raw.max_files, raw.prefix, min_free=floor) if raw.enabled else None
         bus_cfg = settings.bus
         listeners: list = []
         if settings.simulate.enabled:
