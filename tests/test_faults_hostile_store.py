@@ -111,7 +111,8 @@ def test_vdp_serve_on_a_damaged_store_is_degraded_not_dead(tmp_path):
         health = json.loads(_get(url + "/health"))
         assert health["status"] == "degraded"
         assert any(r.startswith("estimate store recovered:") and "damaged-" in r for r in health["reasons"])
-        assert "vdp_store_recoveries_total 1.0" in _get(url + "/metrics")
+        metrics = _get(url + "/metrics")
+        assert "vdp_store_recoveries_total 1.0" in metrics and "vdp_bus_garbage_total 0.0" in metrics
         raw = tmp_path / "raw"
         size = sum(f.stat().st_size for f in raw.glob("*.log"))
         time.sleep(1.0)

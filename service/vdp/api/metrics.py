@@ -60,6 +60,7 @@ class Collector:
         yield counter("samples", "aligned samples the estimator saw", m["samples"])
         yield counter("bus_reconnects", "bus reconnects", m["reconnects"])
         yield counter("bus_errors", "bus errors (open failures, receive errors)", m["bus_errors"])
+        yield counter("bus_garbage", "datagrams on the bus interface that held no CAN frame", m.get("bus_garbage", 0))
         yield counter("estimation_errors", "frames on which estimation raised", m["errors"])
         yield counter("raw_log_frames", "frames written to the raw log", m["raw_frames"])
         yield counter("raw_log_lost", "frames not written while raw logging was stopped", m["raw_lost"])

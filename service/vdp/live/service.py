@@ -297,6 +297,7 @@ class Service:
             "bus_up": ing.link.up,
             "reconnects": ing.link.info.reconnects,
             "bus_errors": ing.link.info.errors,
+            "bus_garbage": ing.link.info.garbage,
             "errors": self.estimation.errors,
             "decode": r.decode,
             "parameters": r.parameters,
