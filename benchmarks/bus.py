@@ -90,7 +90,7 @@ def car_one(args) -> dict:
     pipe = Pipeline(prof, EstimatorConfig(baseline=False))
     for msg in sim.frames():
         pipe.feed(msg)
-    par, truth = pipe.snapshot()["parameters"], sim.truth["parameters"]
+    par, truth = pipe.result().to_dict()["parameters"], sim.truth["parameters"]
     return {
         p: (
             None if par[p]["value"] is None else par[p]["value"] / truth[p] - 1,
