@@ -51,7 +51,7 @@ L_F_STD_MIN = 1e-4  # m: stage 1's l_f is never taken as exact (keeps the covari
 
 # A stage-2 window opens on a settled state: over the last SETTLE_TIME the yaw rate and the
 # road-wheel angle changed by less than these rates (a window opening just after a steering
-# step drove C_alpha and I_x the wrong way, estimation-findings.md)
+# step drove C_alpha and I_x the wrong way, measured on the independent models)
 SETTLE_TIME = 0.2  # s
 SETTLED_YAW_ACC = 0.15  # rad/s^2
 SETTLED_STEER_RATE = math.radians(3.0)  # rad/s of road-wheel angle
@@ -106,7 +106,7 @@ class LearnerConfig:
     # Stage 1 reads C_K as the small-slip (initial) stiffness, so it takes only blocks where
     # both axles use at most this share of their load (|F_x| / F_z): a real tyre's force-slip
     # curve bends, and at half the friction limit a brush tyre gives 0.80 of its initial
-    # slope (estimation-findings.md).  At 0.15 the brush's secant is still 0.95 of it.
+    # slope (measured on the independent models).  At 0.15 the brush's secant is still 0.95 of it.
     small_slip: float = 0.5
     # what is left of the bend, as model error in R: the slip's relative shortfall is about
     # bend * |F_x| / F_z (a brush tyre's first-order term has bend = 1 / (3 mu)).  Off (0) by
