@@ -10,11 +10,10 @@ every one with its status and std.
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import asdict, dataclass
 
 from .core.params import BY_NAME, NAMES
-from .core.result import INVALID, NOT_IDENTIFIABLE, NOT_RUN
+from .core.result import INVALID, NOT_IDENTIFIABLE, NOT_RUN, finite
 from .errors import ConfigError
 
 FORMATS = {
@@ -211,8 +210,8 @@ def _plain(params: dict, const: Constants | None = None, source: str = "") -> di
     for name in NAMES:
         p = params.get(name) or {}
         out["parameters"][name] = {
-            "value": _finite(p.get("value")),
-            "std": _finite(p.get("std")),
+            "value": finite(p.get("value")),
+            "std": finite(p.get("std")),
             "unit": p.get("unit", BY_NAME[name].unit),
             "status": p.get("status", NOT_RUN),
             "valid": bool(p.get("valid", False)),
@@ -223,10 +222,6 @@ def _plain(params: dict, const: Constants | None = None, source: str = "") -> di
     if source:
         out["source"] = source
     return out
-
-
-def _finite(v):
-    return float(v) if v is not None and math.isfinite(v) else None
 
 
 def _json(params: dict, const: Constants, source: str) -> str:
