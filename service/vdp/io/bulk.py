@@ -36,6 +36,7 @@ import can
 import numpy as np
 
 from .. import channels
+from ..core.sample import Sample
 from ..result import RunResult
 from .decoder import _limits as limits  # with the profile's range overrides
 from .decoder import compile_extractor
@@ -586,24 +587,6 @@ def _add(names: dict, sig: str, raw: bool, check: bool) -> None:
 # -- the aligner, a block at a time -----------------------------------------------
 
 
-def _sample_factory():
-    """Sample(t, values, fresh, age, gap) in the form the estimator reads today."""
-    from .. import buffer
-
-    cls = buffer.Sample
-    if "vals" in getattr(cls, "__dataclass_fields__", {}):
-
-        def make(t, values, fresh, age, gap):
-            return cls(t, np.array(values), np.array(fresh), np.array(age), gap, vals=values)
-
-        return make
-
-    def make_tuple(t, values, fresh, age, gap):
-        return cls(t, tuple(values), tuple(fresh), tuple(age), gap)
-
-    return make_tuple
-
-
 def align(al: Any, t: np.ndarray, per_channel: dict[int, tuple[np.ndarray, np.ndarray]]) -> list:
     """What ``Aligner.push`` would return over these frames, and the state it would leave.
 
@@ -630,7 +613,6 @@ def align(al: Any, t: np.ndarray, per_channel: dict[int, tuple[np.ndarray, np.nd
         restart[0] = True
     cuts = np.flatnonzero(restart).tolist()
     bounds = sorted({0, *cuts, m})
-    make = _sample_factory()
     stale = np.array(al._stale)
     for j0, j1 in zip(bounds[:-1], bounds[1:]):
         if restart[j0]:
@@ -720,7 +702,7 @@ def align(al: Any, t: np.ndarray, per_channel: dict[int, tuple[np.ndarray, np.nd
             new_v.append([math.nan] * (depth - len(keep_v)) + keep_v)
         gap = al.gap
         for i, (tt, row, fr, ag) in enumerate(zip(T.tolist(), vals.tolist(), fresh.tolist(), ages.tolist())):
-            out.append(make(tt, row, fr, ag, gap if i == 0 else False))
+            out.append(Sample(tt, tuple(row), tuple(fr), tuple(ag), gap if i == 0 else False))
         if k_ticks:
             al.gap = False
         al._t, al._v, al._emitted = new_t, new_v, new_emitted
