@@ -631,7 +631,6 @@ def align(al: Any, t: np.ndarray, per_channel: dict[int, tuple[np.ndarray, np.nd
         n0 = al._n
         t_last = float(seg_t[-1])
         if emit_from < j1:
-            n_max = n0
             # the largest n with n * tick + delay <= t_last, found as the aligner would step
             guess = math.floor((t_last - al.delay) / al.tick) + 2
             ns = np.arange(n0, max(guess, n0) + 1)
