@@ -84,10 +84,6 @@ class Bounds:
         d = self.grad(t)
         return P * np.outer(d, d)
 
-    def cov_from_si(self, x, P):
-        d = self.grad(self.from_si(x))
-        return P / np.outer(d, d)
-
     # -- model functions seen through the transform ---------------------------
     def wrap_fx(self, fx):
         """fx on transformed states: the transformed entries are constants of fx, kept as they are."""
