@@ -1,10 +1,9 @@
-"""The independent vehicle models (vdp.sim.independent): their own physics, then the estimator on them.
+"""The independent vehicle models (vdp.sim.independent): their own physics, and `vdp simulate --model`.
 
 The models' parameters are the truth.  Physics tests check each model against closed
-forms it must obey; the estimator tests drive the models through the paper's manoeuvres,
-encode the sensors through vdp's DBC, replay the log and compare with the truth file,
-which the estimator never sees.  Where the estimator is known to miss the target today
-(issue 11), the test states the target and is marked xfail(strict=False).
+forms it must obey; one test drives a model through `vdp simulate` and `vdp replay`.
+The estimator's accuracy on these models against issue 11's targets (with xfail marks
+where it misses today) is in tests/test_independent_estimator.py.
 """
 
 from __future__ import annotations
