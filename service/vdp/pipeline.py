@@ -48,7 +48,6 @@ class Pipeline:
         # the profile self-check of a running service, on the samples the ring holds (profilecheck);
         # vdp replay checks the log's first minutes instead and sets this to None
         self.monitor: Monitor | None = Monitor(profile)
-        self.frames = 0
         self.samples = 0
         self.last_bus_time: float | None = None
         cap = self.capabilities()
@@ -84,7 +83,6 @@ class Pipeline:
 
     def feed(self, msg) -> None:
         """Consume one frame (a can.Message or anything with its attributes)."""
-        self.frames += 1
         pairs = self.decoder.decode(msg)
         if not pairs:
             return
@@ -93,6 +91,11 @@ class Pipeline:
         samples = self.aligner.push(t, pairs)
         if samples:
             self.take(samples)
+
+    @property
+    def frames(self) -> int:
+        """Frames offered so far: the decoder counts every one (also those a source passed over)."""
+        return self.decoder.stats.frames
 
     def take(self, samples: list[Sample]) -> None:
         """Estimate from aligned samples (the aligner's, or a block reader's that aligns itself)."""
@@ -110,7 +113,6 @@ class Pipeline:
 
     def pass_over(self, counts: dict[int, int]) -> None:
         """Count frames a source left out because no plan decodes their id (see LogSource.keep_ids)."""
-        self.frames += sum(counts.values())
         self.decoder.stats.add_unknown(counts)
 
     def run(self, source, progress: Callable[[int, int], None] | None = None) -> RunResult:

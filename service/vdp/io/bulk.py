@@ -415,7 +415,6 @@ class BulkSource:
                 unk = dst.unknown
                 unk[k] = unk.get(k, 0) + len(rows)
                 dst.frames += len(rows)
-                pipe.frames += len(rows)
                 continue
             if vp is None or vp.p.invalid:
                 per_frame = True
@@ -446,7 +445,6 @@ class BulkSource:
             p.last_seen = float(tr[-1])
             n = len(rows)
             dst.frames += n
-            pipe.frames += n
             if n_dlc:
                 dst.errors[(k, "dlc")] = dst.errors.get((k, "dlc"), 0) + n_dlc
             dst.padded += vp.n_pad
