@@ -125,38 +125,16 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     t0 = time.perf_counter()
-    frames = sim.frames(progress=_progress())
-    bus = None
-    files = []
-    count = 0
-    try:
-        if args.bus_interface:
-            bus = simrun.open_bus(args.bus_interface, args.bus_channel)
-            frames = simrun.tee_bus(frames, bus, args.sim_speed)
-        if args.out is not None:
-            truth = args.truth or simrun.truth_path(args.out)
-            simrun.write_truth(sim.truth, truth)
-            count = simrun.write_log(frames, args.out, sim.bus_channel)
-            files = [str(args.out), str(truth)]
-        else:
-            for _ in frames:
-                count += 1
-            if args.truth:
-                simrun.write_truth(sim.truth, args.truth)
-                files = [str(args.truth)]
-    finally:
-        if bus is not None:
-            bus.shutdown()
+    count, files, sent = _drive(args, sim)
     wall = time.perf_counter() - t0
     where = f" -> {', '.join(files)}" if files else ""
-    live = f" (sent on {args.bus_interface})" if bus is not None else ""
+    live = f" (sent on {args.bus_interface})" if sent else ""
     print(f"simulated {sim.scenario.name}: {sim.duration:.1f} s, {count} frames in {wall:.1f} s{live}{where}")
     return 0
 
 
 def _run_independent(args: argparse.Namespace) -> int:
     """An independent model's drive: the same encode path and outputs, plus the car's profile TOML."""
-    from ..sim import run as simrun
     from ..sim.independent import SCENARIOS
     from ..sim.independent.common import IndependentSimulation
 
@@ -176,6 +154,21 @@ def _run_independent(args: argparse.Namespace) -> int:
         )
     t0 = time.perf_counter()
     sim = IndependentSimulation(args.model, args.car, args.scenario, args.seed, args.noise, duration=args.duration)
+    count, files, _ = _drive(args, sim, profile=True)
+    wall = time.perf_counter() - t0
+    where = f" -> {', '.join(files)}" if files else ""
+    print(
+        f"simulated {sim.model.name}/{sim.model.car} {sim.scenario.name}: {sim.duration:.1f} s, "
+        f"{count} frames in {wall:.1f} s{where}"
+    )
+    return 0
+
+
+def _drive(args: argparse.Namespace, sim, profile: bool = False) -> tuple[int, list[str], bool]:
+    """Run ``sim``'s frames to the bus, the log and its truth (and, with ``profile``, the car's
+    profile TOML beside them); return the frame count, the files written and whether a bus was used."""
+    from ..sim import run as simrun
+
     frames = sim.frames(progress=_progress())
     bus = None
     files = []
@@ -187,11 +180,13 @@ def _run_independent(args: argparse.Namespace) -> int:
         if args.out is not None:
             truth = args.truth or simrun.truth_path(args.out)
             simrun.write_truth(sim.truth, truth)
-            stem = simrun.truth_path(args.out).name[: -len(".truth.json")]
-            prof = args.out.with_name(stem + ".profile.toml")
-            prof.write_text(sim.profile_toml(), encoding="utf-8")
+            files = [str(args.out), str(truth)]
+            if profile:
+                stem = simrun.truth_path(args.out).name[: -len(".truth.json")]
+                prof = args.out.with_name(stem + ".profile.toml")
+                prof.write_text(sim.profile_toml(), encoding="utf-8")
+                files.append(str(prof))
             count = simrun.write_log(frames, args.out, sim.bus_channel)
-            files = [str(args.out), str(truth), str(prof)]
         else:
             for _ in frames:
                 count += 1
@@ -201,10 +196,4 @@ def _run_independent(args: argparse.Namespace) -> int:
     finally:
         if bus is not None:
             bus.shutdown()
-    wall = time.perf_counter() - t0
-    where = f" -> {', '.join(files)}" if files else ""
-    print(
-        f"simulated {sim.model.name}/{sim.model.car} {sim.scenario.name}: {sim.duration:.1f} s, "
-        f"{count} frames in {wall:.1f} s{where}"
-    )
-    return 0
+    return count, files, bus is not None
