@@ -768,6 +768,10 @@ class _TextReader(_Reader):
         """Read the header from ``lines``; return the iterator of the body's lines."""
         return lines
 
+    def clean(self, line: str) -> str:
+        """The text of a line as parse, bad and emit see it."""
+        return line
+
     def read(self) -> Iterator[can.Message]:
         st = self.stats
         last = -_INF
@@ -777,18 +781,19 @@ class _TextReader(_Reader):
             raise
         except Exception as exc:
             raise LogFormatError(f"{self.path}: not a valid {self.src.format} file: {_msg(exc)}") from exc
-        parse = self.parse
+        parse, clean = self.parse, self.clean
         for line in lines:
             n = self.lineno
             st.lines = n
+            text = clean(line)
             try:
-                msg = parse(line)
+                msg = parse(text)
             except Exception as exc:
-                self.bad(n, f"unreadable {self.src.format} line ({_msg(exc)[:60]})", line)
+                self.bad(n, f"unreadable {self.src.format} line ({_msg(exc)[:60]})", text)
                 continue
             if msg is None:
                 continue
-            ts = self.emit(n, msg, last, line)
+            ts = self.emit(n, msg, last, text)
             if ts is None:
                 continue
             last = ts
@@ -867,37 +872,18 @@ class TrcReader(_TextReader):
         first = self.pc._extract_header()  # the first line after the header
         return _chain([first] if first else [], lines)
 
-    def read(self) -> Iterator[can.Message]:
-        st = self.stats
-        last = -_INF
-        try:
-            lines = self.start(self.lines())
-        except (EOFError, zlib.error, gzip.BadGzipFile):
-            raise
-        except Exception as exc:
-            raise LogFormatError(f"{self.path}: not a valid .trc file: {_msg(exc)}") from exc
-        for line in lines:
-            n = self.lineno
-            st.lines = n
-            text = line.strip()
-            if not text or text.startswith(";"):
-                continue
-            try:
-                msg = self.pc._parse_cols(tuple(text.split(maxsplit=self.pc._num_columns)))
-            except Exception as exc:
-                self.bad(n, f"unreadable .trc line ({_msg(exc)[:60]})", text)
-                continue
-            if msg is None:
-                continue  # a bus status line or another record type we do not read
-            if isinstance(msg.channel, int):
-                msg.channel -= 1  # TRC numbers buses from 1, python-can's writer adds 1
-            ts = self.emit(n, msg, last, text)
-            if ts is None:
-                continue
-            last = ts
-            yield msg
-        st.lines = self.lineno
-        self.end_clock(last)
+    def clean(self, line: str) -> str:
+        return line.strip()
+
+    def parse(self, line: str) -> can.Message | None:
+        if not line or line.startswith(";"):
+            return None
+        msg = self.pc._parse_cols(tuple(line.split(maxsplit=self.pc._num_columns)))
+        if msg is None:
+            return None  # a bus status line or another record type we do not read
+        if isinstance(msg.channel, int):
+            msg.channel -= 1  # TRC numbers buses from 1, python-can's writer adds 1
+        return msg
 
 
 def _chain(first: list[str], rest: Iterator[str]) -> Iterator[str]:
