@@ -47,9 +47,11 @@ class Pipeline:
         self._taps: list[Callable[[Sample], None]] = []
         # the profile self-check of a running service, on the samples the ring holds (profilecheck);
         # vdp replay checks the log's first minutes instead and sets this to None
-        self.monitor: Monitor | None = Monitor(profile)
+        self.monitor: Monitor | None = Monitor(profile, self.decoder)
         self.samples = 0
-        self.last_bus_time: float | None = None
+        self.last_bus_time: float | None = None  # the newest decoded frame's
+        self.first_frame_time: float | None = None  # of any frame fed, decoded or not: the self-check's clock
+        self.frame_time: float | None = None
         cap = self.capabilities()
         for stage, why in cap.items():
             if why:
@@ -83,10 +85,12 @@ class Pipeline:
 
     def feed(self, msg) -> None:
         """Consume one frame (a can.Message or anything with its attributes)."""
+        t = self.frame_time = msg.timestamp
+        if self.first_frame_time is None:
+            self.first_frame_time = t
         pairs = self.decoder.decode(msg)
         if not pairs:
             return
-        t = msg.timestamp
         self.last_bus_time = t
         samples = self.aligner.push(t, pairs)
         if samples:
@@ -166,9 +170,12 @@ class Pipeline:
         caps = self.capabilities()
         coach, params = self._coach(snap, caps)
         ekf = snap.baseline_ekf
-        if self.monitor is not None:  # parameters resting on a channel the check doubts are not valid
-            self.monitor.update(self.ring)
-            params, ekf = self.monitor.mark(params), self.monitor.mark(ekf)
+        check = None
+        mon = self.monitor
+        if mon is not None:  # parameters resting on a channel the check doubts are not valid
+            mon.update(self.ring, self.first_frame_time, self.frame_time)
+            params, ekf = mon.mark(params), mon.mark(ekf)
+            check = mon.status()
         return RunResult.of(
             dataclasses.replace(snap, parameters=params, baseline_ekf=ekf),
             capabilities=caps,
@@ -182,6 +189,7 @@ class Pipeline:
             trace=tuple(self.estimator.trace) if trace else (),
             t0=t0,
             log=log,
+            profile_check=check,
         )
 
     def _coach(self, snap, caps) -> tuple[dict, dict[str, Estimate]]:

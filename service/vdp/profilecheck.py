@@ -381,23 +381,46 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
 
 @dataclass
 class Coverage:
-    """How many of the profile's messages a log holds."""
+    """How many of the profile's messages a log (or a live bus) holds."""
 
     wanted: dict[str, int]  # message name -> frames decoded
     other: list[tuple[str, int]]  # the log's most frequent ids the profile does not decode
+    source: str = "log"  # "log" or "bus": what the message says holds the frames
+    refused: dict[str, dict[str, int]] = field(default_factory=dict)  # unseen message -> its frames' errors by kind
 
     @property
     def seen(self) -> int:
         return sum(1 for n in self.wanted.values() if n)
 
-    def message(self) -> str:
-        missing = [m for m, n in self.wanted.items() if not n]
-        top = ", ".join(f"{i} ({n})" for i, n in self.other[:8]) or "none"
-        return (
-            f"{self.seen} of {len(self.wanted)} of the profile's messages seen"
-            + (f" (missing: {', '.join(missing)})" if missing else "")
-            + f"; the ids the log holds most: {top}"
+    @property
+    def missing(self) -> list[str]:
+        return [m for m, n in self.wanted.items() if not n]
+
+    def message(self, top: bool = True) -> str:
+        """One line: "0 of 7 of the profile's messages seen (missing: ...); the ids the log holds most: ..."."""
+        missing = self.missing
+        out = f"{self.seen} of {len(self.wanted)} of the profile's messages seen" + (
+            f" (missing: {', '.join(missing)})" if missing else ""
         )
+        for name, kinds in self.refused.items():  # the id is there, but no frame of it decodes
+            n = sum(kinds.values())
+            why = ", ".join(f"{k} {c}" for k, c in sorted(kinds.items(), key=lambda kv: -kv[1]))
+            out += f"; {name} came {n} time{'s' if n > 1 else ''}, none decoded ({why})"
+        if top:
+            ids = ", ".join(f"{i} ({n})" for i, n in self.other[:8]) or "none"
+            out += f"; the ids the {'bus carries' if self.source == 'bus' else 'log holds'} most: {ids}"
+        return out
+
+    def as_dict(self) -> dict:
+        return {
+            "seen": self.seen,
+            "wanted": len(self.wanted),
+            "frames": dict(self.wanted),
+            "missing": self.missing,
+            "refused": {k: dict(v) for k, v in self.refused.items()},
+            "top_ids": [{"id": i, "count": n} for i, n in self.other[:8]],
+            "message": self.message(),
+        }
 
 
 def check_log(
@@ -444,15 +467,30 @@ def check_log(
     return rep, cov
 
 
-def coverage(dec) -> Coverage:
+def primary_messages(profile: Profile) -> set[str]:
+    """The messages the profile reads its channels from (not the alternatives)."""
+    names = {cm.message for cm in profile.channels.values()}
+    for comp in getattr(profile, "composites", {}).values():
+        names |= comp.messages
+    return names
+
+
+def coverage(dec, source: str = "log") -> Coverage:
+    """The frames ``dec`` (a FrameDecoder) decoded per primary message, and the ids it did not decode."""
     from .io.decoder import _hex
 
-    primaries = {cm.message for cm in dec.profile.channels.values()}
-    for comp in getattr(dec.profile, "composites", {}).values():
-        primaries |= comp.messages
-    wanted = {plan.name: plan.good for plan in dec._plans.values() if plan.name in primaries}
-    other = sorted(dec.stats.unknown.items(), key=lambda kv: -kv[1])
-    return Coverage(wanted, [(_hex(k), n) for k, n in other])
+    primaries = primary_messages(dec.profile)
+    plans = [p for p in dec._plans.values() if p.name in primaries]
+    wanted = {p.name: p.good for p in plans}
+    errors = dec.stats.errors.copy()
+    refused: dict[str, dict[str, int]] = {}
+    for p in plans:
+        if not p.good:
+            kinds = {kind: n for (key, kind), n in errors.items() if key == p.key}
+            if kinds:
+                refused[p.name] = kinds
+    other = sorted(dec.stats.unknown.copy().items(), key=lambda kv: -kv[1])
+    return Coverage(wanted, [(_hex(k), n) for k, n in other], source, refused)
 
 
 def lines(rep: Report) -> list[str]:
@@ -460,23 +498,60 @@ def lines(rep: Report) -> list[str]:
     return [f"profile check: {f.message} (not valid: {', '.join(f.params)})" for f in rep.findings]
 
 
-class Monitor:
-    """The self-check of a running service: it keeps the aligned samples it is shown (10 Hz,
-    the newest ``keep`` seconds) and checks the profile every ``every`` seconds of bus time,
-    warning once per new finding.  :meth:`mark` applies the newest report to estimates."""
+START_AFTER = 10.0  # s of bus time before a running service's first check
+START_CYCLES = 3.0  # ... or this many periods of the profile's slowest message, if longer
 
-    def __init__(self, profile: Profile, keep: float = 600.0, every: float = 30.0, rate: float = 0.1):
-        self.profile, self.keep, self.every, self.rate = profile, keep, every, rate
+
+class Monitor:
+    """The self-check of a running service.
+
+    It keeps the aligned samples it is shown (10 Hz, the newest ``keep`` seconds) and checks
+    once ``start`` seconds of bus time have passed since the first frame (START_AFTER, or three
+    periods of the profile's slowest message if that is longer: a 1 Hz GPS is seen three
+    times), then every ``every`` seconds of bus time.  Each check also counts which of the
+    profile's messages the bus carried (:func:`coverage`): a bus that carries none or few of
+    them (fewer than half) is an :attr:`error` with the counts and the ids the bus carries
+    most.  Each new finding and each change of coverage is logged once; :meth:`mark` applies
+    the newest report to estimates.
+    """
+
+    def __init__(
+        self,
+        profile: Profile,
+        decoder=None,
+        keep: float = 600.0,
+        every: float = 30.0,
+        rate: float = 0.1,
+        start: float | None = None,
+    ):
+        self.profile, self.decoder, self.keep, self.every, self.rate = profile, decoder, keep, every, rate
+        self.start = start if start is not None else start_after(profile, decoder)
         self.t: list[float] = []
         self.y: list[np.ndarray] = []
         self.last_t = -math.inf
         self.next_check: float | None = None
+        self.checked_at: float | None = None  # bus time of the newest check
+        self.checks = 0
         self.report = check_profile(profile)
+        self.coverage: Coverage | None = None
         self._said: set[str] = set()
+        self._said_coverage: str | None = None
         self._say()
 
-    def update(self, ring) -> None:
-        """Take the samples ``ring`` (a SampleRing) got since the last call; check when due."""
+    @property
+    def error(self) -> str | None:
+        """The bus does not fit the profile: none or fewer than half of its messages seen."""
+        cov = self.coverage
+        if cov is None or cov.seen * 2 >= len(cov.wanted):
+            return None
+        return f"the bus does not fit profile {self.profile.path}: {cov.message()}"
+
+    def update(self, ring, first: float | None = None, now: float | None = None) -> None:
+        """Take the samples ``ring`` (a SampleRing) got since the last call; check when due.
+
+        ``first`` and ``now`` are the bus times of the first and the newest frame (decoded or
+        not); without them the samples' times stand in.
+        """
         ts, ys = ring.latest()
         new = ts > self.last_t
         for t, y in zip(ts[new], ys[new]):
@@ -488,21 +563,69 @@ class Monitor:
         while self.t and self.t[-1] - self.t[0] > self.keep:
             self.t.pop(0)
             self.y.pop(0)
-        if not self.t:
-            return
+        if first is None or now is None:
+            if not self.t:
+                return
+            first, now = self.t[0], self.t[-1]
         if self.next_check is None:
-            self.next_check = self.t[0] + self.every
-        if self.t[-1] >= self.next_check:
-            self.next_check = self.t[-1] + self.every
-            self.report = check_samples(self.profile, np.asarray(self.t), np.vstack(self.y))
-            self._say()
+            self.next_check = first + self.start
+        if now >= self.next_check:
+            self.next_check = now + self.every
+            self.check(now)
+
+    def check(self, now: float) -> None:
+        """Check now: the messages seen so far, and the profile against the samples kept."""
+        self.checked_at = now
+        self.checks += 1
+        if self.decoder is not None:
+            self.coverage = coverage(self.decoder, source="bus")
+        y = np.vstack(self.y) if self.y else np.empty((0, ch.N))
+        self.report = check_samples(self.profile, np.asarray(self.t), y)
+        self._say()
 
     def _say(self) -> None:
         for f in self.report.findings:
             if f.check not in self._said:
                 self._said.add(f.check)
                 log.warning("profile check: %s (not valid: %s)", f.message, ", ".join(f.params))
+        cov = self.coverage
+        if cov is None:
+            return
+        said = cov.message(top=False)
+        if said == self._said_coverage:
+            return
+        self._said_coverage = said
+        if self.error:
+            log.error("profile check: %s", self.error)
+        elif cov.seen < len(cov.wanted):
+            log.warning("profile check: %s", cov.message())
+        else:
+            log.info("profile check: %s", said)
 
     def mark(self, params):
         """``params`` (name -> Estimate) with those the newest report doubts marked not valid."""
         return None if params is None else mark_invalid(params, self.report)
+
+    def status(self) -> dict:
+        """What /status shows: when the check ran, its findings, the messages seen, the error."""
+        doc = self.report.as_dict()
+        doc.update(
+            checked_at=self.checked_at,
+            checks=self.checks,
+            start_after_s=self.start,
+            every_s=self.every,
+            coverage=None if self.coverage is None else self.coverage.as_dict(),
+            error=self.error,
+        )
+        return doc
+
+
+def start_after(profile: Profile, decoder=None) -> float:
+    """Bus time [s] a running service waits before its first check (see :class:`Monitor`)."""
+    longest = 0.0
+    if decoder is not None:
+        names = primary_messages(profile)
+        for plan in decoder._plans.values():
+            if plan.name in names and plan.fixed_period:
+                longest = max(longest, plan.period)
+    return max(START_AFTER, START_CYCLES * longest)

@@ -83,6 +83,9 @@ class RunResult:
     trace: tuple[TraceRow, ...] = ()
     t0: float | None = None
     log: LogInfo | None = None
+    # a running service's profile self-check (profilecheck.Monitor.status()); None in a replay,
+    # which checks the log's first minutes before it starts
+    profile_check: Mapping[str, Any] | None = None
 
     @classmethod
     def of(cls, snap: Snapshot, **kw) -> RunResult:

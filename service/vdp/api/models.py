@@ -102,6 +102,11 @@ class Status(_Model):
     queue: dict[str, Any]
     estimation: dict[str, Any]
     decode: dict[str, Any] = Field(description="decode errors by ID and kind, unknown IDs")
+    profile_check: dict[str, Any] | None = Field(
+        None,
+        description="the profile self-check: when it ran (bus time), its findings, the profile's messages "
+        "seen (coverage) and `error` if the bus carries none or few of them",
+    )
     channels: dict[str, Any] = Field(description="each mapped channel's age [s] and whether it is stale")
     gating: dict[str, Any] = Field(description="supervisor state and the current gating window")
     raw_log: dict[str, Any] = Field(description="raw CAN log files and their disk use")

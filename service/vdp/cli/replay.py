@@ -104,7 +104,9 @@ def run(args) -> int:
             check_output(path, flag, suffixes)
     profile = load_profile(args.profile or default_profile())
     # the profile self-check reads the log's first minutes; a log of another car stops here
-    check, _ = profilecheck.check_log(args.log, profile)
+    check, cov = profilecheck.check_log(args.log, profile)
+    if cov.missing:  # fewer than half seen stopped check_log; a few missing still cost their channels
+        print(f"profile check: {args.log}: {cov.message()}")
     for line in profilecheck.lines(check):
         print(line)
     truth = report.load_truth(args.truth) if args.truth else None
@@ -166,7 +168,7 @@ def run(args) -> int:
     if args.json_out:
         doc = report.document(result, truth)
         doc["vehicle"] = _constants(profile)
-        doc["profile_check"] = check.as_dict()
+        doc["profile_check"] = {**check.as_dict(), "coverage": cov.as_dict()}
         report.write_json(doc, args.json_out)
         print(f"wrote {args.json_out}")
     t0 = lg.start_time

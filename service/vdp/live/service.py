@@ -40,6 +40,21 @@ log = logging.getLogger(__name__)
 __all__ = ["Published", "Service", "Unavailable"]
 
 
+def profile_check_reasons(check: dict | None) -> list[str]:
+    """/health's reasons from the self-check (profilecheck.Monitor.status()): a bus that does not
+    fit the profile, messages of it never seen, and each finding."""
+    if not check:
+        return []
+    out = []
+    cov = check.get("coverage")
+    if check.get("error"):
+        out.append(f"profile check: {check['error']}")
+    elif cov and cov["missing"]:
+        out.append(f"profile check: {cov['message']}")
+    out += [f"profile check: {f['message']}" for f in check.get("findings", ())]
+    return out
+
+
 class Service:
     def __init__(self, settings: Settings, profile=None, opener: Callable | None = None, pipeline=None):
         from ..core.estimator import EstimatorConfig
@@ -185,6 +200,7 @@ class Service:
         if invalid:
             reasons.append(f"invalid channels (bad counter or checksum): {', '.join(invalid)}")
         reasons += self.estimation.diverged(sv.diverged_hold)
+        reasons += profile_check_reasons(pub.result.profile_check)
         bad = sorted(n for n, p in pub.result.parameters.items() if p.status == INVALID)
         if bad:
             reasons.append(f"invalid estimates: {', '.join(bad)}")
@@ -251,6 +267,7 @@ class Service:
                     "capabilities": r.capabilities,
                 },
                 "decode": r.decode,
+                "profile_check": r.profile_check,
                 "channels": r.channels,
                 "gating": {**r.supervisor, "window": r.current_window, "windows_total": len(r.windows)},
                 "raw_log": parts["raw_log"],

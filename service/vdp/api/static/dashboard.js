@@ -219,6 +219,18 @@ function kv(box, rows) {
   }
 }
 
+function profileCheck(pc) {
+  // the self-check of the profile against the bus: not yet run, the bus does not fit, findings, or ok
+  if (!pc) return "–";
+  if (pc.checked_at === null || pc.checked_at === undefined) return `waits for ${fmt(pc.start_after_s, 2)} s of bus time`;
+  if (pc.error) return pc.error;
+  const cov = pc.coverage || {};
+  const parts = [];
+  if ((cov.missing || []).length) parts.push(cov.message);
+  for (const f of pc.findings || []) parts.push(f.message);
+  return parts.join("; ") || `ok (${cov.seen} of ${cov.wanted} messages seen)`;
+}
+
 function showStatus(st, health) {
   const pill = $("health");
   pill.className = "pill " + (health.status || "");
@@ -242,6 +254,7 @@ function showStatus(st, health) {
     ["invalid channels", (dec.invalid_channels || []).join(", ") || "none", (dec.invalid_channels || []).length > 0],
     ["unknown ids", String(dec.unknown_distinct || 0)],
     ["last frame", age(bus.last_frame_age_s)],
+    ["profile check", profileCheck(st.profile_check), !!st.profile_check && (!!st.profile_check.error || (st.profile_check.findings || []).length > 0 || ((st.profile_check.coverage || {}).missing || []).length > 0)],
     ["health", (health.reasons || []).join("; ") || "ok", (health.reasons || []).length > 0],
   ]);
   const tb = $("channels").querySelector("tbody");
