@@ -104,3 +104,102 @@ def test_a_new_stage2_window_keeps_the_parameters_correlation_with_l_f(repo_root
     assert np.all(np.linalg.eigvalsh(P0) > 0)
     l2.set_stage1(1.4, 0.6, 10.0, l_f_std=float("nan"))  # no usable std: the prior's, never exact
     assert l2.l_f_std == profile.priors["l_f"].std
+
+
+# -- the written-out steps against filterpy's own (tests/helpers/filterpy_ref.py) --------------
+@pytest.fixture(scope="module")
+def profile(repo_root):
+    from vdp.profile import load_profile
+
+    return load_profile(repo_root / "profiles" / "paper.toml")
+
+
+def _stage2_pair(kind: str, profile, monkeypatch):
+    """A stage-2 filter (bounded transforms, consider state l_f) built twice on the same
+    start: once as vdp.core.filters runs it, once on filterpy's generic steps."""
+    from helpers import filterpy_ref
+    from vdp.core import learner as lm
+    from vdp.core.learner import Stage2
+
+    l2 = Stage2(kind, profile.vehicle, profile.priors)
+    l2.set_stage1(1.4, 0.6, 10.0, l_f_std=0.002)
+    x0, P0 = l2._start(np.array([0.1, 0.01, 2.0]), np.ones(3, dtype=bool), [0.05, 15.0, 50.0, 0.3])
+    lean = l2._new_filter(x0, P0, l2._R())
+    monkeypatch.setattr(lm, "UKF", filterpy_ref.UKF)
+    monkeypatch.setattr(lm, "EKF", filterpy_ref.EKF)
+    ref = l2._new_filter(x0, P0, l2._R())
+    assert type(lean) is not type(ref)
+    return l2, lean, ref
+
+
+@pytest.mark.parametrize("kind", ["ukf", "ekf"])
+def test_written_out_steps_match_filterpys_on_the_stage2_model(kind, profile, monkeypatch):
+    """40 predict/update steps of the roll model with changing inputs and a missing sensor
+    now and then: the same state and covariance as filterpy's generic steps, to float noise."""
+    l2, lean, ref = _stage2_pair(kind, profile, monkeypatch)
+    rng = np.random.default_rng(3)
+    for k in range(40):
+        u = np.array([[0.05 + 0.02 * np.sin(0.1 * k), 15.0, 50.0 + rng.normal(0, 0.1), 0.3]] * 3)
+        z = np.array([0.1 + rng.normal(0, 0.002), 0.01 + rng.normal(0, 0.002), 2.0 + rng.normal(0, 0.05)])
+        mask = np.array([True, k % 7 != 3, True])
+        for f in (lean, ref):
+            f.predict(0.04, u)
+            f.update(z, mask, u[-1])
+        np.testing.assert_allclose(lean.x, ref.x, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(lean.P, ref.P, rtol=1e-6, atol=1e-9 * np.abs(ref.P).max())
+        y1, S1 = lean.innovation()
+        y2, S2 = ref.innovation()
+        np.testing.assert_allclose(y1, y2, rtol=1e-6, atol=1e-8)  # z of ~2: 1e-8 is float noise of the sums
+        np.testing.assert_allclose(S1, S2, rtol=1e-6, atol=1e-9 * np.abs(S2).max())
+    assert abs(lean.x[4] - l2.theta[0]) > 1e-6 * l2.theta[0], "the data never moved C_alpha: the test saw nothing"
+
+
+@pytest.mark.parametrize("kind", ["ukf", "ekf"])
+def test_written_out_steps_fail_as_filterpys_do(kind, profile, monkeypatch):
+    """An indefinite covariance is caught by both, as a FilterError."""
+    from vdp.errors import FilterError
+
+    _, lean, ref = _stage2_pair(kind, profile, monkeypatch)
+    u = np.array([0.05, 15.0, 50.0, 0.3])
+    for f in (lean, ref):
+        P = f._f.P.copy()
+        P[0, 1] = P[1, 0] = 2.0 * np.sqrt(P[0, 0] * P[1, 1])
+        f._f.P = P
+        with pytest.raises(FilterError, match=r"positive definite|Matrix"):
+            f.predict(0.04, u)
+            f.update(np.array([0.1, 0.01, 2.0]), np.ones(3, dtype=bool), u)
+
+
+@pytest.mark.slow
+def test_a_drive_gives_the_same_estimates_as_on_filterpys_steps(profile, monkeypatch):
+    """The first 72 s of the paper drive (both stages), UKF and EKF: every estimate and
+    every trace row as on filterpy's steps, to float noise."""
+    from helpers import filterpy_ref
+    from vdp.core import learner as lm
+    from vdp.pipeline import Pipeline
+    from vdp.sim.run import Simulation
+
+    frames = list(Simulation(profile, "paper", 2, "realistic", duration=72.0).frames())
+
+    def run():
+        pipe = Pipeline(profile)
+        for m in frames:
+            pipe.feed(m)
+        return pipe.result(trace=True)
+
+    lean = run()
+    monkeypatch.setattr(lm, "UKF", filterpy_ref.UKF)
+    monkeypatch.setattr(lm, "EKF", filterpy_ref.EKF)
+    ref = run()
+    assert any(w.stage == 2 for w in ref.windows), "the drive never reached stage 2"
+    for a, b in ((lean.parameters, ref.parameters), (lean.baseline_ekf, ref.baseline_ekf)):
+        for name, e in b.items():
+            assert a[name].status == e.status, name
+            assert a[name].value == pytest.approx(e.value, rel=1e-7), name
+            assert a[name].std == pytest.approx(e.std, rel=1e-5), name
+    assert len(lean.trace) == len(ref.trace)
+    for r1, r2 in zip(lean.trace, ref.trace):
+        assert r1[:2] == r2[:2]
+        v1 = [x if x is not None else np.nan for kind in r1[2:] for p in kind for x in p]
+        v2 = [x if x is not None else np.nan for kind in r2[2:] for p in kind for x in p]
+        np.testing.assert_allclose(v1, v2, rtol=1e-5, equal_nan=True)

@@ -1,4 +1,4 @@
-"""UKF and EKF for a joint state-parameter model, built on filterpy.
+"""UKF and EKF for a joint state-parameter model.
 
 Both filters work on the state divided by the model's ``SCALE`` so that a state
 of metres next to one of 6e4 N/rad keeps a well-conditioned covariance; the
@@ -14,6 +14,15 @@ model with its prior uncertainty, which the covariance carries into the other
 states, but the measurements are not allowed to re-estimate it.  Its gain row is
 zero, so the covariance update takes the general form for any gain,
 P - K Pxz^T - Pxz K^T + K S K^T (with an optimal gain it reduces to P - K S K^T).
+
+The steps are filterpy's (UnscentedKalmanFilter with MerweScaledSigmaPoints,
+ExtendedKalmanFilter), written out for this use: the sigma points go through the
+model in one vectorised call, the weights are computed once, and nothing is
+copied that the next step does not read.  filterpy's own generic steps cost
+several times the model's evaluation here (Python per call, copies of every
+prior and posterior); tests/helpers/filterpy_ref.py keeps them as the reference
+the tests compare these against (tests/test_filters.py).  Importing filterpy
+also imports scipy.stats (0.8 s of start-up), which no step needs.
 """
 
 from __future__ import annotations
@@ -22,70 +31,33 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter, unscented_transform
-from scipy.linalg import LinAlgError
 
 from ..errors import FilterError
 
-
-def _chol_upper(A: np.ndarray) -> np.ndarray:
-    """Upper Cholesky factor (filterpy takes the rows of U with U^T U = A); numpy's is faster than scipy's."""
-    try:
-        return np.linalg.cholesky(A).T
-    except np.linalg.LinAlgError as exc:
-        raise LinAlgError(str(exc)) from None
+# the paper's sigma-point parameters (Table 3); kappa = 3 - L
+ALPHA, BETA = 0.01, 2.0
 
 
-class _PaperPoints(MerweScaledSigmaPoints):
-    """filterpy's scaled sigma points, built in three array operations.
-
-    Same points in the same order (x, then x + U_k, then x - U_k for the rows of
-    the upper Cholesky factor U of (lambda + n) P); filterpy fills them row by row.
-    """
-
-    def sigma_points(self, x, P):
-        n = self.n
-        U = self.sqrt((self.alpha**2 * (n + self.kappa)) * P)  # lambda + n = alpha^2 (n + kappa)
-        return np.concatenate((x[None, :], x + U, x - U))
-
-
-def paper_points(n: int) -> MerweScaledSigmaPoints:
-    """Sigma points of Table 3: alpha = 0.01, beta = 2, kappa = 3 - L."""
-    return _PaperPoints(n, alpha=0.01, beta=2.0, kappa=3.0 - n, sqrt_method=_chol_upper)
+def paper_weights(n: int) -> tuple[float, np.ndarray, np.ndarray]:
+    """(lambda + n, Wm, Wc) of the scaled sigma points, as filterpy's MerweScaledSigmaPoints
+    computes them (the same expressions, so the same floats)."""
+    kappa = 3.0 - n
+    lam = ALPHA**2 * (n + kappa) - n
+    c = 0.5 / (n + lam)
+    Wc = np.full(2 * n + 1, c)
+    Wm = np.full(2 * n + 1, c)
+    Wc[0] = lam / (n + lam) + (1 - ALPHA**2 + BETA)
+    Wm[0] = lam / (n + lam)
+    return ALPHA**2 * (n + kappa), Wm, Wc
 
 
-class _VectorUKF(UnscentedKalmanFilter):
-    """filterpy's UKF with the sigma points pushed through fx/hx in one call.
+class _State:
+    """A filter's working state in scaled coordinates, and its last innovation (y, S)."""
 
-    fx(sigmas, dt, **kw) and hx(sigmas, **kw) take an (n_sigma, dim) array; this
-    replaces filterpy's per-point Python loop, which dominates the cost.
-    """
+    __slots__ = ("P", "S", "x", "y")
 
-    consider: int | None = None  # index of a consider state (module docstring)
-
-    def compute_process_sigmas(self, dt, fx=None, **fx_args):
-        fx = self.fx if fx is None else fx
-        sigmas = self.points_fn.sigma_points(self.x, self.P)
-        self.sigmas_f = fx(sigmas, dt, **fx_args)
-
-    def update_masked(self, z, R, mask, **hx_args):
-        sigmas_h = self.hx(self.sigmas_f, **hx_args)[:, mask]
-        zp, S = unscented_transform(sigmas_h, self.Wm, self.Wc, R)
-        dx = self.sigmas_f - self.x
-        dz = sigmas_h - zp
-        Pxz = np.einsum("i,ij,ik->jk", self.Wc, dx, dz)
-        self.S = S
-        self.SI = np.linalg.inv(S)
-        self.K = K = Pxz @ self.SI
-        self.y = z - zp
-        if self.consider is None:
-            self.x = self.x + K @ self.y
-            self.P = self.P - K @ S @ K.T
-            return
-        K[self.consider] = 0.0
-        self.x = self.x + K @ self.y
-        KPxz = K @ Pxz.T
-        self.P = self.P - KPxz - KPxz.T + K @ S @ K.T
+    def __init__(self):
+        self.x = self.P = self.y = self.S = None
 
 
 class JointFilter:
@@ -146,7 +118,7 @@ class JointFilter:
         R = self.R if R is None else R
         try:
             self._update(np.asarray(z)[mask], R[np.ix_(mask, mask)], mask, u)
-        except (LinAlgError, ValueError, FloatingPointError) as exc:
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
             raise FilterError(f"{self.kind} update: {exc}") from None
         self._check()
 
@@ -166,32 +138,62 @@ class JointFilter:
 
 
 class UKF(JointFilter):
+    """filterpy's UnscentedKalmanFilter step by step, with the sigma points pushed through
+    fx/hx in one call each: fx(sigmas, dt, u) and hx(sigmas, u) take an (n_sigma, dim) array."""
+
     kind = "ukf"
 
     def __init__(self, x0, P0, Q_rate, R, scale, fx, hx, consider: int | None = None):
-        n = len(x0)
-        self._f = _VectorUKF(dim_x=n, dim_z=len(R), dt=0.01, hx=None, fx=None, points=paper_points(n))
+        self._f = _State()
+        self._lam_n, self._Wm, self._Wc = paper_weights(len(x0))
+        self._Wc_col = self._Wc[:, None]
+        self._sigmas: np.ndarray | None = None
         super().__init__(x0, P0, Q_rate, R, scale, fx, hx, consider)
-        self._f.consider = consider
-        self._f.fx = self._fx_s
-        self._f.hx = self._hx_s
+
+    def _points(self, x, P) -> np.ndarray:
+        """x, then x + U_k, then x - U_k for the rows of the upper Cholesky factor U of (lambda + n) P."""
+        U = np.linalg.cholesky(self._lam_n * P).T
+        return np.concatenate((x[None, :], x + U, x - U))
+
+    def _transform(self, sigmas, noise) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(mean, covariance + noise, deviations) of transformed sigma points (filterpy's
+        unscented_transform: the same products in the same order)."""
+        mean = self._Wm @ sigmas
+        d = sigmas - mean[None, :]
+        return mean, d.T @ (self._Wc_col * d) + noise, d
 
     def predict(self, dt: float, u) -> None:
         f = self._f
-        f.Q = self.Q_rate * dt
         c = self.consider
         held = None if c is None else f.x[c]
         try:
-            f.predict(dt=dt, u=u)
-        except (LinAlgError, ValueError, FloatingPointError) as exc:
+            sigmas = self._fx_s(self._points(f.x, f.P), dt, u)
+            f.x, f.P, _ = self._transform(sigmas, self.Q_rate * dt)
+            # filterpy draws the update's points afresh from the predicted x and P
+            self._sigmas = self._points(f.x, f.P)
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
             raise FilterError(f"ukf predict: {exc}") from None
         if c is not None:
             f.x[c] = held  # the weighted mean returns it only to rounding (weights of ~1e4, both signs)
         self._check()
 
     def _update(self, z, R, mask, u) -> None:
-        # (every update follows a predict, which draws fresh sigma points)
-        self._f.update_masked(z, R, mask, u=u)
+        # (every update follows a predict, which drew the points)
+        f = self._f
+        sigmas = self._sigmas
+        zp, S, dz = self._transform(self._hx_s(sigmas, u)[:, mask], R)
+        Pxz = (sigmas - f.x).T @ (self._Wc_col * dz)
+        K = Pxz @ np.linalg.inv(S)
+        f.y = z - zp
+        f.S = S
+        if self.consider is None:
+            f.x = f.x + K @ f.y
+            f.P = f.P - K @ S @ K.T
+            return
+        K[self.consider] = 0.0
+        f.x = f.x + K @ f.y
+        KPxz = K @ Pxz.T
+        f.P = f.P - KPxz - KPxz.T + K @ S @ K.T
 
 
 def transition(A: np.ndarray, dt: float) -> np.ndarray:
@@ -207,15 +209,6 @@ def transition(A: np.ndarray, dt: float) -> np.ndarray:
     return M
 
 
-class _ModelEKF(ExtendedKalmanFilter):
-    """filterpy's EKF with a nonlinear state prediction (predict_x is its hook)."""
-
-    fx_step: Callable = None
-
-    def predict_x(self, u=0):
-        self.x = self.fx_step(self.x, u)
-
-
 class EKF(JointFilter):
     """EKF baseline (Table 5): analytic Jacobians; F = exp(A dt) of the linearisation.
 
@@ -227,44 +220,33 @@ class EKF(JointFilter):
     kind = "ekf"
 
     def __init__(self, x0, P0, Q_rate, R, scale, fx, hx, jac_f, jac_h, consider: int | None = None):
-        n = len(x0)
-        self._f = _ModelEKF(dim_x=n, dim_z=len(R))
+        self._f = _State()
         super().__init__(x0, P0, Q_rate, R, scale, fx, hx, consider)
         self._jac_f, self._jac_h = jac_f, jac_h
-        self._dt = 0.01
+        self._eye = np.eye(len(x0))
 
     def predict(self, dt: float, u) -> None:
         f = self._f
-        x = self.x
-        A = self._jac_f(x, u)
+        A = self._jac_f(self.x, u)
         # scaled coordinates: A_s = S^-1 A S
         A_s = A * self.scale[None, :] / self.scale[:, None]
         try:
-            f.F = transition(A_s, dt)
-            f.Q = self.Q_rate * dt
-            f.fx_step = lambda xs, uu: self._fx_s(xs, dt, uu)
-            f.predict(u=u)
-        except (LinAlgError, ValueError, FloatingPointError) as exc:
+            F = transition(A_s, dt)
+            f.x = self._fx_s(f.x, dt, u)  # the nonlinear prediction, not F x
+            f.P = (F @ f.P) @ F.T + self.Q_rate * dt
+        except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
             raise FilterError(f"ekf predict: {exc}") from None
         self._check()
 
     def _update(self, z, R, mask, u) -> None:
-        def H(xs):
-            return (self._jac_h(xs * self.scale, u) * self.scale[None, :])[mask]
-
-        def h(xs):
-            return self._hx_s(xs, u)[mask]
-
-        if self.consider is None:
-            self._f.update(z, H, h, R=R)
-            return
-        # filterpy's update with the consider row of the gain zeroed; Joseph form holds for any gain
         f = self._f
-        Hx = H(f.x)
-        S = Hx @ f.P @ Hx.T + R
-        K = f.P @ Hx.T @ np.linalg.inv(S)
-        K[self.consider] = 0.0
-        f.y, f.S = z - h(f.x), S
+        H = (self._jac_h(f.x * self.scale, u) * self.scale[None, :])[mask]
+        PHT = f.P @ H.T
+        S = H @ PHT + R
+        K = PHT @ np.linalg.inv(S)
+        f.y, f.S = z - self._hx_s(f.x, u)[mask], S
+        if self.consider is not None:
+            K[self.consider] = 0.0  # the Joseph form below holds for any gain
         f.x = f.x + K @ f.y
-        IKH = np.eye(len(f.x)) - K @ Hx
-        f.P = IKH @ f.P @ IKH.T + K @ R @ K.T
+        IKH = self._eye - K @ H
+        f.P = (IKH @ f.P) @ IKH.T + (K @ R) @ K.T
