@@ -93,6 +93,7 @@ class TwoStageEstimator:
         self.gyro_bias = GyroBias()
         self.trace: deque = deque(maxlen=self.cfg.trace_len)
         self._next_trace = None
+        self._stage = None  # the supervisor's stage at the last sample
         self.handover_t: float | None = None
         self.t: float | None = None
 
@@ -112,17 +113,23 @@ class TwoStageEstimator:
             elif l1.filter is not None:
                 l1.end_window()
             if stage == 2:
-                if l2.filter is None:
+                # stage 1 does not move while stage 2 runs: its results are taken again only
+                # when stage 2 (re)starts or was reset (a snapshot per sample cost ~4 % of a replay)
+                if l2.filter is None and (l2.known is None or self._stage != 2):
                     e = l1.snapshot()
                     l_f, l_f_std = self.l_f(kind)
                     l2.set_stage1(l_f, e["h"].value, e["C_K"].value, l_f_std)
                 l2.handle(t, s)
             elif l2.filter is not None:
                 l2.end_window()
-        if not done and self.l_f_known():
+        # l_f becomes known only by a stage-1 sample (or from the profile: checked at the first
+        # sample and after a reset or restore), so the stage-1 snapshot is not taken otherwise
+        if not done and (stage == 1 or self._stage is None) and self.l_f_known():
             self.handover_t = t
             log.info("l_f known at t=%.2f s; stage 2 may start", t)
-        if self._next_trace is None or t >= self._next_trace:
+        self._stage = stage
+        # no trace kept (trace_len=0: vdp batch, replay without --plot): no row built either
+        if self.trace.maxlen != 0 and (self._next_trace is None or t >= self._next_trace):
             self._next_trace = t + self.cfg.trace_every
             self.trace.append(self._trace_row(t, stage))
         return s
@@ -155,6 +162,7 @@ class TwoStageEstimator:
         if stage in (None, 2, 1):
             for l in self.s2.values():
                 l.reset()
+        self._stage = None
         if stage is None:
             self.supervisor.reset()
             self.trace.clear()
@@ -240,6 +248,7 @@ class TwoStageEstimator:
                         n = max(n, p.samples or 1)
                 if n:
                     learner.set_params(vals, np.diag(np.square(stds)), n)
+        self._stage = None  # stage 2 takes stage 1's restored results at its next sample
         if self.l_f_known():
             self.handover_t = self.t if self.t is not None else 0.0
 
