@@ -79,7 +79,8 @@ def test_every_frame_is_estimated_logged_and_replays_to_the_same_estimates(drive
             assert data.endswith(b"\n")
             out.write(data)
     out_json = drive["tmp"] / "replay.json"
-    assert vdp_main(["replay", str(log), "--profile", str(PROFILE), "--json", str(out_json), "--no-progress"]) == 0
+    args = ["replay", str(log), "--profile", str(PROFILE), "--json", str(out_json), "--no-progress"]
+    assert vdp_main([*args, "--baseline", "ekf"]) == 0  # the live service runs the EKF too
     rep = json.loads(out_json.read_text())
     assert rep["log"]["bad_lines"] == 0 and rep["log"]["frames"] == sent
     for kind in ("parameters", "baseline_ekf"):

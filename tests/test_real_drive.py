@@ -51,7 +51,8 @@ def cache_dir(tmp_path_factory):
 def replay_cli(log: Path, tmp_path: Path, capsys) -> tuple[str, dict]:
     out = tmp_path / "result.json"
     capsys.readouterr()
-    assert main(["replay", str(log), "--profile", str(PROFILE), "--json", str(out), "--no-progress"]) == 0
+    args = ["replay", str(log), "--profile", str(PROFILE), "--json", str(out), "--no-progress"]
+    assert main([*args, "--baseline", "ekf"]) == 0
     return capsys.readouterr().out, json.loads(out.read_text())
 
 

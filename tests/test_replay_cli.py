@@ -34,6 +34,8 @@ def test_replay_writes_the_documented_json_and_a_plot(drive, repo_root, capsys):
             str(png),
             "--truth",
             str(d / "drive.truth.json"),
+            "--baseline",
+            "ekf",
         ]
     )
     assert code == 0
@@ -62,7 +64,17 @@ def test_json_never_carries_nan(drive, repo_root):
     main(["replay", str(log), "--profile", str(repo_root / "profiles" / "paper.toml"), "--json", str(out)])
     text = out.read_text()
     assert "NaN" not in text and "Infinity" not in text
-    json.loads(text)
+    res = json.loads(text)
+    # the EKF baseline runs only when asked (--baseline ekf); its key is there, empty
+    assert "baseline_ekf" in res and res["baseline_ekf"] is None
+    assert set(res["parameters"]) == set(NAMES)
+
+
+def test_baseline_flags_that_contradict_are_refused(drive, capsys):
+    _, log = drive
+    assert main(["replay", str(log), "--baseline", "ekf", "--no-ekf", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "--baseline ekf and --no-ekf" in err
 
 
 @pytest.mark.parametrize("bad,needle", [("missing.log", "no such"), ("empty.log", "empty")])
