@@ -28,7 +28,7 @@ def quiet(tmp_path, monkeypatch):
 
 def test_ford_runs_both_stages_from_its_own_signals():
     prof = load_profile(FORD)
-    assert Pipeline(prof).capabilities() == {"1": None, "2": None}
+    assert Pipeline(prof).capabilities() == {"1": None, "2": None, "I_x": None}
     assert set(prof.composites) == {"wheel_torque_front", "wheel_torque_rear"}
     assert prof.drivetrain.driven == "front" and prof.speed_reference == "gnss"
 
@@ -77,7 +77,8 @@ def test_vw_names_exactly_the_missing_drive_torque():
 
 def test_canfd_car_names_what_it_lacks():
     cap = Pipeline(load_profile(ROOT / "profiles" / "hyundai_ioniq5_2022.toml")).capabilities()
-    assert "wheel_torque_front" in cap["1"] and "speed" in cap["1"] and "roll_rate" in cap["2"]
+    assert "wheel_torque_front" in cap["1"] and "speed" in cap["1"] and "roll_rate" in cap["I_x"]
+    assert "needs l_f" in cap["2"]  # stage 2 needs no GNSS nor roll rate: l_f, which stage 1 cannot give
 
 
 def test_profile_new_drafts_the_ford_profile_from_its_dbc_and_a_log(tmp_path, capsys):

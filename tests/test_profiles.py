@@ -85,8 +85,13 @@ def test_capabilities_say_which_stage_cannot_run_and_why(name):
     speed = () if car(name).speed_reference else ("speed",)
     for ch in (*torque, *speed):
         assert ch in cap["1"]
-    for ch in ("roll_rate", *speed):
-        assert ch in cap["2"]
+    # stage 2 needs no roll-rate gyro nor GNSS (its v_x can be the rear wheels'): what it
+    # lacks is l_f, which stage 1 cannot give, unless the profile gives a measured one
+    if car(name).vehicle.l_f is None:
+        assert "needs l_f" in cap["2"] and "[vehicle] l_f" in cap["2"]
+    else:
+        assert cap["2"] is None
+    assert "roll_rate" in cap["I_x"] and "I_x is not estimated" in cap["I_x"]
 
 
 @pytest.mark.skipif(not SHARED_TOYOTA_DBC.is_file(), reason=f"no shared Toyota DBC at {SHARED_TOYOTA_DBC}")
@@ -187,9 +192,14 @@ def test_simulate_cli_writes_the_cars_layout_and_replay_explains(name, tmp_path,
     text = capsys.readouterr().out
     lacks = "drive_torque" if prof.sources else "wheel_torque_front"  # the Golf sends a brake pressure
     assert "stage 1 cannot run: " in text and lacks in text
-    assert "stage 2 cannot run: " in text and "roll_rate" in text
+    assert "I_x cannot run: " in text and "roll_rate" in text
     res = json.loads(res_path.read_text())
-    assert res["capabilities"]["1"] and res["capabilities"]["2"]
+    # stage 2 needs l_f: from stage 1, which cannot run, or measured in the profile
+    if prof.vehicle.l_f is None:
+        assert "stage 2 cannot run: " in text and "l_f" in text
+        assert res["capabilities"]["1"] and res["capabilities"]["2"]
+    else:
+        assert res["capabilities"]["1"] and res["capabilities"]["2"] is None
     assert all(p["status"] == "not_run" and not p["valid"] for p in res["parameters"].values())
     assert res["log"]["decode"]["samples"]["steering_angle"] > 250  # decoded, just not usable
 
@@ -284,7 +294,7 @@ def run_drive(prof: Profile, scenario: str, seed: int, params=None, duration=Non
 @pytest.mark.parametrize("name", CARS)
 def test_stage1_runs_on_the_cars_layout_with_addons(name, tmp_path):
     prof = with_addons(car(name))
-    assert Pipeline(prof).capabilities() == {"1": None, "2": None}
+    assert Pipeline(prof).capabilities() == {"1": None, "2": None, "I_x": None}
     res, _ = run_drive(prof, "stage1", seed=4, duration=12.0)
     assert [w.stage for w in res.windows] == [1]
     assert all(res.parameters[p].samples > 250 for p in ("l_f", "h", "C_K"))

@@ -1,8 +1,9 @@
 """A real car: 15 s of a 2018 Toyota RAV4's bus (comma2k19, MIT; see
 tests/data/rav4-2018-highway-15s.README.md) through profiles/toyota_rav4.toml.
 
-vdp must decode it, say why neither stage can run, and claim nothing: the bus has no
-per-axle torque and the drive has no steering excitation.
+vdp must decode it, say why stage 1 and I_x cannot run, and claim nothing: the bus has no
+per-axle torque and no roll rate, and the drive has no steering excitation for stage 2 (which
+this car can run, from the profile's published l_f).
 """
 
 from __future__ import annotations
@@ -57,11 +58,14 @@ def replay_cli(log: Path, tmp_path: Path, capsys) -> tuple[str, dict]:
 
 
 def check_no_claims(text: str, res: dict) -> None:
-    # which stages cannot run, and why: no per-axle torque (and no roll rate)
+    # which stages cannot run, and why: no per-axle torque for stage 1, no roll rate for I_x;
+    # stage 2 can run (the profile's l_f, the rear wheels' speed) but the drive never steers
     cap = res["capabilities"]
     assert "wheel_torque_front" in cap["1"] and "wheel_torque_rear" in cap["1"]
-    assert "roll_rate" in cap["2"]
-    assert f"stage 1 cannot run: {cap['1']}" in text and f"stage 2 cannot run: {cap['2']}" in text
+    assert cap["2"] is None and "roll_rate" in cap["I_x"]
+    assert f"stage 1 cannot run: {cap['1']}" in text and f"I_x cannot run: {cap['I_x']}" in text
+    assert "stage 2 cannot run" not in text
+    assert res["supervisor"]["excitation"]["2"]["main_blocker"] == "little steering excitation"
     # no confident estimate, from either filter
     for kind in ("parameters", "baseline_ekf"):
         for name, p in res[kind].items():

@@ -62,4 +62,12 @@ STAGE1_NEEDS = (
     "steering_angle",
     "yaw_rate",
 )
-STAGE2_NEEDS = ("wheel_speed_fl", "wheel_speed_fr", "steering_angle", "accel_y", "yaw_rate", "roll_rate", "speed")
+# Stage 2 needs no stage 1 once l_f is measured ([vehicle] l_f), nor a roll-rate gyro: its
+# C_alpha and I_z come from the steering, yaw rate and a_y.  Its v_x is the speed filter's
+# (GNSS, or the free-rolling axle) or else the rear wheels' (STAGE2_SPEED): a stage-2 window
+# is at nearly constant speed, where the wheels' slip is a few tenths of a percent.
+STAGE2_NEEDS = ("steering_angle", "accel_y", "yaw_rate")
+STAGE2_SPEED = ("wheel_speed_rl", "wheel_speed_rr")
+# I_x: the roll mode is seen through the roll-rate gyro only (a_y has no roll term in eq 7),
+# so without one I_x is not_run while C_alpha and I_z are still estimated.
+IX_NEEDS = ("roll_rate",)

@@ -69,18 +69,23 @@ class Pipeline:
         return out
 
     def capabilities(self) -> dict[str, str | None]:
-        """Why each stage cannot run with this profile's channels (None: it can)."""
+        """Why each stage ("1", "2"), and I_x within stage 2, cannot run with this profile's
+        channels (None: it can)."""
+        p = self.profile
         out: dict[str, str | None] = {}
-        for stage, needs in (("1", channels.STAGE1_NEEDS), ("2", channels.STAGE2_NEEDS)):
-            missing = self.profile.missing(needs)
-            if missing:
-                what = list(dict.fromkeys(channels.DESCRIPTIONS[m] for m in missing))
-                out[stage] = f"no {', no '.join(what)} (the profile maps no {', '.join(missing)})"
-            else:
-                out[stage] = None
-        if out["1"]:
-            tail = "it needs stage 1's l_f, h and C_K, and stage 1 cannot run"
+        # stage 2's speed: GNSS, the speed filter's wheel reference, or the rear wheels
+        has_speed = p.has("speed") or p.speed_reference or all(p.has(c) for c in channels.STAGE2_SPEED)
+        needs2 = channels.STAGE2_NEEDS + (() if has_speed else ("speed",))
+        for stage, needs in (("1", channels.STAGE1_NEEDS), ("2", needs2)):
+            out[stage] = _lacks(p.missing(needs))
+        if out["1"] and p.vehicle.l_f is None:
+            tail = (
+                "it needs l_f, and stage 1 cannot run: give the measured l_f (axle scales) "
+                "as [vehicle] l_f and l_f_std in the profile"
+            )
             out["2"] = f"{out['2']}; and {tail}" if out["2"] else tail
+        ix = _lacks(p.missing(channels.IX_NEEDS))
+        out["I_x"] = f"{ix}: the roll mode is unobservable, so I_x is not estimated" if ix else None
         return out
 
     def feed(self, msg) -> None:
@@ -226,6 +231,14 @@ class Pipeline:
     def restore(self, params: Mapping[str, Estimate]) -> None:
         """Start from stored estimates instead of the priors."""
         self.estimator.restore(params)
+
+
+def _lacks(missing: list[str]) -> str | None:
+    """'no yaw-rate gyro (the profile maps no yaw_rate)' for missing channels, or None."""
+    if not missing:
+        return None
+    what = list(dict.fromkeys(channels.DESCRIPTIONS[m] for m in missing))
+    return f"no {', no '.join(what)} (the profile maps no {', '.join(missing)})"
 
 
 def speed_config(profile: Profile, db: Any, base: Any) -> Any:

@@ -75,6 +75,9 @@ def stage_lines(result: RunResult) -> list[str]:
                 f"stage {stage}: the drive had {e['seconds']:.1f} of {e['of']:.1f} s of "
                 f"{_DRIVE_WORDS[int(stage)]}" + (f"; mostly: {blocker}" if blocker else "")
             )
+    why = result.capabilities.get("I_x")
+    if why:
+        lines.append(f"I_x cannot run: {why}")
     return lines
 
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import channels as ch
 from .learner import LearnerConfig, Stage1, Stage2
-from .result import SETTLED, Estimate, Snapshot, WindowSpan
+from .result import NOT_RUN, SETTLED, Estimate, Snapshot, WindowSpan
 from .sample import Sample
 from .speed import SpeedConfig, SpeedFilter, wheel_reference
 from .supervisor import GateConfig, Supervisor
@@ -58,18 +58,13 @@ class GyroBias:
         """Take one sample; return the (yaw, roll) offsets to remove from it."""
         y = s.values
         d, yaw, roll = y[ch.DELTA], y[ch.YAW], y[ch.ROLL]
-        if (
-            math.isfinite(d)
-            and math.isfinite(yaw)
-            and math.isfinite(roll)
-            and abs(d) < gate.delta_max_1
-            and abs(yaw) < gate.yaw_max_1
-        ):
+        if math.isfinite(d) and math.isfinite(yaw) and abs(d) < gate.delta_max_1 and abs(yaw) < gate.yaw_max_1:
             # plain mean for the first samples, then an exponential one
             dt = 0.01 if self.t is None else min(max(s.t - self.t, 0.0), 0.1)
             k = max(dt / self.tau, 1.0 / (self.n + 1))
             self.yaw += k * (yaw - self.yaw)
-            self.roll += k * (roll - self.roll)
+            if math.isfinite(roll):  # a car without a roll-rate gyro still has its yaw offset learnt
+                self.roll += k * (roll - self.roll)
             self.n += 1
         self.t = s.t
         return self.yaw, self.roll
@@ -118,7 +113,10 @@ class TwoStageEstimator:
                 if l2.filter is None and (l2.known is None or self._stage != 2):
                     e = l1.snapshot()
                     l_f, l_f_std = self.l_f(kind)
-                    l2.set_stage1(l_f, e["h"].value, e["C_K"].value, l_f_std)
+                    # C_K only from data: before stage 1 has run (a car without axle torques),
+                    # stage 2 leaves the front drive force out (Stage2.set_stage1)
+                    c_k = None if e["C_K"].status == NOT_RUN else e["C_K"].value
+                    l2.set_stage1(l_f, e["h"].value, c_k, l_f_std)
                 l2.handle(t, s)
             elif l2.filter is not None:
                 l2.end_window()
@@ -229,7 +227,10 @@ class TwoStageEstimator:
         if self.handover_t is None:
             return "stage1"
         # done when every stage-2 parameter is either converged or known not to be identifiable
-        settled = all(e.status in SETTLED for e in self.s2["ukf"].snapshot().values())
+        # (I_x not_run for want of a roll-rate gyro is as settled as it will get)
+        settled = all(
+            e.status in SETTLED or (e.status == NOT_RUN and e.reason) for e in self.s2["ukf"].snapshot().values()
+        )
         return "done" if settled else "stage2"
 
     def restore(self, params: Mapping[str, Estimate]) -> None:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -587,11 +587,23 @@ class Stage2(StageLearner):
         self.window = Consistency()  # the open (or last) window's innovation tests
         self.total = Consistency()  # over every window kept
         self.restarts = 0  # windows dropped as diverged
+        self.updates = 0  # filter updates
+        self.roll_updates = 0  # of them, those that had a roll-rate measurement
         super().reset()
 
-    def set_stage1(self, l_f: float, h: float, c_k: float, l_f_std: float | None = None) -> None:
+    def set_stage1(self, l_f: float, h: float, c_k: float | None, l_f_std: float | None = None) -> None:
         """Stage 1's results.  ``l_f_std`` is considered (lateral.CONSIDER): stage 2 is
-        sensitive to l_f, and its stds would otherwise take stage 1's l_f as exact."""
+        sensitive to l_f, and its stds would otherwise take stage 1's l_f as exact.
+
+        ``c_k`` None: stage 1 has not run (no axle torques), so the front longitudinal force
+        F_xf = C_K F_zf s_f (NOTES 8) has no C_K from data.  It is left out (C_K = 0), not
+        taken from the prior: without GNSS and torques, v_x comes from the wheels, and a
+        rolling-radius mismatch of 0.5 % between the axles reads as a slip giving
+        C_K F_zf 0.005, about 400 N at the prior's C_K, as large as the true force.  What is
+        left out is F_xf sin(delta) in eqs (7) and (10): in a stage-2 window (nearly
+        constant speed, |mean a_x| < 0.6 m/s^2) F_xf is the drag and rolling resistance, a
+        few hundred N, and sin(delta) < 0.06, so under 1 % of the lateral force.
+        """
         v = self.vehicle
         self.known = lateral.Known(
             m=v.mass,
@@ -601,7 +613,7 @@ class Stage2(StageLearner):
             c_phi=v.roll_damping,
             l_f=l_f,
             h=h,
-            C_K=c_k,
+            C_K=0.0 if c_k is None else c_k,
             g=v.g,
         )
         ok = l_f_std is not None and math.isfinite(l_f_std) and l_f_std > 0
@@ -637,6 +649,23 @@ class Stage2(StageLearner):
         return cov / (sd * np.sqrt(var))
 
     flagged = ("C_alpha", "I_z", "I_x")
+
+    NO_ROLL = (
+        "no roll-rate measurement reached stage 2 (a roll-rate gyro is needed): the roll mode is "
+        "unobservable, so I_x keeps its prior"
+    )
+
+    def snapshot(self) -> dict[str, Estimate]:
+        """As every stage's, but I_x is not_run, with the reason, while stage 2 has run with no
+        roll-rate measurement: a_y has no roll term (eq 7) and the roll does not act back on
+        v_y and the yaw rate, so the roll states and I_x take nothing from the other rows (the
+        filter keeps them at their prior: frozen, whatever their values) and C_alpha and I_z
+        are estimated as with a gyro."""
+        out = super().snapshot()
+        e = out.get("I_x")
+        if e is not None and self.updates > 0 and self.roll_updates == 0:
+            out["I_x"] = replace(e, status=NOT_RUN, valid=False, reason=self.NO_ROLL)
+        return out
 
     def mismatch(self) -> tuple[float, str | None]:
         """From the innovations of every window kept: their size (NIS) and whiteness."""
@@ -678,18 +707,32 @@ class Stage2(StageLearner):
         return np.diag([g, g, a])
 
     def inputs(self, s) -> list:
-        """The model's input row u of one sample (a list: arrays are built once per step)."""
+        """The model's input row u of one sample (a list: arrays are built once per step).
+
+        v_x, best first: the rear wheels corrected for their slip, omega r / (1 + s_r)
+        (eqs 13-14; smoother than GNSS), when stage 1's C_K and the rear torque are known;
+        the speed filter's (GNSS + IMU, or the free-rolling axle); the raw GNSS speed; else
+        the rear wheels as they are (a stage-2 window is at nearly constant speed: their
+        slip is a few tenths of a percent).
+        """
         y = s.values
-        v_x = y[ch.SPEED]
-        # the rear wheels give a smoother v_x than GNSS: omega r / (1 + s_r), eqs (13)-(14)
         w_r = 0.5 * (y[ch.WS_RL] + y[ch.WS_RR])
         k = self.known
-        if math.isfinite(w_r) and math.isfinite(y[ch.T_R]) and math.isfinite(y[ch.AX]):
-            f_zr = k.m * k.g * k.l_f / k.L + k.m * y[ch.AX] * k.h / k.L
+        a_x = y[ch.AX]
+        if k.C_K > 0.0 and math.isfinite(w_r) and math.isfinite(y[ch.T_R]) and math.isfinite(a_x):
+            f_zr = k.m * k.g * k.l_f / k.L + k.m * a_x * k.h / k.L
             s_r = (y[ch.T_R] / k.r) / (k.C_K * max(f_zr, 0.05 * k.m * k.g))
             v_x = w_r * k.r / (1.0 + s_r)
+        elif math.isfinite(s.v_x):
+            v_x = s.v_x
+        elif math.isfinite(y[ch.SPEED]):
+            v_x = y[ch.SPEED]
+        else:
+            v_x = w_r * k.r
         w_f = 0.5 * (y[ch.WS_FL] + y[ch.WS_FR])
-        return [y[ch.DELTA], v_x, w_f, y[ch.AX]]
+        if not k.C_K > 0.0:  # no front drive force in the model: its inputs don't matter
+            w_f, a_x = 0.0, 0.0
+        return [y[ch.DELTA], v_x, w_f, a_x]
 
     @staticmethod
     def measurements(s) -> tuple[np.ndarray, np.ndarray]:
@@ -810,6 +853,8 @@ class Stage2(StageLearner):
         z, mask = self.measurements(s)
         self.filter.predict(dt, us)
         self.filter.update(z, mask, us[-1])
+        self.updates += 1
+        self.roll_updates += bool(mask[lateral.Z_ROLL])
         self._us = [u]
         if self._consistency(mask):
             return

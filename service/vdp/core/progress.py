@@ -134,7 +134,16 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
             "window_s": round(window_s, 2),
             "seconds_to_go": None if to_go is None or status != UNCERTAIN else round(to_go, 1),
             "hint": _hint(
-                name, stage, status, p, to_go, priors[name].std, caps.get(str(stage)), reasons, excitation, handed_over
+                name,
+                stage,
+                status,
+                p,
+                to_go,
+                priors[name].std,
+                caps.get(str(stage)) or caps.get(name),  # a stage, or one parameter (I_x: no roll rate)
+                reasons,
+                excitation,
+                handed_over,
             ),
         }
         if stage == 1 and hard and status in (UNCERTAIN, NOT_IDENTIFIABLE):
@@ -142,8 +151,12 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
     for stage, names in STAGE_PARAMS.items():
         per = out["parameters"]
         # the mean over the stage's parameters; one the data was judged unable to pin no longer
-        # holds its stage back (the estimator calls the stage done then, too)
-        counted = [1.0 if params.get(n, {}).get("status") == NOT_IDENTIFIABLE else per[n]["progress"] for n in names]
+        # holds its stage back (the estimator calls the stage done then, too), nor one this car
+        # cannot learn (I_x without a roll-rate gyro)
+        counted = [
+            1.0 if params.get(n, {}).get("status") == NOT_IDENTIFIABLE or caps.get(n) else per[n]["progress"]
+            for n in names
+        ]
         ex = excitation.get(str(stage)) or {}
         out["stages"][str(stage)] = {
             "progress": round(sum(counted) / len(counted), 3),
