@@ -50,6 +50,13 @@ def _inv2(R: np.ndarray) -> np.ndarray:
     return out
 
 
+def _jt_w(J: np.ndarray, W: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """sum over blocks of J_n' W_n X_n (X: (N, m, k) or (N, m)): einsum's own loop over the
+    three operands took ~0.6 ms per call at 3000 blocks, a fifth of a replay's CPU."""
+    WX = W @ X if X.ndim == 3 else (W @ X[:, :, None])[..., 0]
+    return np.tensordot(J, WX, axes=([0, 1], [0, 1]))
+
+
 def solve(
     h: Callable[[np.ndarray, np.ndarray], np.ndarray],
     U: np.ndarray,
@@ -94,8 +101,8 @@ def solve(
         for _ in range(iters):
             pred = Z - r
             J = jac(t, pred)
-            H = np.einsum("nki,nkl,nlj->ij", J, W, J) + P0i
-            g = np.einsum("nki,nkl,nl->i", J, W, r) - P0i @ (t - prior_t)
+            H = _jt_w(J, W, J) + P0i
+            g = _jt_w(J, W, r) - P0i @ (t - prior_t)
             step_ok = False
             while lam < 1e8:
                 try:
@@ -113,7 +120,7 @@ def solve(
             if not step_ok or np.max(np.abs(dt)) < 1e-7:
                 break
         J = jac(t, Z - r)
-        H = np.einsum("nki,nkl,nlj->ij", J, W, J) + P0i
+        H = _jt_w(J, W, J) + P0i
         try:
             cov = np.linalg.inv(H)
         except np.linalg.LinAlgError:
