@@ -141,3 +141,38 @@ def test_a_layout_read_differently_from_the_decoder_goes_frame_by_frame(mixed, p
         (a, _), (b, _) = both(mixed, paper)
     assert "block and frame decoders disagree" in caplog.text
     assert b == a
+
+
+def test_a_flood_of_unknown_ids_is_counted_not_stored(mixed, paper, tmp_path, monkeypatch, caplog):
+    """Beyond the caps (here 200 ids in the reader's tables, 100 in the decoder's), the frames of
+    further unknown ids are counted in one number: the tables stay bounded and the document is
+    the per-frame path's (same totals, same top ids; only how many were passed over differs)."""
+    from vdp.io import decoder
+
+    monkeypatch.setattr(bulk, "BLOCK", 1 << 16)
+    monkeypatch.setattr(bulk, "_ID_CACHE_MAX", 200)
+    monkeypatch.setattr(bulk, "MAX_UNKNOWN", 100)
+    monkeypatch.setattr(decoder, "MAX_UNKNOWN", 100)
+    out = []
+    for i, ln in enumerate(mixed.read_bytes().splitlines(keepends=True)):
+        out.append(ln)
+        if i % 3 == 0 and i < 12000:  # 600 distinct extended ids, a few frames each, in time order
+            out.append(ln.split(b" ")[0] + b" can0 %08X#00\n" % (0x100000 + (i // 3) % 600))
+    path = tmp_path / "flood.log"
+    path.write_bytes(b"".join(out))
+    with caplog.at_level(logging.DEBUG, logger="vdp.io.bulk"):
+        (a, _), (b, pb) = both(path, paper)
+    assert vectorised(caplog)
+    # the per-frame reader hands out the first frame of each of the 604 unused ids (the log's 4
+    # and the 600), the bulk one of the first 200 only and passes over the rest
+    passed = a["log"].pop("passed_over"), b["log"].pop("passed_over")
+    assert passed[1] - passed[0] == 404
+    assert b == a
+    dec = a["log"]["decode"]
+    assert dec["unknown_distinct"] == 100 and dec["unknown_untracked"] > 0
+    src = BulkSource(path)
+    src.keep_ids(pb.decoder.ids)
+    pipe = Pipeline(paper, EstimatorConfig(baseline=False))
+    src.feed_into(pipe)
+    assert len(src.stats.passed_over) <= 200 and src.stats.passed_over_other > 0
+    assert len(pipe.decoder.stats.unknown) == 100

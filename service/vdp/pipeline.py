@@ -120,9 +120,10 @@ class Pipeline:
         """Call ``fn`` with every sample the estimator takes, as it saw it (derived fields set)."""
         self._taps.append(fn)
 
-    def pass_over(self, counts: dict[int, int]) -> None:
-        """Count frames a source left out because no plan decodes their id (see LogSource.keep_ids)."""
-        self.decoder.stats.add_unknown(counts)
+    def pass_over(self, counts: dict[int, int], other: int = 0) -> None:
+        """Count frames a source left out because no plan decodes their id (see LogSource.keep_ids):
+        by id, and ``other`` frames of ids it did not keep apart."""
+        self.decoder.stats.add_unknown(counts, other)
 
     def run(self, source, progress: Callable[[int, int], None] | None = None) -> RunResult:
         """Feed every frame of ``source`` (a log: iterable of frames with ``stats``); return the result.
@@ -147,10 +148,11 @@ class Pipeline:
                     first = msg.timestamp
                 if progress is not None and n % PROGRESS_EVERY == 0:
                     progress(source.position, n)
-        passed = getattr(source.stats, "passed_over", None)
-        if passed:
-            self.pass_over(passed)
-            n += sum(passed.values())
+        passed = getattr(source.stats, "passed_over", None) or {}
+        other = getattr(source.stats, "passed_over_other", 0)
+        if passed or other:
+            self.pass_over(passed, other)
+            n += sum(passed.values()) + other
         last = (self.last_bus_time if self.last_bus_time is not None else first) if n else None
         stats = source.stats.as_dict()
         duration = (last - first) if n and last is not None else 0.0

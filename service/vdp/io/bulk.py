@@ -38,9 +38,9 @@ import numpy as np
 from .. import channels
 from ..core.sample import Sample
 from ..result import RunResult
+from .decoder import MAX_UNKNOWN, compile_extractor
 from .decoder import _limits as limits  # with the profile's range overrides
-from .decoder import compile_extractor
-from .logs import EXT_KEY, LogStats, channel_keys, open_log
+from .logs import _ID_CACHE_MAX, _MAX_CHANNELS, EXT_KEY, LogStats, channel_keys, open_log
 
 log = logging.getLogger(__name__)
 
@@ -359,6 +359,8 @@ class BulkSource:
         wanted_u, value_u = [], []
         for code, first in zip(uniq.tolist(), [int(np.argmax(inv == i)) for i in range(len(uniq))]):
             if code not in chans:
+                if len(chans) >= _MAX_CHANNELS:  # garbage: the per-frame reader makes them bad lines
+                    raise Irregular(f"more than {_MAX_CHANNELS} distinct channels")
                 name = bytes(buf[s1[first] + 1 : s2[first]]).decode("ascii", "replace")
                 self.stats.channels.add(name)
                 value: Any = int(name) if name.isdigit() else name
@@ -367,7 +369,9 @@ class BulkSource:
             wanted_u.append(chans[code][1])
         wanted = np.array(wanted_u)[inv]
         st.skipped += int((~wanted).sum())
-        # ids nobody decodes: the first of each is handed out (as the per-frame reader does), the rest counted
+        # ids nobody decodes: the first of each is handed out (as the per-frame reader does), the rest
+        # counted by id; beyond _ID_CACHE_MAX distinct ids, counted in one number and not stored (a
+        # log of random ids must not grow the tables: 359 MB for a million ids before this cap)
         kept = np.isin(key, keep_arr) & wanted
         other = wanted & ~kept
         seen = state["seen"]
@@ -376,7 +380,7 @@ class BulkSource:
             ok, first_at = np.unique(key[other], return_index=True)
             idx_other = np.flatnonzero(other)
             for k, j in zip(ok.tolist(), first_at.tolist()):
-                if k not in seen:
+                if k not in seen and len(seen) < _ID_CACHE_MAX:
                     seen.add(k)
                     hand[idx_other[j]] = True
             passed = other & ~hand
@@ -384,7 +388,10 @@ class BulkSource:
                 pk, pc = np.unique(key[passed], return_counts=True)
                 over = st.passed_over
                 for k, c in zip(pk.tolist(), pc.tolist()):
-                    over[k] = over.get(k, 0) + c
+                    if k in seen:
+                        over[k] = over.get(k, 0) + c
+                    else:
+                        st.passed_over_other += c
         sel = np.flatnonzero(hand)
         if not len(sel):
             return lineno + n_lines
@@ -413,7 +420,10 @@ class BulkSource:
             vp = plans.get(k, "unknown")
             if vp == "unknown":
                 unk = dst.unknown
-                unk[k] = unk.get(k, 0) + len(rows)
+                if k in unk or len(unk) < MAX_UNKNOWN:  # the decoder's own cap (FrameDecoder.decode)
+                    unk[k] = unk.get(k, 0) + len(rows)
+                else:
+                    dst.unknown_other += len(rows)
                 dst.frames += len(rows)
                 continue
             if vp is None or vp.p.invalid:

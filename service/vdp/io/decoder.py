@@ -76,8 +76,11 @@ class DecodeStats:
                 out[o[0]] += plan.good
         return out
 
-    def add_unknown(self, counts: dict[int, int]) -> None:
-        """Frames of undecoded ids that never reached decode() (filtered at the source)."""
+    def add_unknown(self, counts: dict[int, int], other: int = 0) -> None:
+        """Frames of undecoded ids that never reached decode() (filtered at the source): by id,
+        and ``other`` frames of ids the source counted without keeping them apart."""
+        self.unknown_other += other
+        self.frames += other
         unk = self.unknown
         for key, n in counts.items():
             if key in unk or len(unk) < MAX_UNKNOWN:

@@ -125,6 +125,7 @@ class LogStats:
     channels: set[str] = field(default_factory=set)
     # frames of ids outside keep_ids(): id key -> count (never handed out)
     passed_over: dict[int, int] = field(default_factory=dict)
+    passed_over_other: int = 0  # frames of such ids beyond the id cache (bulk reader): counted, not stored
     damage: list[Damage] = field(default_factory=list)
     damaged: int = 0  # damaged stretches (exact; ``damage`` keeps the first _MAX_DAMAGE)
     lost_bytes: int = 0  # bytes skipped in them (known sizes only)
@@ -158,9 +159,9 @@ class LogStats:
         return {
             # frames in the log: handed out plus passed over
             "lines": self.lines,
-            "frames": self.frames + sum(self.passed_over.values()),
+            "frames": self.frames + sum(self.passed_over.values()) + self.passed_over_other,
             "error_frames": self.error_frames,
-            "passed_over": sum(self.passed_over.values()),
+            "passed_over": sum(self.passed_over.values()) + self.passed_over_other,
             "skipped_other_channels": self.skipped,
             "bad_lines": self.bad,
             "resyncs": self.resyncs,
