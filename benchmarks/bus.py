@@ -2,12 +2,16 @@
 
     python benchmarks/bus.py check --seeds 5        # each profile mistake, caught or not, per seed
     python benchmarks/bus.py cars --seeds 5 --jobs 2 [--case mph]  # Ford; total torques without GNSS; whole-mph GNSS
+    python benchmarks/bus.py cars --case per-axle --drive-front 1 --brake-front 0.65 --noise none  # front-driven
 
 ``check`` simulates the paper drive (70 s, realistic noise) per seed and runs
 ``vdp profile check`` (vdp.profilecheck.check_log) with the right profile and with each
 mistake; a mistake counts as caught when a finding names the channel or key at fault.
 ``cars`` runs whole paper drives through the pipeline and prints the errors against the
-simulator's truth, with the status vdp reported.
+simulator's truth, with the status vdp reported.  The simulated driver splits the torque
+as a case's ``[drivetrain]`` says; on the cases without one (vdp's bus with per-axle
+torques) ``--drive-front``/``--brake-front`` set the split, and ``--no-traction-control``
+lets the driven wheels spin (the simulator before traction control and ABS).
 """
 
 from __future__ import annotations
@@ -77,16 +81,20 @@ def check_one(seed: int) -> dict:
 
 
 def car_one(args) -> dict:
-    case, seed = args
+    case, seed, opt = args
     from vdp.core.estimator import EstimatorConfig
     from vdp.pipeline import Pipeline
     from vdp.profile import load_profile
+    from vdp.sim.driver import DriverConfig
     from vdp.sim.run import Simulation
 
     logging.getLogger("vdp.sim.encode").setLevel(logging.ERROR)
     logging.getLogger("vdp.io.decoder").setLevel(logging.ERROR)
     prof = load_profile(CASES[case])
-    sim = Simulation(prof, "paper", seed=seed)
+    dtr = prof.drivetrain
+    front, brake = (dtr.drive_front, dtr.brake_balance) if dtr is not None else (opt["drive_front"], opt["brake_front"])
+    driver = DriverConfig(drive_front=front, brake_front=brake, slip_max=opt["slip_max"])
+    sim = Simulation(prof, "paper", seed=seed, noise=opt["noise"], driver=driver)
     pipe = Pipeline(prof, EstimatorConfig(baseline=False))
     for msg in sim.frames():
         pipe.feed(msg)
@@ -127,9 +135,11 @@ def _cases(tmp: Path) -> None:
         for ln in mph.splitlines()
     )
     (tmp / "gnss_whole_mph.toml").write_text(mph)
+    (tmp / "paper.toml").write_text(paper)
     CASES.update(
         {
             "ford_escape_2020 (own signals, FWD)": ROOT / "profiles" / "ford_escape_2020.toml",
+            "vdp bus: per-axle torques and GNSS": tmp / "paper.toml",
             "vdp bus: total torques, RWD, no GNSS": tmp / "rwd_no_gnss.toml",
             "vdp bus: GNSS in whole mph at 1 Hz": tmp / "gnss_whole_mph.toml",
         }
@@ -143,6 +153,10 @@ def main() -> int:
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--case", default="", help="cars: only the cases whose name contains this")
+    ap.add_argument("--noise", default="realistic", help="cars: the simulator's noise model (realistic, none, ...)")
+    ap.add_argument("--drive-front", type=float, help="cars: front share of the drive torque (no [drivetrain])")
+    ap.add_argument("--brake-front", type=float, help="cars: front share of the brake torque (no [drivetrain])")
+    ap.add_argument("--no-traction-control", action="store_true", help="cars: the driver lets the wheels spin and lock")
     a = ap.parse_args()
     seeds = list(range(a.first_seed, a.first_seed + a.seeds))
     if a.what == "check":
@@ -159,12 +173,21 @@ def main() -> int:
     _cases(tmp)
     for c in [c for c in CASES if a.case not in c]:
         del CASES[c]
-    jobs = [(c, s) for c in CASES for s in seeds]
+    from vdp.sim.driver import DriverConfig
+
+    d = DriverConfig()
+    opt = {
+        "noise": a.noise,
+        "drive_front": d.drive_front if a.drive_front is None else a.drive_front,
+        "brake_front": d.brake_front if a.brake_front is None else a.brake_front,
+        "slip_max": None if a.no_traction_control else d.slip_max,
+    }
+    jobs = [(c, s, opt) for c in CASES for s in seeds]
     with ProcessPoolExecutor(a.jobs, initializer=_cases, initargs=(tmp,)) as ex:
         res = list(ex.map(car_one, jobs))
     for case in CASES:
-        rs = [r for (c, _), r in zip(jobs, res) if c == case]
-        print(f"\n#### {case}, paper drive, realistic noise, seeds {seeds[0]}-{seeds[-1]}\n")
+        rs = [r for (c, _, _), r in zip(jobs, res) if c == case]
+        print(f"\n#### {case}, paper drive, {a.noise} noise, seeds {seeds[0]}-{seeds[-1]}\n")
         print("| parameter | target | mean abs err | max abs err | within target | truth within 2σ | status |")
         print("|---|---|---|---|---|---|---|")
         for p in PARAMS:

@@ -113,6 +113,11 @@ class LearnerConfig:
     # default: with 1/3 the paper car's h no longer converged on vdp's own (linear) tyres,
     # and the stage-1 mismatch test (whiteness) already flags a bending tyre.
     bend: float = 0.0
+    # a block in which an axle's slip changed faster than this [1/s] saw a wheel spin or
+    # lock (Stage1._spun); None: no such check.  The paper drive's stage 1 changes the
+    # slip by at most about 0.1/s (a jerk of 2.5 m/s^3 on a front axle of C_K = 10).
+    spin_rate: float | None = 1.0
+    spin_slip: float = 0.2  # beyond this |slip| a road tyre is past its grip (about 0.1-0.2)
 
     @property
     def block(self) -> int:
@@ -388,7 +393,7 @@ class Stage1(StageLearner):
         self.fit: batch.Fit | None = None
         self.reseeds = 0
         self._checks = 0
-        self.gated = 0  # blocks left out: beyond the small-slip range
+        self.gated = 0  # blocks left out: beyond the small-slip range, or a wheel spun or locked (_spun)
         self.spread: np.ndarray | None = None  # model_error()
         self.filter = self._new_filter(self.theta, self.theta_P, self._R0())
 
@@ -465,6 +470,28 @@ class Stage1(StageLearner):
         f_xf, f_xr = longitudinal.tyre_forces(u, self.known)
         return np.abs([f_xf / f_zf, f_xr / f_zr])
 
+    def _spun(self, u, z) -> bool:
+        """Whether a wheel spun or locked in the block: an axle's slip beyond ``cfg.spin_slip``
+        (eq 13 with the block's mean wheel speed and v_x), or changing faster than
+        ``cfg.spin_rate``, its rate read as (r omega_dot - a_x) / v_x (eq 13 differentiated,
+        the a_x s term left out).
+
+        A tyre in its linear range changes its slip as the force changes, a few per cent a
+        second (jerk / (C_K g)), and stays within the small-slip range; a wheel that
+        traction control or ABS has to catch runs away from the body within milliseconds.
+        Such a block's F_x = (T - J omega_dot) / r rests on a wheel acceleration that is not
+        linear over the block (or on a wheel speed clipped at its signal's range), and its
+        slip on a tyre past its grip.
+        """
+        c = self.cfg
+        if c.spin_rate is None:
+            return False
+        r, a, v = self.known.r, u[longitudinal.U_AX], max(u[longitudinal.U_VX], 1.0)
+        if max(abs(z[0] * r / v - 1.0), abs(z[1] * r / v - 1.0)) > c.spin_slip:
+            return True
+        dev = max(abs(r * u[longitudinal.U_WDF] - a), abs(r * u[longitudinal.U_WDR] - a))
+        return dev > c.spin_rate * v
+
     def _R(self, u, used=None):
         """Wheel noise, the speed's error common to both axles (rank-one term), and the tyre's bend."""
         x = self.bounds.to_si(self.filter.x)
@@ -524,7 +551,7 @@ class Stage1(StageLearner):
         if self.filter is None:
             self.filter = self._new_filter(self.theta, self.theta_P, self._R0())
         used = self._load_share(u)
-        if used.max() > self.cfg.small_slip:
+        if used.max() > self.cfg.small_slip or self._spun(u, z):
             self.gated += 1
             return
         self.filter.predict(dt, u)

@@ -512,7 +512,7 @@ class FrameDecoder:
                 if why is not None:  # never becomes a sample; counted per channel and reason
                     if idx >= channels.N:
                         comp, j = self._virtual[idx - channels.N]
-                        comp.values[j] = None  # the composite waits for a valid term
+                        comp.put(j, None, t)  # the composite waits for a valid term
                         k = (comp.comp.channel, f"{comp.label(j)}: {why}")
                     else:
                         k = (channels.NAMES[idx], why)
@@ -520,7 +520,7 @@ class FrameDecoder:
                     continue
             if idx >= channels.N:
                 comp, j = self._virtual[idx - channels.N]
-                comp.values[j], comp.times[j] = v, t
+                comp.put(j, v, t)
                 if touched is None:
                     touched = [comp]
                 elif comp not in touched:

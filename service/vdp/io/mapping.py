@@ -23,6 +23,7 @@ class Composite:
         n = len(comp.terms) + len(comp.conditions)
         self.values: list[float | None] = [None] * n
         self.times = [-math.inf] * n
+        self.slopes = [0.0] * n  # each term's rate of change between its last two frames
         self.n_terms = len(comp.terms)
         self.weights = [t.weight for t in comp.terms]
         self.when = [t.when for t in comp.terms]
@@ -31,6 +32,13 @@ class Composite:
     def label(self, j: int) -> str:
         m = self.comp.terms[j].map if j < self.n_terms else self.comp.conditions[j - self.n_terms]
         return f"{m.message}.{m.signal}"
+
+    def put(self, j: int, v: float | None, t: float) -> None:
+        """Term ``j``'s new value at ``t`` (None: invalid; the composite waits for a valid one)."""
+        old, t_old = self.values[j], self.times[j]
+        dt = t - t_old
+        self.slopes[j] = (v - old) / dt if v is not None and old is not None and 0.0 < dt <= self.comp.max_age else 0.0
+        self.values[j], self.times[j] = v, t
 
     def value(self, t: float) -> float | None:
         """The channel's value at ``t`` if every term (and condition) is current, else None."""
@@ -49,7 +57,10 @@ class Composite:
             w = self.when[i]
             if w is not None and int(vals[self.n_terms + w[0]]) not in w[1]:
                 continue  # this piece does not apply in the current gear or direction
-            out += self.weights[i] * vals[i]
+            # a term from another message was sent up to a period ago: carried to t along its
+            # last slope, or the sum lags the fastest term (a torque that lags the wheel
+            # speeds by a few ms biases stage 1's C_K by per cents on a front-driven car)
+            out += self.weights[i] * (vals[i] + self.slopes[i] * (t - self.times[i]))
         return out
 
 

@@ -5,6 +5,14 @@ and both lumped wheels, eqs 1-2), then a first-order actuator lag, then the spli
 front/rear by sign (both axles drive and brake).  A speed command of zero holds the
 car with a fixed brake torque, so a stopped car neither creeps nor chatters.
 
+Traction control and ABS: given the axles' wheel slips, an axle whose slip (in the
+direction of its torque) exceeds ``slip_max`` has its torque cut by an integral
+controller, ``dT_cap/dt = -k (|s| - slip_max)``, which lets go as the slip falls back.
+Without it a front-driven car asked for the paper's 5 m/s^2 spins its front wheels up to
+thousands of rad/s (the tyre's grip is mu F_zf, about 3.4 m/s^2 of the paper car), which
+no production car with ESC does.  Below ``slip_min_speed`` it is off (as ABS is), and
+while it cuts, the speed controller's integrator holds still.
+
 Steering: the road-wheel angle command goes through a rate limit and a small lag.
 """
 
@@ -30,13 +38,20 @@ class DriverConfig:
     hold_torque: float = 1000.0  # N m total brake torque at standstill
     steer_rate: float = math.radians(40.0)  # rad/s road wheel
     tau_steer: float = 0.02  # s
+    # traction control and ABS (None: off): the axle slip beyond which they cut its torque;
+    # a linear tyre of C_K = 10 and mu = 1 reaches its grip at 0.1
+    slip_max: float | None = 0.1
+    slip_time: float = 0.01  # s: the cut's time constant at a tyre of C_K = 10 and full static load
+    slip_min_speed: float = 2.0  # m/s: below this neither acts (nor does ABS in a car)
 
     def __post_init__(self) -> None:
         for name in ("drive_front", "brake_front"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ConfigError(f"driver: '{name}' must be within [0, 1], got {v}")
-        for name in ("tau_torque", "tau_steer", "steer_rate", "a_max", "hold_torque"):
+        if self.slip_max is not None and not self.slip_max > 0:
+            raise ConfigError(f"driver: 'slip_max' must be positive or None, got {self.slip_max}")
+        for name in ("tau_torque", "tau_steer", "steer_rate", "a_max", "hold_torque", "slip_time"):
             if getattr(self, name) <= 0:
                 raise ConfigError(f"driver: '{name}' must be positive")
 
@@ -47,6 +62,11 @@ class Driver:
     def __init__(self, cfg: DriverConfig, m: float, r: float, J: float, delta0: float = 0.0):
         self.cfg = cfg
         self.gain = m * r + 2.0 * J / r  # N m per m/s^2
+        # traction control's gain [N m/s per unit slip]: an axle carrying m g / 2 with C_K = 10
+        # moves its slip by 1 / (r C_K m g / 2) per N m, so this closes the loop in about slip_time
+        self.k_slip = 0.5 * m * 9.8 * r * 10.0 / cfg.slip_time
+        self.cap = [math.inf, math.inf]  # |torque| each axle may take now
+        self.limited = False  # traction control or ABS cut an axle last step
         self.integ = 0.0
         self.torque = 0.0  # lagged total torque
         self.delta_rl = delta0  # rate-limited command
@@ -61,8 +81,17 @@ class Driver:
         self._lag_s = 1.0 - math.exp(-dt / self.cfg.tau_steer)
         self._rate_step = self.cfg.steer_rate * dt
 
-    def update(self, dt: float, v_cmd: float, a_cmd: float, delta_cmd: float, v_x: float) -> tuple[float, float, float]:
-        """Returns (T_f, T_r, delta) to apply over the next step."""
+    def update(
+        self,
+        dt: float,
+        v_cmd: float,
+        a_cmd: float,
+        delta_cmd: float,
+        v_x: float,
+        slip: tuple[float, float] | None = None,
+    ) -> tuple[float, float, float]:
+        """Returns (T_f, T_r, delta) to apply over the next step; ``slip`` (s_f, s_r), the axles'
+        wheel slips now, lets traction control and ABS act."""
         if dt != self._dt:
             self._set_dt(dt)
         cfg = self.cfg
@@ -76,15 +105,36 @@ class Driver:
                 a = cfg.a_max
             elif a < -cfg.a_max:
                 a = -cfg.a_max
-            else:
-                self.integ += e * dt  # anti-windup: integrate only while unsaturated
+            elif not self.limited:
+                self.integ += e * dt  # anti-windup: integrate only while unsaturated and not cut
             t_cmd = self.gain * a
         self.torque += self._lag_t * (t_cmd - self.torque)
         t = self.torque
         front = cfg.drive_front if t >= 0.0 else cfg.brake_front
+        t_f, t_r = front * t, (1.0 - front) * t
+        if slip is not None and cfg.slip_max is not None:
+            t_f, t_r = self._limit(0, t_f, slip[0], v_x, dt), self._limit(1, t_r, slip[1], v_x, dt)
         # Steering: rate limit, then lag.
         step = delta_cmd - self.delta_rl
         rs = self._rate_step
         self.delta_rl += rs if step > rs else (-rs if step < -rs else step)
         self.delta += self._lag_s * (self.delta_rl - self.delta)
-        return front * t, (1.0 - front) * t, self.delta
+        return t_f, t_r, self.delta
+
+    def _limit(self, i: int, torque: float, slip: float, v_x: float, dt: float) -> float:
+        """Axle ``i``'s torque after traction control (driving) or ABS (braking)."""
+        want = abs(torque)
+        if v_x < self.cfg.slip_min_speed:
+            self.cap[i] = want
+            if i == 0:
+                self.limited = False
+            return torque
+        s = slip if torque >= 0.0 else -slip  # the slip in the torque's direction
+        # integral control with the request as the ceiling: while the slip stays below
+        # slip_max the cap rises faster than any request and the torque is the request exactly
+        cap = min(self.cap[i] - self.k_slip * (s - self.cfg.slip_max) * dt, want)
+        cap = max(cap, 0.0)
+        self.cap[i] = cap
+        cut = cap < want
+        self.limited = cut if i == 0 else (self.limited or cut)
+        return math.copysign(cap, torque)

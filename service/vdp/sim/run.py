@@ -34,7 +34,7 @@ from .encode import Encoder
 from .scenario import Scenario, get_scenario
 from .sensors import NoiseModel, Sensors, draw_bias, noise_model
 from .truth import truth_parameters
-from .vehicle import STATE, Model, Params
+from .vehicle import STATE, V_FLOOR, Model, Params
 
 log = logging.getLogger(__name__)
 
@@ -206,7 +206,7 @@ class Simulation:
         for n in range(n_steps):
             t = n * DT
             v_cmd, a_cmd, d_cmd, hint = sc.command(t, hint)
-            tf, tr, delta = drv.update(DT, v_cmd, a_cmd, d_cmd, x[0])
+            tf, tr, delta = drv.update(DT, v_cmd, a_cmd, d_cmd, x[0], wheel_slips(x, p.r))
             x1, e = model.advance(x, tf, tr, delta, DT)
             ts = (start_us + n * step_ms * 1000) / 1e6
             for item in sched:
@@ -239,6 +239,13 @@ class Simulation:
             x = x1
         if progress is not None:
             progress(self.duration, self.duration)
+
+
+def wheel_slips(x, r: float) -> tuple[float, float]:
+    """(s_f, s_r): each axle's wheel slip as its traction control sees it (eq 13, steering left out)."""
+    v = x[0]
+    d = v if v > V_FLOOR else V_FLOOR
+    return (x[5] * r - v) / d, (x[6] * r - v) / d
 
 
 class _Uniforms:
@@ -328,7 +335,7 @@ def trace(
     for n in range(n_steps):
         t = n * dt
         v_cmd, a_cmd, d_cmd, hint = sc.command(t, hint)
-        tf, tr, delta = drv.update(dt, v_cmd, a_cmd, d_cmd, x[0])
+        tf, tr, delta = drv.update(dt, v_cmd, a_cmd, d_cmd, x[0], wheel_slips(x, p.r))
         x1, e = model.advance(x, tf, tr, delta, dt)
         if n % every == 0:
             rows.append((t, *x, tf, tr, delta, v_cmd, d_cmd, *e, psi))
