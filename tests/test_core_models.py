@@ -51,6 +51,7 @@ def test_stage1_measurement_jacobian(v, l_f, h, c_k, tf, tr, ax):
     phi=st.floats(-0.02, 0.02),
     phid=st.floats(-0.1, 0.1),
     ca=st.floats(2e4, 2e5),
+    split=st.floats(0.6, 1.6),
     iz=st.floats(800, 5000),
     ix=st.floats(800, 8000),
     l_f=st.floats(0.9, 1.6),
@@ -59,8 +60,8 @@ def test_stage1_measurement_jacobian(v, l_f, h, c_k, tf, tr, ax):
     wf_slip=st.floats(-0.05, 0.05),
     ax=st.floats(-3, 3),
 )
-def test_stage2_jacobians(vy, yaw, phi, phid, ca, iz, ix, l_f, d, vx, wf_slip, ax):
-    x = np.array([vy, yaw, phi, phid, ca, iz, ix, l_f])
+def test_stage2_jacobians(vy, yaw, phi, phid, ca, split, iz, ix, l_f, d, vx, wf_slip, ax):
+    x = np.array([vy, yaw, phi, phid, ca, ca / split, iz, ix, l_f])  # front and rear stiffness differ
     u = np.array([d, vx, vx * (1 + wf_slip) / K2.r, ax])
     eps = 1e-6 * np.maximum(np.abs(x), lateral.SCALE * 1e-2)
     A = lateral.jac_f(x, u, K2)
@@ -79,10 +80,11 @@ def test_models_broadcast_over_sigma_points():
     batch = longitudinal.hx(X, u1, K1)
     for i in range(7):
         np.testing.assert_allclose(batch[i], longitudinal.hx(X[i], u1, K1))
-    x2 = np.array([0.1, 0.2, 0.001, 0.0, 6.69e4, 2000, 4175, 1.4])
+    x2 = np.array([0.1, 0.2, 0.001, 0.0, 6.69e4, 5.5e4, 2000, 4175, 1.4])
     u2 = np.array([0.05, 10.0, 10.0 / 0.3, 0.0])
     X2 = np.tile(x2, (15, 1))
-    X2[:, 4] *= np.linspace(0.8, 1.2, 15)
+    X2[:, lateral.C_F] *= np.linspace(0.8, 1.2, 15)
+    X2[:, lateral.C_R] *= np.linspace(1.2, 0.8, 15)
     X2[:, lateral.L_F] += np.linspace(-0.05, 0.05, 15)
     out = lateral.fx(X2, 0.01, u2, K2)
     for i in (0, 7, 14):
@@ -91,7 +93,7 @@ def test_models_broadcast_over_sigma_points():
 
 def test_stage2_discrete_step_matches_fine_integration():
     """The sub-stepped transition agrees with a fine RK4 reference of deriv() over one filter step."""
-    x = np.array([0.2, 0.3, 0.002, 0.01, 6.69e4, 2000.0, 4175.0, 1.4])
+    x = np.array([0.2, 0.3, 0.002, 0.01, 6.69e4, 6.69e4, 2000.0, 4175.0, 1.4])
     u = np.array([0.06, 10.0, 10.0 / 0.3, 0.0])
     dt = 0.02  # stage 2 steps every second 10 ms sample
     coarse = lateral.fx(x, dt, u, K2)
@@ -115,7 +117,7 @@ def test_stage2_discrete_step_matches_fine_integration():
 
 def test_roll_step_stays_stable_for_small_inertia():
     """Trapezoidal roll integration: no blow-up even when c_phi/I_x * dt >> 2."""
-    x = np.array([0.0, 0.0, 0.01, 0.5, 6.69e4, 2000.0, 60.0, 1.4])
+    x = np.array([0.0, 0.0, 0.01, 0.5, 6.69e4, 6.69e4, 2000.0, 60.0, 1.4])
     u = np.array([0.0, 10.0, 10.0 / 0.3, 0.0])
     for _ in range(200):
         x = lateral.fx(x, 0.01, u, K2)
@@ -126,7 +128,7 @@ def test_roll_step_stays_stable_for_small_inertia():
 def test_quasi_static_roll_balances_eq9(k_phi, c_phi):
     """The roll angle a stage-2 window starts from leaves no roll acceleration (eq 9)."""
     k = lateral.Known(m=1656.0, L=2.66, r=0.35, k_phi=k_phi, c_phi=c_phi, l_f=1.2, h=0.62, C_K=10.0)
-    x = np.array([-0.19, -0.28, 0.0, 0.004, 9.5e4, 2900.0, 650.0, 1.2])
+    x = np.array([-0.19, -0.28, 0.0, 0.004, 9.5e4, 9.5e4, 2900.0, 650.0, 1.2])
     u = np.array([-0.079, 10.0, 10.0 / 0.35, 0.0])
     a_y = lateral.hx(x, u, k)[lateral.Z_AY]
     x[lateral.PHI] = lateral.quasi_static_roll(a_y, x[lateral.PHI_D], k)
@@ -154,7 +156,7 @@ def test_ekf_transition_matches_matrix_exponential():
 
     from vdp.core.filters import transition
 
-    x = np.array([0.1, 0.3, 0.002, 0.01, 6.69e4, 2000.0, 4175.0, 1.4])
+    x = np.array([0.1, 0.3, 0.002, 0.01, 6.69e4, 5.0e4, 2000.0, 4175.0, 1.4])
     u = np.array([0.05, 10.0, 10.0 / 0.3, 0.0])
     A = lateral.jac_f(x, u, K2)
     np.testing.assert_allclose(transition(A, 0.01), expm(A * 0.01), rtol=1e-3, atol=1e-6)

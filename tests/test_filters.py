@@ -94,13 +94,14 @@ def test_a_new_stage2_window_keeps_the_parameters_correlation_with_l_f(repo_root
     profile = load_profile(repo_root / "profiles" / "paper.toml")
     l2 = Stage2("ukf", profile.vehicle, profile.priors)
     l2.set_stage1(1.4, 0.6, 10.0, l_f_std=0.002)
-    l2.theta_P = np.diag([2000.0, 50.0, 1000.0]) ** 2
-    l2.cross = (np.array([0.8 * 2000.0 * 0.001, 0.5 * 50.0 * 0.001, 0.0]), 0.001)  # rho 0.8, 0.5 at sd 1 mm
+    l2.theta_P = np.diag([2000.0, 3000.0, 50.0, 1000.0]) ** 2
+    # rho 0.6, 0.5, 0.4 at sd 1 mm (their squares sum below 1: a valid covariance)
+    l2.cross = (np.array([0.6 * 2000.0 * 0.001, 0.5 * 3000.0 * 0.001, 0.4 * 50.0 * 0.001, 0.0]), 0.001)
     P0 = l2._initial_cov()
     c, p = lateral.L_F, lateral.PARAM_SLICE
     assert P0[c, c] == pytest.approx(0.002**2)
     rho = P0[p, c] / np.sqrt(np.diagonal(P0)[p] * P0[c, c])
-    np.testing.assert_allclose(rho, [0.8, 0.5, 0.0])
+    np.testing.assert_allclose(rho, [0.6, 0.5, 0.4, 0.0])
     assert np.all(np.linalg.eigvalsh(P0) > 0)
     l2.set_stage1(1.4, 0.6, 10.0, l_f_std=float("nan"))  # no usable std: the prior's, never exact
     assert l2.l_f_std == profile.priors["l_f"].std

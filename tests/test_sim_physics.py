@@ -34,6 +34,22 @@ def test_params_take_known_constants_from_profile_and_unknowns_from_table6():
     assert (q.l_f, q.I_z, q.h) == (1.2, 2500.0, 0.637)
 
 
+def test_per_axle_cornering_stiffness_is_optional_and_c_alpha_is_their_mean():
+    from vdp.errors import ConfigError
+    from vdp.sim.truth import axle_parameters
+
+    assert axle_parameters() == {"C_alpha_front": TRUTH["C_alpha"], "C_alpha_rear": TRUTH["C_alpha"]}
+    axles = {"C_alpha_front": 58200.0, "C_alpha_rear": 75600.0}
+    assert truth_parameters(axles)["C_alpha"] == pytest.approx(66900.0)
+    assert axle_parameters(axles) == axles
+    q = Params.from_vehicle(VEH, {**truth_parameters(axles), **axles})
+    e = Model(q).evaluate([10.0, 0.1, 0.2, 0.0, 0.0, 10.0 / q.r, 10.0 / q.r], 0.0, 0.0, 0.03)
+    assert e.F_yf == pytest.approx(58200.0 * e.alpha_f) and e.F_yr == pytest.approx(75600.0 * e.alpha_r)
+    for bad, word in (({"C_alpha_front": 6e4}, "both"), ({**axles, "C_alpha": 6e4}, "not both")):
+        with pytest.raises(ConfigError, match=word):
+            truth_parameters(bad)
+
+
 NO_SHRINK = (Phase.explicit, Phase.reuse, Phase.generate)  # each example simulates seconds
 
 

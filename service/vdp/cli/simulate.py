@@ -50,7 +50,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="NAME=VALUE",
-        help="override a true parameter (l_f, h, C_K, C_alpha, I_z, I_x); repeatable",
+        help="override a true parameter (l_f, h, C_K, C_alpha, I_z, I_x; or C_alpha_front and "
+        "C_alpha_rear, per axle, whose mean is C_alpha); repeatable",
     )
     p.add_argument(
         "--model",

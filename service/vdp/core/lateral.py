@@ -2,12 +2,16 @@
 
 Filter state (SI units)::
 
-    x = [v_y, yaw_rate, phi, phi_dot, C_alpha, I_z, I_x, l_f]
+    x = [v_y, yaw_rate, phi, phi_dot, C_alpha_f, C_alpha_r, I_z, I_x, l_f]
 
 v_y and the roll angle phi have no sensor on a production car, so they are
 filter states estimated jointly with the parameters (NOTES item 13; the
 paper's "future work").  Inputs ``u`` (columns below) and measurements
 ``z = [yaw_rate, roll_rate, a_y]``.
+
+C_alpha_f and C_alpha_r are the front and the rear axle's cornering stiffness
+(eq 11b per axle): a real car's differ, and their ratio sets its understeer,
+which one C_alpha for both cannot fit.  Their mean is the paper's single C_alpha.
 
 l_f is stage 1's estimate, carried as a *consider* state (Schmidt): the filter
 never updates it, but its stage-1 uncertainty flows into C_alpha and I_z
@@ -21,7 +25,8 @@ Errata applied (NOTES.md):
 - eq (6)/(7): front forces rotate by delta: body-x gets F_xf cos(d) - F_yf sin(d),
   body-y gets F_xf sin(d) + F_yf cos(d);
 - eq (10): yaw moment l_f (F_xf sin(d) + F_yf cos(d)) - l_r F_yr (paper swaps sin/cos);
-- eq (12): alpha_f = d - (v_y + l_f r)/v_x, alpha_r = -(v_y - l_r r)/v_x, F_y = C_alpha alpha;
+- eq (12): alpha_f = d - (v_y + l_f r)/v_x, alpha_r = -(v_y - l_r r)/v_x, F_y = C_alpha alpha
+  (per axle: F_yf = C_alpha_f alpha_f, F_yr = C_alpha_r alpha_r);
 - eq (9): phi is the roll angle; total mass and CG height as in the paper (strictly
   sprung mass and height above the roll axis);
 - Table 6: k_phi, c_phi per radian.
@@ -41,13 +46,13 @@ from functools import lru_cache
 
 import numpy as np
 
-V_Y, YAW, PHI, PHI_D, C_A, I_Z, I_X, L_F = range(8)
-N_X = 8
-STATE_NAMES = ("v_y", "yaw_rate", "phi", "phi_dot", "C_alpha", "I_z", "I_x", "l_f")
-STATE_UNITS = ("m/s", "rad/s", "rad", "rad/s", "N/rad", "kg*m^2", "kg*m^2", "m")
-PARAM_SLICE = slice(4, 7)
+V_Y, YAW, PHI, PHI_D, C_F, C_R, I_Z, I_X, L_F = range(9)
+N_X = 9
+STATE_NAMES = ("v_y", "yaw_rate", "phi", "phi_dot", "C_alpha_f", "C_alpha_r", "I_z", "I_x", "l_f")
+STATE_UNITS = ("m/s", "rad/s", "rad", "rad/s", "N/rad", "N/rad", "kg*m^2", "kg*m^2", "m")
+PARAM_SLICE = slice(4, 8)
 CONSIDER = L_F  # a state the filters never update (its prior uncertainty is considered)
-SCALE = np.array([0.5, 0.2, 0.005, 0.02, 5.0e4, 2.0e3, 3.0e3, 0.01])
+SCALE = np.array([0.5, 0.2, 0.005, 0.02, 5.0e4, 5.0e4, 2.0e3, 3.0e3, 0.01])
 
 # input columns
 U_DELTA, U_VX, U_WF, U_AX = range(4)
@@ -60,7 +65,7 @@ N_Z = 3
 V_MIN = 1.0  # m/s, guards the slip-angle denominators
 MAX_SUBSTEP = 0.01  # s: midpoint steps this short keep the yaw/lateral error well below the noise
 ROLL_SPLIT = 4  # roll steps per sub-step: its fast pole (~70 1/s) wants ~2.5 ms (a power of 2)
-PARAM_FLOOR = np.array([1.0e3, 50.0, 50.0])  # keeps a wild sigma point physical
+PARAM_FLOOR = np.array([1.0e3, 1.0e3, 50.0, 50.0])  # keeps a wild sigma point physical
 _FLOOR = tuple(PARAM_FLOOR.tolist())
 
 
@@ -108,7 +113,7 @@ def _geometry(l_f, k: Known):
     return l_f, k.L - l_f, k.ck_slope * l_f
 
 
-def _rates(v_y, yaw, c_a, i_z, pre, geo, k: Known, clamp=np.maximum):
+def _rates(v_y, yaw, c_f, c_r, i_z, pre, geo, k: Known, clamp=np.maximum):
     """(v_y_dot, yaw_acc, a_y, Y_f, F_yr) for given lateral states; eqs (5), (7), (10)-(12).
 
     ``clamp`` is np.maximum for arrays of sigma points, the builtin max for one state
@@ -119,31 +124,33 @@ def _rates(v_y, yaw, c_a, i_z, pre, geo, k: Known, clamp=np.maximum):
     p = v_y + l_f * yaw
     v_w = clamp(v_x * cd + p * sd, V_MIN)
     # Y_f = F_xf sin(d) + F_yf cos(d) with F_xf = C_sigma (w_r / v_w - 1) (NOTES 8) and
-    # F_yf = C_alpha (d - p / v_x) (eq 12a, corrected), constants folded (fewer array operations)
+    # F_yf = C_alpha_f (d - p / v_x) (eq 12a, corrected), constants folded (fewer array operations)
     xs = (ck_fz0 - ck_cut) * sd
-    y_f = (xs * w_r) / v_w - xs + c_a * (d * cd - p * (cd / v_x))
-    f_yr = c_a * (l_r * yaw - v_y) / v_x  # eq (12b), corrected
+    y_f = (xs * w_r) / v_w - xs + c_f * (d * cd - p * (cd / v_x))
+    f_yr = c_r * (l_r * yaw - v_y) / v_x  # eq (12b), corrected
     a_y = (y_f + f_yr) / k.m  # eq (7)
     return a_y - v_x * yaw, (l_f * y_f - l_r * f_yr) / i_z, a_y, y_f, f_yr  # eqs (5), (8), (10)
 
 
 def _unpack(x):
-    """(v_y, yaw, phi, phi_dot, C_alpha, I_z, I_x, l_f, clamp), the parameters floored.
+    """(v_y, yaw, phi, phi_dot, C_alpha_f, C_alpha_r, I_z, I_x, l_f, clamp), the parameters floored.
 
     Plain floats and the builtin max for one state (the EKF's: numpy's per-call cost
     would dominate), arrays and np.maximum for many (the UKF's sigma points).
     """
     if np.ndim(x) == 1:
-        v_y, yaw, phi, phi_d, c_a, i_z, i_x, l_f = np.asarray(x, dtype=float).tolist()
-        return v_y, yaw, phi, phi_d, max(c_a, _FLOOR[0]), max(i_z, _FLOOR[1]), max(i_x, _FLOOR[2]), l_f, max
+        v_y, yaw, phi, phi_d, c_f, c_r, i_z, i_x, l_f = np.asarray(x, dtype=float).tolist()
+        fl = _FLOOR
+        return v_y, yaw, phi, phi_d, max(c_f, fl[0]), max(c_r, fl[1]), max(i_z, fl[2]), max(i_x, fl[3]), l_f, max
     return (
         x[..., V_Y],
         x[..., YAW],
         x[..., PHI],
         x[..., PHI_D],
-        np.maximum(x[..., C_A], _FLOOR[0]),
-        np.maximum(x[..., I_Z], _FLOOR[1]),
-        np.maximum(x[..., I_X], _FLOOR[2]),
+        np.maximum(x[..., C_F], _FLOOR[0]),
+        np.maximum(x[..., C_R], _FLOOR[1]),
+        np.maximum(x[..., I_Z], _FLOOR[2]),
+        np.maximum(x[..., I_X], _FLOOR[3]),
         x[..., L_F],
         np.maximum,
     )
@@ -166,15 +173,15 @@ def quasi_static_roll(a_y: float, phi_dot: float, k: Known) -> float:
 
 def forces(x, u, k: Known):
     """Lateral force terms: (front body-y force Y_f, rear F_yr, a_y)."""
-    v_y, yaw, _, _, c_a, i_z, _, l_f, clamp = _unpack(x)
-    _, _, a_y, y_f, f_yr = _rates(v_y, yaw, c_a, i_z, _inputs(u, k), _geometry(l_f, k), k, clamp)
+    v_y, yaw, _, _, c_f, c_r, i_z, _, l_f, clamp = _unpack(x)
+    _, _, a_y, y_f, f_yr = _rates(v_y, yaw, c_f, c_r, i_z, _inputs(u, k), _geometry(l_f, k), k, clamp)
     return y_f, f_yr, a_y
 
 
 def deriv(x, u, k: Known):
     """Continuous-time dynamics x_dot = f(x, u), eqs (5), (8)-(10) corrected."""
-    v_y, yaw, phi, phi_d, c_a, i_z, i_x, l_f, clamp = _unpack(x)
-    vy_d, yaw_d, a_y, _, _ = _rates(v_y, yaw, c_a, i_z, _inputs(u, k), _geometry(l_f, k), k, clamp)
+    v_y, yaw, phi, phi_d, c_f, c_r, i_z, i_x, l_f, clamp = _unpack(x)
+    vy_d, yaw_d, a_y, _, _ = _rates(v_y, yaw, c_f, c_r, i_z, _inputs(u, k), _geometry(l_f, k), k, clamp)
     out = np.zeros(np.shape(x))
     out[..., V_Y] = vy_d
     out[..., YAW] = yaw_d
@@ -250,20 +257,20 @@ def fx(x, dt, u, k: Known, substeps: int | None = None):
     u = np.asarray(u, dtype=float)
     x = np.array(x, dtype=float, copy=True)
     h = dt / substeps
-    v_y, yaw, phi, phi_d, c_a, i_z, i_x, l_f, clamp = _unpack(x)
+    v_y, yaw, phi, phi_d, c_f, c_r, i_z, i_x, l_f, clamp = _unpack(x)
     geo = _geometry(l_f, k)
     (t11, t12, t21, t22), (p1, p2), (q1, q2) = _roll_map(i_x, h, k)
     # per-step input constants at every start, mid and end point, as plain floats
     pres = list(zip(*(a.tolist() for a in _inputs(_input_grid(u, substeps), k))))
-    start = _rates(v_y, yaw, c_a, i_z, pres[0], geo, k, clamp)
+    start = _rates(v_y, yaw, c_f, c_r, i_z, pres[0], geo, k, clamp)
     for i in range(substeps):
         vy_d, yaw_d, a0 = start[0], start[1], start[2]
         vy_d1, yaw_d1, _, _, _ = _rates(
-            v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_a, i_z, pres[2 * i + 1], geo, k, clamp
+            v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_f, c_r, i_z, pres[2 * i + 1], geo, k, clamp
         )
         v_y = v_y + h * vy_d1
         yaw = yaw + h * yaw_d1
-        start = _rates(v_y, yaw, c_a, i_z, pres[2 * i + 2], geo, k, clamp)
+        start = _rates(v_y, yaw, c_f, c_r, i_z, pres[2 * i + 2], geo, k, clamp)
         a1 = start[2]
         # the roll does not act back on v_y and yaw (a_y has no phi term), so it follows
         phi, phi_d = (t11 * phi + t12 * phi_d + p1 * a0 + q1 * a1, t21 * phi + t22 * phi_d + p2 * a0 + q2 * a1)
@@ -282,7 +289,7 @@ def hx(x, u, k: Known):
 def _dforces(x, u, k: Known):
     """Gradients of (Y_f, F_yr) with respect to the state (single state only)."""
     d, v_x, sd, cd, ck_fz0, w_r = _inputs(u, k)
-    v_y, yaw, _, _, c_a, _, _, l_f, _ = _unpack(x)
+    v_y, yaw, _, _, c_f, c_r, _, _, l_f, _ = _unpack(x)
     l_r = k.L - l_f
     ck_fz = ck_fz0 - k.ck_slope * l_f
     alpha_f = d - (v_y + l_f * yaw) / v_x
@@ -291,16 +298,16 @@ def _dforces(x, u, k: Known):
     # d F_xf / d v_w through s_f = omega r / v_w - 1 (zero where v_w is clamped)
     dfx_dvw = -ck_fz * w_r / v_w**2 if v_w > V_MIN else 0.0
     dyf = np.zeros(N_X)
-    dyf[V_Y] = dfx_dvw * sd * sd + c_a * (-1.0 / v_x) * cd  # d Y_f / d p, p = v_y + l_f r
+    dyf[V_Y] = dfx_dvw * sd * sd + c_f * (-1.0 / v_x) * cd  # d Y_f / d p, p = v_y + l_f r
     dyf[YAW] = l_f * dyf[V_Y]
-    dyf[C_A] = alpha_f * cd if x[C_A] > PARAM_FLOOR[0] else 0.0
+    dyf[C_F] = alpha_f * cd if x[C_F] > PARAM_FLOOR[0] else 0.0
     # l_f moves p and, through the front load (eq 3a), C_sigma
     dyf[L_F] = yaw * dyf[V_Y] - k.ck_slope * sd * (w_r / max(v_w, V_MIN) - 1.0)
     dfr = np.zeros(N_X)
-    dfr[V_Y] = -c_a / v_x
-    dfr[YAW] = c_a * l_r / v_x
-    dfr[C_A] = alpha_r if x[C_A] > PARAM_FLOOR[0] else 0.0
-    dfr[L_F] = -c_a * yaw / v_x
+    dfr[V_Y] = -c_r / v_x
+    dfr[YAW] = c_r * l_r / v_x
+    dfr[C_R] = alpha_r if x[C_R] > PARAM_FLOOR[1] else 0.0
+    dfr[L_F] = -c_r * yaw / v_x
     return dyf, dfr
 
 
@@ -312,20 +319,20 @@ def jac_f(x, u, k: Known):
     day = (dyf + dfr) / k.m
     f = deriv(x, u, k)
     y_f, f_yr, _ = forces(x, u, k)
-    i_z, i_x = max(x[I_Z], PARAM_FLOOR[1]), max(x[I_X], PARAM_FLOOR[2])
+    i_z, i_x = max(x[I_Z], PARAM_FLOOR[2]), max(x[I_X], PARAM_FLOOR[3])
     l_f = x[L_F]
     A = np.zeros((N_X, N_X))
     A[V_Y] = day
     A[V_Y, YAW] -= v_x
     A[YAW] = (l_f * dyf - (k.L - l_f) * dfr) / i_z
     A[YAW, L_F] += (y_f + f_yr) / i_z  # the moment arms, eq (10)
-    if x[I_Z] > PARAM_FLOOR[1]:
+    if x[I_Z] > PARAM_FLOOR[2]:
         A[YAW, I_Z] = -f[YAW] / i_z
     A[PHI, PHI_D] = 1.0
     A[PHI_D] = k.m * k.h * day / i_x
     A[PHI_D, PHI] += (k.m * k.g * k.h - k.k_phi) / i_x
     A[PHI_D, PHI_D] += -k.c_phi / i_x
-    if x[I_X] > PARAM_FLOOR[2]:
+    if x[I_X] > PARAM_FLOOR[3]:
         A[PHI_D, I_X] = -f[PHI_D] / i_x
     return A
 

@@ -77,6 +77,13 @@ BATCH_EVERY = 20  # blocks (2 s of window)
 BATCH_FAR_EVERY = 4  # every this many checks the prior's mean is a start too (the far start costs the most)
 RESEED_M2 = 16.3
 
+# Stage 2's cornering stiffness per axle (Stage2): the profile's C_alpha prior is the mean's;
+# the half-difference (C_f - C_r) / 2 gets this share of its std, independently (a real
+# car's axles differ by up to about a third; a tight C_alpha prior means a known car)
+AXLE_SPLIT = 0.5
+AXLE_CONVERGED_REL = 0.03  # per-axle std / value below which an axle counts as known (twice the mean's)
+AXLE_CORR_MAX = 0.95  # |correlation| of the two beyond this: the data know one combination of them
+
 
 @dataclass(frozen=True)
 class Noise:
@@ -220,9 +227,9 @@ class StageLearner:
     def reset(self) -> None:
         p = self.model.PARAM_SLICE
         n = len(self.model.STATE_NAMES)
-        self.theta = np.array([self.priors[k].value for k in self.names])
-        self.theta_P = np.diag([self.priors[k].std ** 2 for k in self.names])
-        self.prior_std = np.array([self.priors[k].std for k in self.names])
+        self.theta, self.theta_P = self._prior()
+        self.prior_std = np.sqrt(np.diagonal(self.theta_P))  # of the filter's parameters (their walk)
+        self.pub_prior_std = np.sqrt(np.diagonal(self._publish(self.theta, self.theta_P)[1]))  # of names
         # covariance of the parameters with the model's consider state, and that state's std
         # then (a window keeps it for the next one); None for a model without one
         self.cross: tuple[np.ndarray, float] | None = None
@@ -240,9 +247,8 @@ class StageLearner:
             self._recover(str(exc))
 
     def set_params(self, theta, cov, samples: int) -> None:
-        """Start from given estimates (a restart restoring stored values)."""
-        self.theta = np.asarray(theta, dtype=float).copy()
-        self.theta_P = np.asarray(cov, dtype=float).copy()
+        """Start from given estimates of the published parameters (a restart restoring stored values)."""
+        self.theta, self.theta_P = self._unpublish(np.asarray(theta, dtype=float), np.asarray(cov, dtype=float))
         self.cross = None
         self._good = (self.theta.copy(), self.theta_P.copy(), None)
         self.samples = max(self.samples, int(samples))
@@ -261,44 +267,78 @@ class StageLearner:
         t = self.filter.x
         return self.bounds.to_si(t), self.bounds.cov_to_si(t, self.filter.P)
 
-    def snapshot(self) -> dict[str, Estimate]:
+    def params(self) -> tuple[np.ndarray, np.ndarray]:
+        """(value, covariance) of the filter's parameters (SI): the open filter's, else the kept ones."""
         if self.filter is not None:
             x, P = self.filter_state()
-            theta, cov = x[self._p], P[self._p, self._p]
-        else:
-            theta, cov = self.theta, self.theta_P
+            return x[self._p], P[self._p, self._p]
+        return self.theta, self.theta_P
+
+    def status(self, spec, value: float, std: float, prior_std: float) -> str:
+        """A parameter's status from its value and std (judged on the filter's own uncertainty)."""
+        if self.samples == 0:
+            return NOT_RUN
+        if not (math.isfinite(value) and math.isfinite(std)) or not (spec.lo <= value <= spec.hi):
+            return INVALID
+        if std <= spec.converged_rel * abs(value):
+            return CONVERGED
+        if self.samples >= self.cfg.min_samples and std > 0.5 * prior_std:
+            return NOT_IDENTIFIABLE
+        return UNCERTAIN
+
+    def snapshot(self) -> dict[str, Estimate]:
+        theta, cov = self.params()
+        pub, pcov = self._publish(theta, cov)
         out = {}
         factor, why = self.mismatch()
-        extra = self.model_error() if why is not None else None
+        err = self.model_error() if why is not None else None
         for i, name in enumerate(self.names):
             spec = BY_NAME[name]
-            value = float(theta[i])
-            std = factor * math.sqrt(cov[i, i]) if cov[i, i] > 0 else math.nan
-            if extra is not None:
-                std = math.hypot(std, extra[i])
-            if self.samples == 0:
-                status = NOT_RUN
-            elif not (math.isfinite(value) and math.isfinite(std)) or not (spec.lo <= value <= spec.hi):
-                status = INVALID
-            elif std <= spec.converged_rel * abs(value):
-                status = CONVERGED
-            elif self.samples >= self.cfg.min_samples and std > 0.5 * self.prior_std[i]:
-                status = NOT_IDENTIFIABLE
-            else:
-                status = UNCERTAIN
+            value = float(pub[i])
+            std = factor * math.sqrt(pcov[i, i]) if pcov[i, i] > 0 else math.nan
+            if err is not None:
+                std = math.hypot(std, err[i])
+            status = self.status(spec, value, std, self.pub_prior_std[i])
             reason = why if name in self.flagged and status not in (NOT_RUN, INVALID) else None
+            valid = status == CONVERGED and reason is None
             out[name] = Estimate(
                 name=name,
                 value=finite(value),
                 std=finite(std),
                 unit=spec.unit,
                 status=status,
-                valid=status == CONVERGED and reason is None,
+                valid=valid,
                 stage=self.stage,
                 samples=self.samples,
                 reason=reason,
+                extra=self._extra(name, theta, cov, factor, valid, reason),
             )
         return out
+
+    # -- the filter's parameters and the published ones -------------------
+    # A learner may estimate other parameters than it publishes (stage 2: C_alpha per axle,
+    # published as their mean).  The identity here; a learner that differs overrides these.
+    def _prior(self) -> tuple[np.ndarray, np.ndarray]:
+        """(value, covariance) of the filter's parameters from the profile's priors."""
+        return (
+            np.array([self.priors[k].value for k in self.names]),
+            np.diag([self.priors[k].std ** 2 for k in self.names]),
+        )
+
+    def _publish(self, theta, cov) -> tuple[np.ndarray, np.ndarray]:
+        """(value, covariance) of the published parameters (``names``) from the filter's."""
+        return theta, cov
+
+    def _unpublish(self, theta, cov) -> tuple[np.ndarray, np.ndarray]:
+        """The filter's parameters from published ones (a restore)."""
+        return theta.copy(), cov.copy()
+
+    def _in_range(self, theta) -> bool:
+        return all(BY_NAME[n].lo <= v <= BY_NAME[n].hi for n, v in zip(self.names, theta))
+
+    def _extra(self, name, theta, cov, factor, valid, reason) -> dict:
+        """Further named numbers of a published parameter (Estimate.extra)."""
+        return {}
 
     # parameters a model mismatch makes not valid (the others only get the wider std)
     flagged: tuple[str, ...] = ()
@@ -313,11 +353,8 @@ class StageLearner:
 
     def values(self) -> tuple:
         """((value, std), ...) of the parameters: the trace's cheap view of snapshot()."""
-        if self.filter is not None:
-            x, P = self.filter_state()
-            theta, var = x[self._p], np.diagonal(P)[self._p]
-        else:
-            theta, var = self.theta, np.diagonal(self.theta_P)
+        theta, var = self._publish(*self.params())
+        var = np.diagonal(var)
         k = self.mismatch()[0]
         return tuple((float(v), k * math.sqrt(c) if c > 0 else None) for v, c in zip(theta, var))
 
@@ -347,8 +384,7 @@ class StageLearner:
     def _save_good(self) -> None:
         x, P = self.filter_state()
         theta, cov = x[self._p], P[self._p, self._p]
-        in_range = all(BY_NAME[n].lo <= v <= BY_NAME[n].hi for n, v in zip(self.names, theta))
-        if in_range and np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov) > 0):
+        if self._in_range(theta) and np.all(np.isfinite(cov)) and np.all(np.linalg.eigvalsh(cov) > 0):
             self._good = (theta.copy(), cov.copy(), self._cross(P))
 
     def _q_rate(self) -> np.ndarray:
@@ -601,11 +637,94 @@ class Stage1(StageLearner):
 
 
 class Stage2(StageLearner):
-    """Single track with roll: C_alpha, I_z, I_x with v_y, yaw rate, phi, phi_dot as states."""
+    """Single track with roll: C_alpha per axle, I_z, I_x with v_y, yaw rate, phi, phi_dot as states.
+
+    The filter estimates the front and the rear cornering stiffness (lateral.C_F, C_R); it
+    publishes their mean as ``C_alpha`` (the paper's single value, what clients read), with
+    the per-axle values, their stds and whether the drive separates them in its ``extra``.
+    """
 
     stage = 2
     names = STAGE2
     model = lateral
+    keys = ("C_alpha_f", "C_alpha_r", "I_z", "I_x")  # the filter's parameters (lateral.PARAM_SLICE)
+    # published = _MEAN @ filter's: C_alpha = (C_alpha_f + C_alpha_r) / 2, I_z, I_x
+    _MEAN = np.array([[0.5, 0.5, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+    # filter's = _SPLIT @ published + the half-difference (a restore from published values)
+    _SPLIT = np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+
+    def _prior(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per axle from the profile's ``C_alpha_f``/``C_alpha_r`` priors when it gives both
+        (independent), else from its C_alpha prior: that is the mean's, and the half-difference
+        (C_f - C_r) / 2 is independent of it with AXLE_SPLIT of its std (zero mean)."""
+        p = self.priors
+        iz, ix = p["I_z"], p["I_x"]
+        f, r = p.get("C_alpha_f"), p.get("C_alpha_r")
+        if f is not None and r is not None:
+            return np.array([f.value, r.value, iz.value, ix.value]), np.diag(np.square([f.std, r.std, iz.std, ix.std]))
+        c = p["C_alpha"]
+        return np.array([c.value, c.value, iz.value, ix.value]), self._SPLIT @ np.diag(
+            np.square([c.std, iz.std, ix.std])
+        ) @ self._SPLIT.T + self._difference_cov(c.std)
+
+    @staticmethod
+    def _difference_cov(c_std: float) -> np.ndarray:
+        """Covariance of (+D, -D, 0, 0), D the axles' half-difference, std AXLE_SPLIT c_std."""
+        d = np.zeros((4, 4))
+        d[:2, :2] = (AXLE_SPLIT * c_std) ** 2 * np.array([[1.0, -1.0], [-1.0, 1.0]])
+        return d
+
+    def _publish(self, theta, cov):
+        M = self._MEAN
+        return M @ theta, M @ cov @ M.T
+
+    def _unpublish(self, theta, cov):
+        """Both axles at the stored mean, their difference as uncertain as the prior says."""
+        S = self._SPLIT
+        return S @ theta, S @ cov @ S.T + self._difference_cov(self.priors["C_alpha"].std)
+
+    def _in_range(self, theta) -> bool:
+        return all(BY_NAME[n].lo <= v <= BY_NAME[n].hi for n, v in zip(("C_alpha",) * 2 + STAGE2[1:], theta))
+
+    def _extra(self, name, theta, cov, factor, valid, reason) -> dict:
+        """C_alpha's per-axle values and stds, their correlation, and whether the drive separates them.
+
+        The axles are separated when the data have at least halved the prior std of their
+        difference (the rule ``not_identifiable`` uses) and the two are not nearly perfectly
+        correlated (then the data know one combination of them, usually their mean, and the
+        per-axle values are the prior's split of it).
+        """
+        if name != "C_alpha":
+            return {}
+        var_f, var_r, cov_fr = cov[0, 0], cov[1, 1], cov[0, 1]
+        sf, sr = factor * math.sqrt(max(var_f, 0.0)), factor * math.sqrt(max(var_r, 0.0))
+        corr = cov_fr / math.sqrt(var_f * var_r) if var_f > 0 and var_r > 0 else math.nan
+        diff = factor * math.sqrt(max(var_f + var_r - 2.0 * cov_fr, 0.0))
+        f, r = float(theta[0]), float(theta[1])
+        why = None
+        if self.samples == 0:
+            why = "stage 2 has not run"
+        elif not (diff <= 0.5 * self.prior_diff_std and abs(corr) <= AXLE_CORR_MAX):
+            why = (
+                f"the drive does not separate the axles: front minus rear is known to +-{diff:,.0f} N/rad "
+                f"(prior +-{self.prior_diff_std:,.0f}), correlation {corr:+.2f}; only their mean is"
+            )
+        elif reason is not None:
+            why = reason
+        elif not valid:
+            why = "the mean C_alpha is not valid"
+        elif sf > AXLE_CONVERGED_REL * abs(f) or sr > AXLE_CONVERGED_REL * abs(r):
+            why = f"a per-axle std is above {100 * AXLE_CONVERGED_REL:g} % of its value"
+        return {
+            "C_alpha_front": finite(f),
+            "C_alpha_front_std": finite(sf),
+            "C_alpha_rear": finite(r),
+            "C_alpha_rear_std": finite(sr),
+            "C_alpha_axle_corr": finite(corr),
+            "C_alpha_front_minus_rear_std": finite(diff),
+            "per_axle_valid": why is None,
+            "per_axle_reason": why,
+        }
 
     def reset(self) -> None:
         self.known = None
@@ -617,6 +736,8 @@ class Stage2(StageLearner):
         self.updates = 0  # filter updates
         self.roll_updates = 0  # of them, those that had a roll-rate measurement
         super().reset()
+        P = self.theta_P
+        self.prior_diff_std = math.sqrt(P[0, 0] + P[1, 1] - 2.0 * P[0, 1])  # of C_alpha_f - C_alpha_r
 
     def set_stage1(self, l_f: float, h: float, c_k: float | None, l_f_std: float | None = None) -> None:
         """Stage 1's results.  ``l_f_std`` is considered (lateral.CONSIDER): stage 2 is
@@ -664,16 +785,17 @@ class Stage2(StageLearner):
         self._settle.clear()
 
     def l_f_correlation(self) -> np.ndarray | None:
-        """Correlation of (C_alpha, I_z, I_x) with the considered l_f: the open window's, else
-        the kept one; None before any window."""
+        """Correlation of the published (C_alpha, I_z, I_x) with the considered l_f: the open
+        window's, else the kept one; None before any window."""
         if self.filter is not None:
             P, p, c = self.filter_state()[1], self._p, lateral.L_F
-            cov, sd, var = P[p, c], math.sqrt(P[c, c]), np.diagonal(P)[p]
+            cov, sd, Pp = P[p, c], math.sqrt(P[c, c]), P[p, p]
         elif self.cross is not None:
-            (cov, sd), var = self.cross, np.diagonal(self.theta_P)
+            (cov, sd), Pp = self.cross, self.theta_P
         else:
             return None
-        return cov / (sd * np.sqrt(var))
+        M = self._MEAN
+        return (M @ cov) / (sd * np.sqrt(np.diagonal(M @ Pp @ M.T)))
 
     flagged = ("C_alpha", "I_z", "I_x")
 
@@ -710,7 +832,9 @@ class Stage2(StageLearner):
         return _widen(rho, nis), ("model mismatch: " + "; ".join(why)) if why else None
 
     def _bounds(self) -> Bounds:
-        return Bounds(lateral.N_X, log=(lateral.C_A, lateral.I_Z, lateral.I_X))  # stiffness, inertias > 0
+        return Bounds(
+            lateral.N_X, log=(lateral.C_F, lateral.C_R, lateral.I_Z, lateral.I_X)
+        )  # stiffnesses, inertias > 0
 
     def _fx(self, x, dt, u):
         return lateral.fx(x, dt, u, self.known)
@@ -788,8 +912,8 @@ class Stage2(StageLearner):
         """(x0, P0) from the data: the steady-state solution at the measured yaw rate and a_y.
 
         Rear axle in steady cornering: F_yr = m a_y l_f / L (yaw moment balance, eq 10) and
-        F_yr = C_alpha (l_r r - v_y) / v_x (eq 12b), so v_y = l_r r - m a_y l_f v_x / (L C_alpha),
-        with the C_alpha kept so far; its uncertainty enters v_y's std and their correlation.
+        F_yr = C_alpha_r (l_r r - v_y) / v_x (eq 12b), so v_y = l_r r - m a_y l_f v_x / (L C_alpha_r),
+        with the C_alpha_r kept so far; its uncertainty enters v_y's std and their correlation.
         The roll angle from its balance with a_y, the roll rate as measured.
         """
         k = self.known
@@ -799,15 +923,15 @@ class Stage2(StageLearner):
         phi = lateral.quasi_static_roll(a_y, roll_rate, k) if mask[2] else 0.0
         l_f = k.l_f
         v_x = max(u[lateral.U_VX], lateral.V_MIN)
-        c_a = max(self.theta[0], lateral.PARAM_FLOOR[0])
+        c_r = max(self.theta[1], lateral.PARAM_FLOOR[1])
         g = k.m * a_y * l_f * v_x / k.L
-        v_y = (k.L - l_f) * yaw - g / c_a
+        v_y = (k.L - l_f) * yaw - g / c_r
         x0 = np.concatenate([[v_y, yaw, phi, roll_rate], self.theta, [l_f]])
         P0 = self._initial_cov()
-        dv_dc = g / (c_a * c_a)  # d v_y / d C_alpha
-        rest = slice(lateral.C_A, self._n)  # the parameters and the considered l_f
-        P0[lateral.V_Y, rest] = P0[rest, lateral.V_Y] = dv_dc * P0[lateral.C_A, rest]
-        P0[lateral.V_Y, lateral.V_Y] = V_Y_START_STD**2 + dv_dc**2 * P0[lateral.C_A, lateral.C_A]
+        dv_dc = g / (c_r * c_r)  # d v_y / d C_alpha_r
+        rest = slice(lateral.C_F, self._n)  # the parameters and the considered l_f
+        P0[lateral.V_Y, rest] = P0[rest, lateral.V_Y] = dv_dc * P0[lateral.C_R, rest]
+        P0[lateral.V_Y, lateral.V_Y] = V_Y_START_STD**2 + dv_dc**2 * P0[lateral.C_R, lateral.C_R]
         return x0, P0
 
     def _consistency(self, mask) -> bool:

@@ -47,8 +47,14 @@ class Estimate:
         metadata=_doc("0-1: how far the std has come from the prior's to the convergence threshold (log scale)"),
     )
     hint: str | None = field(default=None, metadata=_doc("what to drive for this parameter, in a driver's words"))
-    extra: Mapping[str, float | None] = field(
-        default_factory=dict, metadata=_doc("further named numbers of this estimate (e.g. per-axle values)")
+    extra: Mapping[str, float | bool | str | None] = field(
+        default_factory=dict,
+        metadata=_doc(
+            "further named numbers of this estimate; C_alpha's: C_alpha_front, C_alpha_rear and their _std "
+            "(N/rad, per axle; value is their mean), C_alpha_axle_corr, C_alpha_front_minus_rear_std, "
+            "per_axle_valid and per_axle_reason (why the per-axle values are not valid, e.g. the drive "
+            "does not separate the axles)"
+        ),
     )
 
     def __post_init__(self):

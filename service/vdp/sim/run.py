@@ -33,7 +33,7 @@ from .driver import Driver, DriverConfig
 from .encode import Encoder
 from .scenario import Scenario, get_scenario
 from .sensors import NoiseModel, Sensors, draw_bias, noise_model
-from .truth import truth_parameters
+from .truth import axle_parameters, truth_parameters
 from .vehicle import STATE, V_FLOOR, Model, Params
 
 log = logging.getLogger(__name__)
@@ -108,7 +108,8 @@ class Simulation:
         self.start_us = int(round(start_time * 1e6))
         self.bus_channel = bus_channel or self.profile.bus_channel or "can0"
         self.params = truth_parameters(params)
-        self.model = Model(Params.from_vehicle(veh, self.params))
+        self.per_axle = axle_parameters(params)
+        self.model = Model(Params.from_vehicle(veh, {**self.params, **self.per_axle}))
         dtr = getattr(self.profile, "drivetrain", None)
         if driver is None and dtr is not None:  # drive and brake the axles as the profile says the car does
             driver = DriverConfig(drive_front=dtr.drive_front, brake_front=dtr.brake_balance)
@@ -137,6 +138,7 @@ class Simulation:
         return {
             "format": TRUTH_FORMAT,
             "parameters": dict(self.params),
+            "per_axle": dict(self.per_axle),
             "vehicle": veh,
             "derived": {"l_r": self.profile.vehicle.wheelbase - self.params["l_f"]},
             "scenario": self.scenario.name,
@@ -164,7 +166,7 @@ class Simulation:
                     "l_f": "m",
                     "h": "m",
                     "C_K": "-",
-                    "C_alpha": "N/rad (per axle)",
+                    "C_alpha": "N/rad (per axle; the mean of per_axle's front and rear)",
                     "I_z": "kg m^2",
                     "I_x": "kg m^2",
                 },
@@ -317,7 +319,7 @@ def trace(
     prof = _profile(profile, None)
     veh = prof.vehicle
     sc = scenario if isinstance(scenario, Scenario) else get_scenario(scenario, veh.wheelbase)
-    model = Model(Params.from_vehicle(veh, truth_parameters(params)))
+    model = Model(Params.from_vehicle(veh, {**truth_parameters(params), **axle_parameters(params)}))
     p = model.params
     drv = Driver(driver or DriverConfig(), p.m, p.r, p.J)
     T = sc.duration if duration is None else min(duration, sc.duration)

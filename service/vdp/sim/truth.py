@@ -26,12 +26,17 @@ TRUTH: dict[str, float] = {
 }
 
 
-def truth_parameters(overrides: Mapping[str, float] | None = None) -> dict[str, float]:
-    """Table 6 values with ``overrides`` applied; every value must be finite and positive."""
-    out = dict(TRUTH)
+# Optional per-axle cornering stiffness (N/rad): a real car's front and rear differ (their ratio
+# sets its understeer).  Given both, C_alpha is their mean (what the estimator publishes);
+# not given, both axles have C_alpha.
+AXLES: tuple[str, ...] = ("C_alpha_front", "C_alpha_rear")
+
+
+def _checked(overrides: Mapping[str, float] | None) -> dict[str, float]:
+    out = {}
     for key, value in (overrides or {}).items():
-        if key not in TRUTH:
-            raise ConfigError(f"unknown parameter '{key}'; known: {', '.join(TRUTH)}")
+        if key not in TRUTH and key not in AXLES:
+            raise ConfigError(f"unknown parameter '{key}'; known: {', '.join(TRUTH)}, {', '.join(AXLES)}")
         try:
             v = float(value)
         except (TypeError, ValueError):
@@ -39,6 +44,34 @@ def truth_parameters(overrides: Mapping[str, float] | None = None) -> dict[str, 
         if not math.isfinite(v) or v <= 0:
             raise ConfigError(f"parameter '{key}' must be finite and positive, got {value!r}")
         out[key] = v
+    axles = [k for k in AXLES if k in out]
+    if axles and len(axles) != len(AXLES):
+        raise ConfigError(f"give both {' and '.join(AXLES)} (per-axle cornering stiffness), not only {axles[0]}")
+    if axles and "C_alpha" in out:
+        raise ConfigError(f"give C_alpha or {' and '.join(AXLES)} (their mean is C_alpha), not both")
+    return out
+
+
+def truth_parameters(overrides: Mapping[str, float] | None = None) -> dict[str, float]:
+    """Table 6 values with ``overrides`` applied; every value must be finite and positive.
+
+    ``overrides`` may give the per-axle cornering stiffness (:data:`AXLES`, both); then
+    C_alpha is their mean.
+    """
+    given = _checked(overrides)
+    out = dict(TRUTH)
+    out.update({k: v for k, v in given.items() if k in TRUTH})
+    if AXLES[0] in given:
+        out["C_alpha"] = 0.5 * (given[AXLES[0]] + given[AXLES[1]])
     if overrides:
         log.debug("truth parameters overridden: %s", dict(overrides))
     return out
+
+
+def axle_parameters(overrides: Mapping[str, float] | None = None) -> dict[str, float]:
+    """Per-axle cornering stiffness: the overrides' (both), else C_alpha on each axle."""
+    given = _checked(overrides)
+    if AXLES[0] in given:
+        return {k: given[k] for k in AXLES}
+    c = truth_parameters(overrides)["C_alpha"]
+    return dict.fromkeys(AXLES, c)

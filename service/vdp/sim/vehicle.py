@@ -5,7 +5,8 @@ Conventions (stated once, NOTES items 1-3, 9):
 * x forward, y left, yaw rate positive counter-clockwise, road-wheel angle
   delta positive left; roll angle phi (eq 9 calls it roll rate, NOTES 4).
 * Slip angles (eq 12 replaced, NOTES 3): ``alpha_f = delta - (v_y + l_f r)/v_x``,
-  ``alpha_r = -(v_y - l_r r)/v_x``, ``F_y = C_alpha * alpha`` (per axle).
+  ``alpha_r = -(v_y - l_r r)/v_x``, ``F_y = C_alpha * alpha`` (per axle; the axles'
+  stiffness may differ: ``C_alpha_front``, ``C_alpha_rear``, by default both C_alpha).
 * Slip ratio (eq 13) uses the wheel-frame speed of each axle:
   ``s = (omega r - v_w) / max(|v_w|, 1)``, ``v_wf = v_x cos d + (v_y + l_f r) sin d``,
   ``v_wr = v_x``.  Longitudinal force (eq 14) ``F_x = C_K F_z s``.
@@ -66,6 +67,9 @@ class Params:
     I_z: float
     I_x: float
     mu: float = 1.0  # friction limit of both tyre forces
+    # per-axle cornering stiffness when the axles differ (None: C_alpha on that axle)
+    C_alpha_front: float | None = None
+    C_alpha_rear: float | None = None
 
     @property
     def l_r(self) -> float:
@@ -88,6 +92,8 @@ class Params:
             C_alpha=unknowns["C_alpha"],
             I_z=unknowns["I_z"],
             I_x=unknowns["I_x"],
+            C_alpha_front=unknowns.get("C_alpha_front"),
+            C_alpha_rear=unknowns.get("C_alpha_rear"),
         )
 
 
@@ -118,7 +124,9 @@ class Model:
         self.params = p
         self.m, self.g, self.r, self.J = p.m, p.g, p.r, p.J
         self.lf, self.lr = p.l_f, p.l_r
-        self.CK, self.Ca, self.mu = p.C_K, p.C_alpha, p.mu
+        self.CK, self.mu = p.C_K, p.mu
+        self.Caf = p.C_alpha if p.C_alpha_front is None else p.C_alpha_front
+        self.Car = p.C_alpha if p.C_alpha_rear is None else p.C_alpha_rear
         self.Iz, self.Ix = p.I_z, p.I_x
         self.kphi, self.cphi = p.k_phi, p.c_phi
         self.mh = p.m * p.h
@@ -189,7 +197,7 @@ class Model:
 
     # -- hot path -------------------------------------------------------------------
     def _eval(self, vx: float, vy: float, wz: float, wf: float, wr: float, delta: float, cd: float, sd: float) -> tuple:
-        CK, Ca, mu, m, k = self.CK, self.Ca, self.mu, self.m, self.k
+        CK, mu, m, k = self.CK, self.mu, self.m, self.k
         u = vx if vx > V_FLOOR else V_FLOOR
         vyf = vy + self.lf * wz
         af = delta - vyf / u  # eq 12a (NOTES 3 convention)
@@ -204,8 +212,8 @@ class Model:
         mf = mu if mf > mu else (-mu if mf < -mu else mf)
         mr = CK * sr
         mr = mu if mr > mu else (-mu if mr < -mu else mr)
-        fyf = Ca * af  # eq 11b
-        fyr = Ca * ar
+        fyf = self.Caf * af  # eq 11b, per axle
+        fyr = self.Car * ar
         # eqs 3 + 6: m a_x = mf cos d F_zf(a_x) - F_yf sin d + mr F_zr(a_x), linear in a_x.
         zf0, zr0 = self.zf0, self.zr0
         c = mf * cd
