@@ -24,7 +24,7 @@ from vdp.core import lateral  # noqa: E402
 def main() -> int:
     k = lateral.Known(m=1500.0, L=2.7, r=0.3, k_phi=2.06e6, c_phi=1.0e5, l_f=1.4, h=0.637, C_K=10.0)
     rng = np.random.default_rng(1)
-    x = np.array([0.1, 0.15, 0.001, 0.01, 6.69e4, 2000.0, 4175.0, 1.4])
+    x = np.array([0.1, 0.15, 0.001, 0.01, 6.69e4, 6.0e4, 2000.0, 4175.0, 1.4])
     n_sig = 2 * len(x) + 1
     sig = x + rng.normal(size=(n_sig, len(x))) * 0.01 * np.abs(x)
     u = np.column_stack([np.linspace(0.02, 0.03, 3), np.full(3, 20.0), np.full(3, 67.0), np.zeros(3)])
