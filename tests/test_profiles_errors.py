@@ -89,6 +89,12 @@ LOAD_CASES = [
     ("empty-name", edit('name = "paper"', 'name = ""'), "[vehicle]", "'name' must be a non-empty string"),
     ("prior-missing", edit("I_x     = { value = 3000.0,  std = 1500.0 }", ""), "[priors.I_x]", "missing"),
     ("prior-unknown", add("m = { value = 1.0, std = 1.0 }", "[priors]"), "[priors]", r"unknown parameter\(s\) \['m'\]"),
+    (
+        "prior-one-axle",
+        add("C_alpha_f = { value = 6.0e4, std = 3.0e4 }", "[priors]"),
+        "[priors]",
+        "C_alpha_f needs C_alpha_r too",
+    ),
     ("prior-negative-std", edit("std = 0.2 }", "std = -0.2 }"), "[priors.h]", "value and std must be positive"),
     ("prior-text", edit("value = 0.55", 'value = "half a metre"'), "[priors.h]", "'value' must be a finite number"),
     ("prior-unknown-key", edit("std = 0.2 }", "std = 0.2, mean = 1.0 }"), "[priors.h]", r"unknown key\(s\) \['mean'\]"),

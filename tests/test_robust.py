@@ -220,6 +220,24 @@ def test_per_axle_prior_and_a_drive_that_does_not_separate_the_axles(profile):
     assert l2.snapshot()["C_alpha"].std == pytest.approx(m)
 
 
+def test_a_profile_may_give_per_axle_priors(profile, tmp_path):
+    from vdp.core.learner import Stage2
+
+    text = profile.path.read_text().replace(
+        "[priors]",
+        "[priors]\nC_alpha_f = { value = 5.0e4, std = 2.0e4 }\nC_alpha_r = { value = 8.0e4, std = 3.0e4 }",
+        1,
+    )
+    text = text.replace('"../dbc/vdp.dbc"', f'"{profile.dbc}"')  # the profile names its DBC relative to itself
+    (tmp_path / "axles.toml").write_text(text)
+    prof = load_profile(tmp_path / "axles.toml")
+    l2 = Stage2("ukf", prof.vehicle, prof.priors)
+    np.testing.assert_allclose(l2.theta[:2], [5.0e4, 8.0e4])
+    np.testing.assert_allclose(l2.theta_P[:2, :2], np.diag([2.0e4**2, 3.0e4**2]))
+    e = l2.snapshot()["C_alpha"]
+    assert e.value == pytest.approx(6.5e4) and e.std == pytest.approx(0.5 * math.hypot(2.0e4, 3.0e4))
+
+
 # -- honest uncertainty -----------------------------------------------------------------------
 def test_innovations_larger_than_predicted_and_coloured_mark_stage_2_as_model_mismatch(profile):
     from vdp.core.learner import Consistency

@@ -121,6 +121,9 @@ TERM = "term"
 CHANNEL_KINDS[TERM] = tuple({k for _, k in UNIT_FACTORS.values()})
 
 PARAMETERS = NAMES  # the six unknowns (core.params): each needs a prior
+# optional per-axle cornering stiffness priors (stage 2 estimates each axle; C_alpha is their
+# mean): both or neither; without them both axles start from the C_alpha prior
+AXLE_PRIORS = ("C_alpha_f", "C_alpha_r")
 
 
 @dataclass(frozen=True)
@@ -397,7 +400,7 @@ def _priors(where: str, raw: Any) -> dict[str, Prior]:
     if not isinstance(raw, dict):
         raise ProfileError(f"{where} [priors]: missing table; give value and std for {', '.join(PARAMETERS)}")
     out = {}
-    for name in PARAMETERS:
+    for name in PARAMETERS + tuple(n for n in AXLE_PRIORS if n in raw):
         entry = raw.get(name)
         w = f"{where} [priors.{name}]"
         if not isinstance(entry, dict) or "value" not in entry or "std" not in entry:
@@ -409,9 +412,18 @@ def _priors(where: str, raw: Any) -> dict[str, Prior]:
         if value <= 0 or std <= 0:
             raise ProfileError(f"{w}: value and std must be positive, got value={value}, std={std}")
         out[name] = Prior(value, std)
-    extra = set(raw) - set(PARAMETERS)
+    extra = set(raw) - set(PARAMETERS) - set(AXLE_PRIORS)
     if extra:
-        raise ProfileError(f"{where} [priors]: unknown parameter(s) {sorted(extra)}; known: {', '.join(PARAMETERS)}")
+        raise ProfileError(
+            f"{where} [priors]: unknown parameter(s) {sorted(extra)}; known: {', '.join(PARAMETERS)} "
+            f"(and optionally {' and '.join(AXLE_PRIORS)}, per axle)"
+        )
+    axles = [n for n in AXLE_PRIORS if n in raw]
+    if axles and len(axles) != len(AXLE_PRIORS):
+        raise ProfileError(
+            f"{where} [priors]: {axles[0]} needs {' and '.join(n for n in AXLE_PRIORS if n not in axles)} "
+            "too (per-axle cornering stiffness priors come in pairs); or remove it to start both axles at C_alpha"
+        )
     return out
 
 
