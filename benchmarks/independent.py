@@ -1,13 +1,15 @@
 """Accuracy of the estimator on vehicle models vdp did not write, beside vdp's own simulator.
 
     python benchmarks/independent.py --seeds 5 --jobs 2 [--cases brush/small,mb/bmw_320i] [--json runs.json]
+        [--per-axle]
 
 Cases: ``brush/saloon``, ``brush/small`` (vdp.sim.independent.brush, first principles),
 ``mb/bmw_320i``, ``mb/vw_vanagon`` (CommonRoad's multi-body car, the ``bench`` extra),
 and vdp's own simulator ``vdp/paper`` (Table 6), ``vdp/small`` (the small car's
 known constants with vdp's own physics) and ``vdp/axles`` (Table 6 with the rear axle's
-cornering stiffness 1.3x the front's).  ``C_alpha_front``/``C_alpha_rear`` are the
-per-axle values in the estimate's ``extra`` (C_alpha is their mean).  Each case drives the paper's manoeuvre
+cornering stiffness 1.3x the front's).  With ``--per-axle`` stage 2 estimates each axle
+(LearnerConfig.per_axle) and ``C_alpha_front``/``C_alpha_rear`` are the per-axle values in
+the estimate's ``extra`` (C_alpha is their mean).  Each case drives the paper's manoeuvre
 once noise-free and with realistic noise for ``--seeds`` seeds; every drive goes
 DBC -> candump log -> the replay pipeline (UKF and the EKF baseline at once), and only
 the log and the profile reach the estimator.
@@ -153,10 +155,11 @@ def truth_value(name: str, truth: dict) -> float | None:
 
 
 def run_one(job) -> dict:
-    case, scenario, seed, noise, cache, prior_scale = job
+    case, scenario, seed, noise, cache, prior_scale, per_axle = job
     import logging
 
     from vdp.core.estimator import EstimatorConfig
+    from vdp.core.learner import LearnerConfig
     from vdp.core.params import BY_NAME
     from vdp.io.logs import open_log
     from vdp.pipeline import Pipeline
@@ -168,7 +171,7 @@ def run_one(job) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "drive.log"
         write_log(sim.frames(), log, sim.bus_channel)
-        pipe = Pipeline(profile, EstimatorConfig())
+        pipe = Pipeline(profile, EstimatorConfig(learner=LearnerConfig(per_axle=per_axle)))
         spent = [0.0]
         handle = pipe.estimator.handle
 
@@ -362,6 +365,9 @@ def main() -> int:
     ap.add_argument("--prior-scale", type=float, default=1.0, help="multiply every prior mean (0.6, 1.6)")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "vdp-independent-traces")
     ap.add_argument("--json", type=Path, help="write every run's figures here")
+    ap.add_argument(
+        "--per-axle", action="store_true", help="stage 2 estimates each axle's C_alpha (LearnerConfig.per_axle)"
+    )
     ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
     a = ap.parse_args()
     cases = [c.strip() for c in a.cases.split(",") if c.strip()]
@@ -377,9 +383,9 @@ def main() -> int:
                 print(f"recorded {case} {a.scenario} in {wall:.0f} s", file=sys.stderr)
         jobs = []
         for c in cases:
-            jobs.append((c, a.scenario, 0, "none", a.cache, a.prior_scale))
+            jobs.append((c, a.scenario, 0, "none", a.cache, a.prior_scale, a.per_axle))
             jobs += [
-                (c, a.scenario, s, "realistic", a.cache, a.prior_scale)
+                (c, a.scenario, s, "realistic", a.cache, a.prior_scale, a.per_axle)
                 for s in range(a.first_seed, a.first_seed + a.seeds)
             ]
         runs = list(ex.map(run_one, jobs))

@@ -1,5 +1,6 @@
 """Pure unit tests of the stage models: analytic Jacobians against finite differences."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -70,6 +71,15 @@ def test_stage2_jacobians(vy, yaw, phi, phid, ca, split, iz, ix, l_f, d, vx, wf_
     H = lateral.jac_h(x, u, K2)
     NH = numjac(lambda xx: lateral.hx(xx, u, K2), x, eps)
     np.testing.assert_allclose(H, NH, rtol=1e-4, atol=1e-8)
+    # one stiffness for both axles: C_alpha_f's column takes the rear's part, C_alpha_r is inert
+    tied = dataclasses.replace(K2, per_axle=False)
+    A = lateral.jac_f(x, u, tied)
+    np.testing.assert_allclose(
+        A, numjac(lambda xx: lateral.deriv(xx, u, tied), x, eps), rtol=1e-4, atol=1e-6 * np.abs(NA).max()
+    )
+    H = lateral.jac_h(x, u, tied)
+    np.testing.assert_allclose(H, numjac(lambda xx: lateral.hx(xx, u, tied), x, eps), rtol=1e-4, atol=1e-8)
+    assert not A[:, lateral.C_R].any() and not H[:, lateral.C_R].any()
 
 
 def test_models_broadcast_over_sigma_points():

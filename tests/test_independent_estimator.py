@@ -15,6 +15,7 @@ from __future__ import annotations
 import pytest
 
 from vdp.core.estimator import EstimatorConfig
+from vdp.core.learner import LearnerConfig
 from vdp.io.logs import open_log
 from vdp.pipeline import Pipeline
 from vdp.replay import replay
@@ -33,19 +34,20 @@ CASES = ["brush/small", pytest.param("mb/bmw_320i", marks=pytest.mark.skipif(not
 
 pytestmark = pytest.mark.slow
 
-_cache: dict[str, tuple[dict, dict]] = {}
+_cache: dict[tuple[str, bool], tuple[dict, dict]] = {}
 
 
-def _run(case: str, tmp_path_factory) -> tuple[dict, dict]:
-    """(replay result, truth) of one seeded drive, made once per session."""
-    if case not in _cache:
+def _run(case: str, tmp_path_factory, per_axle: bool = False) -> tuple[dict, dict]:
+    """(replay result, truth) of one seeded drive, made once per session; ``per_axle``: stage 2
+    estimates each axle's cornering stiffness (LearnerConfig.per_axle)."""
+    if (case, per_axle) not in _cache:
         model, car = case.split("/")
         sim = IndependentSimulation(model, car, "paper", seed=1, noise="realistic", duration=DURATION)
         log = tmp_path_factory.mktemp(case.replace("/", "-")) / "drive.log"
         write_log(sim.frames(), log, sim.bus_channel)
-        pipe = Pipeline(sim.profile, EstimatorConfig())
-        _cache[case] = (replay(open_log(log, channel=sim.profile.bus_channel), pipe).to_dict(), sim.truth)
-    return _cache[case]
+        pipe = Pipeline(sim.profile, EstimatorConfig(learner=LearnerConfig(per_axle=per_axle)))
+        _cache[case, per_axle] = (replay(open_log(log, channel=sim.profile.bus_channel), pipe).to_dict(), sim.truth)
+    return _cache[case, per_axle]
 
 
 def _est(res: dict, name: str, kind: str = "parameters") -> tuple[float, float, bool]:
@@ -108,7 +110,7 @@ def test_target_accuracy(case, name, tol, tmp_path_factory):
 
 @pytest.mark.parametrize(("case", "name"), _cases("C_alpha_front", "C_alpha_rear"))
 def test_target_per_axle_cornering_stiffness(case, name, tmp_path_factory):
-    res, truth = _run(case, tmp_path_factory)
+    res, truth = _run(case, tmp_path_factory, per_axle=True)
     want = truth["per_axle"][name]
     axles = res["parameters"]["C_alpha"].get("extra", {})  # C_alpha is the mean; per axle in its extra
     assert axles.get(name) is not None, f"the estimator reports no {name} in C_alpha's extra"

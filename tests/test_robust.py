@@ -12,6 +12,8 @@ import pytest
 
 from vdp.core import batch, lateral, longitudinal
 from vdp.core.bounds import Bounds
+from vdp.core.estimator import EstimatorConfig
+from vdp.core.learner import LearnerConfig
 from vdp.pipeline import Pipeline
 from vdp.profile import Prior, load_profile
 from vdp.sim.run import simulate
@@ -118,10 +120,10 @@ def test_stage1_stays_physical_and_reaches_the_truth_with_priors_off(profile, sc
 
 
 # -- stage 2's start and its hand-over ------------------------------------------------------
-def _stage2(profile, l_f=1.4):
-    from vdp.core.learner import Stage2
+def _stage2(profile, l_f=1.4, per_axle=False):
+    from vdp.core.learner import LearnerConfig, Stage2
 
-    l2 = Stage2("ukf", profile.vehicle, profile.priors)
+    l2 = Stage2("ukf", profile.vehicle, profile.priors, LearnerConfig(per_axle=per_axle))
     l2.set_stage1(l_f, 0.637, 10.0, 0.005)
     return l2
 
@@ -180,7 +182,7 @@ def test_stage_2_separates_front_and_rear_cornering_stiffness(profile):
     axles = {"C_alpha_front": 58200.0, "C_alpha_rear": 75600.0}
     frames, truth = simulate(prof, "stage2", seed=5, noise="realistic", duration=30.0, params=axles)
     assert truth["per_axle"] == axles and truth["parameters"]["C_alpha"] == pytest.approx(66900.0)
-    pipe = Pipeline(prof)
+    pipe = Pipeline(prof, EstimatorConfig(learner=LearnerConfig(per_axle=True)))
     for msg in frames:
         pipe.feed(msg)
     snap = pipe.result().to_dict()
@@ -197,7 +199,7 @@ def test_stage_2_separates_front_and_rear_cornering_stiffness(profile):
 def test_per_axle_prior_and_a_drive_that_does_not_separate_the_axles(profile):
     """The C_alpha prior is the mean's (its std kept), the axles' difference gets its own;
     a covariance that knows only the mean says the axles are not separated, and why."""
-    l2 = _stage2(profile)
+    l2 = _stage2(profile, per_axle=True)
     c = profile.priors["C_alpha"]
     e = l2.snapshot()["C_alpha"]
     assert e.value == pytest.approx(c.value) and e.std == pytest.approx(c.std)
@@ -218,10 +220,15 @@ def test_per_axle_prior_and_a_drive_that_does_not_separate_the_axles(profile):
     l2.set_params([c.value, 2000.0, 500.0], np.diag(np.square([m, 20.0, 100.0])), 100)
     assert math.sqrt(l2.theta_P[0, 0] + l2.theta_P[1, 1] - 2 * l2.theta_P[0, 1]) == pytest.approx(l2.prior_diff_std)
     assert l2.snapshot()["C_alpha"].std == pytest.approx(m)
+    # one C_alpha for both axles (the default): C_alpha is the front state, no per-axle extra
+    one = _stage2(profile)
+    one.theta_P[0, 0], one.samples = m * m, 5000
+    e = one.snapshot()["C_alpha"]
+    assert e.valid and e.std == pytest.approx(m) and not e.extra and one.known.per_axle is False
 
 
 def test_a_profile_may_give_per_axle_priors(profile, tmp_path):
-    from vdp.core.learner import Stage2
+    from vdp.core.learner import LearnerConfig, Stage2
 
     text = profile.path.read_text().replace(
         "[priors]",
@@ -231,7 +238,7 @@ def test_a_profile_may_give_per_axle_priors(profile, tmp_path):
     text = text.replace('"../dbc/vdp.dbc"', f'"{profile.dbc}"')  # the profile names its DBC relative to itself
     (tmp_path / "axles.toml").write_text(text)
     prof = load_profile(tmp_path / "axles.toml")
-    l2 = Stage2("ukf", prof.vehicle, prof.priors)
+    l2 = Stage2("ukf", prof.vehicle, prof.priors, LearnerConfig(per_axle=True))
     np.testing.assert_allclose(l2.theta[:2], [5.0e4, 8.0e4])
     np.testing.assert_allclose(l2.theta_P[:2, :2], np.diag([2.0e4**2, 3.0e4**2]))
     e = l2.snapshot()["C_alpha"]

@@ -86,6 +86,8 @@ class Known:
     h: float
     C_K: float
     g: float = 9.8
+    # False: one cornering stiffness for both axles, C_alpha_f's (C_alpha_r is then inert)
+    per_axle: bool = True
 
     @property
     def ck_slope(self) -> float:
@@ -132,14 +134,17 @@ def _rates(v_y, yaw, c_f, c_r, i_z, pre, geo, k: Known, clamp=np.maximum):
     return a_y - v_x * yaw, (l_f * y_f - l_r * f_yr) / i_z, a_y, y_f, f_yr  # eqs (5), (8), (10)
 
 
-def _unpack(x):
+def _unpack(x, tied: bool = False):
     """(v_y, yaw, phi, phi_dot, C_alpha_f, C_alpha_r, I_z, I_x, l_f, clamp), the parameters floored.
 
     Plain floats and the builtin max for one state (the EKF's: numpy's per-call cost
     would dominate), arrays and np.maximum for many (the UKF's sigma points).
+    ``tied``: both axles take C_alpha_f (Known.per_axle off).
     """
+    r = C_F if tied else C_R
     if np.ndim(x) == 1:
         v_y, yaw, phi, phi_d, c_f, c_r, i_z, i_x, l_f = np.asarray(x, dtype=float).tolist()
+        c_r = c_f if tied else c_r
         fl = _FLOOR
         return v_y, yaw, phi, phi_d, max(c_f, fl[0]), max(c_r, fl[1]), max(i_z, fl[2]), max(i_x, fl[3]), l_f, max
     return (
@@ -148,7 +153,7 @@ def _unpack(x):
         x[..., PHI],
         x[..., PHI_D],
         np.maximum(x[..., C_F], _FLOOR[0]),
-        np.maximum(x[..., C_R], _FLOOR[1]),
+        np.maximum(x[..., r], _FLOOR[1]),
         np.maximum(x[..., I_Z], _FLOOR[2]),
         np.maximum(x[..., I_X], _FLOOR[3]),
         x[..., L_F],
@@ -173,14 +178,14 @@ def quasi_static_roll(a_y: float, phi_dot: float, k: Known) -> float:
 
 def forces(x, u, k: Known):
     """Lateral force terms: (front body-y force Y_f, rear F_yr, a_y)."""
-    v_y, yaw, _, _, c_f, c_r, i_z, _, l_f, clamp = _unpack(x)
+    v_y, yaw, _, _, c_f, c_r, i_z, _, l_f, clamp = _unpack(x, not k.per_axle)
     _, _, a_y, y_f, f_yr = _rates(v_y, yaw, c_f, c_r, i_z, _inputs(u, k), _geometry(l_f, k), k, clamp)
     return y_f, f_yr, a_y
 
 
 def deriv(x, u, k: Known):
     """Continuous-time dynamics x_dot = f(x, u), eqs (5), (8)-(10) corrected."""
-    v_y, yaw, phi, phi_d, c_f, c_r, i_z, i_x, l_f, clamp = _unpack(x)
+    v_y, yaw, phi, phi_d, c_f, c_r, i_z, i_x, l_f, clamp = _unpack(x, not k.per_axle)
     vy_d, yaw_d, a_y, _, _ = _rates(v_y, yaw, c_f, c_r, i_z, _inputs(u, k), _geometry(l_f, k), k, clamp)
     out = np.zeros(np.shape(x))
     out[..., V_Y] = vy_d
@@ -257,7 +262,7 @@ def fx(x, dt, u, k: Known, substeps: int | None = None):
     u = np.asarray(u, dtype=float)
     x = np.array(x, dtype=float, copy=True)
     h = dt / substeps
-    v_y, yaw, phi, phi_d, c_f, c_r, i_z, i_x, l_f, clamp = _unpack(x)
+    v_y, yaw, phi, phi_d, c_f, c_r, i_z, i_x, l_f, clamp = _unpack(x, not k.per_axle)
     geo = _geometry(l_f, k)
     (t11, t12, t21, t22), (p1, p2), (q1, q2) = _roll_map(i_x, h, k)
     # per-step input constants at every start, mid and end point, as plain floats
@@ -289,7 +294,7 @@ def hx(x, u, k: Known):
 def _dforces(x, u, k: Known):
     """Gradients of (Y_f, F_yr) with respect to the state (single state only)."""
     d, v_x, sd, cd, ck_fz0, w_r = _inputs(u, k)
-    v_y, yaw, _, _, c_f, c_r, _, _, l_f, _ = _unpack(x)
+    v_y, yaw, _, _, c_f, c_r, _, _, l_f, _ = _unpack(x, not k.per_axle)
     l_r = k.L - l_f
     ck_fz = ck_fz0 - k.ck_slope * l_f
     alpha_f = d - (v_y + l_f * yaw) / v_x
@@ -306,7 +311,8 @@ def _dforces(x, u, k: Known):
     dfr = np.zeros(N_X)
     dfr[V_Y] = -c_r / v_x
     dfr[YAW] = c_r * l_r / v_x
-    dfr[C_R] = alpha_r if x[C_R] > PARAM_FLOOR[1] else 0.0
+    rear = C_R if k.per_axle else C_F  # the state the rear axle's stiffness is
+    dfr[rear] = alpha_r if x[rear] > PARAM_FLOOR[1] else 0.0
     dfr[L_F] = -c_r * yaw / v_x
     return dyf, dfr
 

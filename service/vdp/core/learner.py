@@ -110,6 +110,11 @@ class LearnerConfig:
     tick: float = 0.01  # s between aligned samples (set by the estimator from its config)
     block_time: float = 0.1  # s: stage 1 averages the samples of this long a block per filter step
     stage2_step: float = 0.04  # s: stage 2 steps its filter this often (CPU), inputs in between still used
+    # Stage 2 estimates the front and the rear cornering stiffness separately (published:
+    # their mean as C_alpha, each in its extra); off: one C_alpha for both axles.  Off by
+    # default: on the independent models the split moved I_z (bmw_320i's short drive from
+    # +3 % to -14 %) while both axles stay about 30 % low (BENCHMARKS.md, "Per-axle C_alpha")
+    per_axle: bool = False
     # Stage 1 reads C_K as the small-slip (initial) stiffness, so it takes only blocks where
     # both axles use at most this share of their load (|F_x| / F_z): a real tyre's force-slip
     # curve bends, and at half the friction limit a brush tyre gives 0.80 of its initial
@@ -650,16 +655,26 @@ class Stage2(StageLearner):
     keys = ("C_alpha_f", "C_alpha_r", "I_z", "I_x")  # the filter's parameters (lateral.PARAM_SLICE)
     # published = _MEAN @ filter's: C_alpha = (C_alpha_f + C_alpha_r) / 2, I_z, I_x
     _MEAN = np.array([[0.5, 0.5, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+    # one C_alpha for both axles (LearnerConfig.per_axle off): C_alpha_f is it, C_alpha_r inert
+    _ONE = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
     # filter's = _SPLIT @ published + the half-difference (a restore from published values)
     _SPLIT = np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+
+    @property
+    def _M(self) -> np.ndarray:
+        return self._MEAN if self.cfg.per_axle else self._ONE
 
     def _prior(self) -> tuple[np.ndarray, np.ndarray]:
         """Per axle from the profile's ``C_alpha_f``/``C_alpha_r`` priors when it gives both
         (independent), else from its C_alpha prior: that is the mean's, and the half-difference
-        (C_f - C_r) / 2 is independent of it with AXLE_SPLIT of its std (zero mean)."""
+        (C_f - C_r) / 2 is independent of it with AXLE_SPLIT of its std (zero mean).  With one
+        C_alpha for both axles, C_alpha_f starts from the C_alpha prior (C_alpha_r is inert)."""
         p = self.priors
         iz, ix = p["I_z"], p["I_x"]
         f, r = p.get("C_alpha_f"), p.get("C_alpha_r")
+        if not self.cfg.per_axle:
+            c = p["C_alpha"]
+            return np.array([c.value, c.value, iz.value, ix.value]), np.diag(np.square([c.std, c.std, iz.std, ix.std]))
         if f is not None and r is not None:
             return np.array([f.value, r.value, iz.value, ix.value]), np.diag(np.square([f.std, r.std, iz.std, ix.std]))
         c = p["C_alpha"]
@@ -675,13 +690,18 @@ class Stage2(StageLearner):
         return d
 
     def _publish(self, theta, cov):
-        M = self._MEAN
+        M = self._M
         return M @ theta, M @ cov @ M.T
 
     def _unpublish(self, theta, cov):
         """Both axles at the stored mean, their difference as uncertain as the prior says."""
-        S = self._SPLIT
-        return S @ theta, S @ cov @ S.T + self._difference_cov(self.priors["C_alpha"].std)
+        S, c_std = self._SPLIT, self.priors["C_alpha"].std
+        if not self.cfg.per_axle:  # C_alpha_r inert: uncorrelated, at the prior's std
+            P = S @ cov @ S.T
+            P[1, :] = P[:, 1] = 0.0
+            P[1, 1] = c_std**2
+            return S @ theta, P
+        return S @ theta, S @ cov @ S.T + self._difference_cov(c_std)
 
     def _in_range(self, theta) -> bool:
         return all(BY_NAME[n].lo <= v <= BY_NAME[n].hi for n, v in zip(("C_alpha",) * 2 + STAGE2[1:], theta))
@@ -694,7 +714,7 @@ class Stage2(StageLearner):
         correlated (then the data know one combination of them, usually their mean, and the
         per-axle values are the prior's split of it).
         """
-        if name != "C_alpha":
+        if name != "C_alpha" or not self.cfg.per_axle:
             return {}
         var_f, var_r, cov_fr = cov[0, 0], cov[1, 1], cov[0, 1]
         sf, sr = factor * math.sqrt(max(var_f, 0.0)), factor * math.sqrt(max(var_r, 0.0))
@@ -763,6 +783,7 @@ class Stage2(StageLearner):
             h=h,
             C_K=0.0 if c_k is None else c_k,
             g=v.g,
+            per_axle=self.cfg.per_axle,
         )
         ok = l_f_std is not None and math.isfinite(l_f_std) and l_f_std > 0
         self.l_f_std = max(l_f_std, L_F_STD_MIN) if ok else self.priors["l_f"].std
@@ -794,7 +815,7 @@ class Stage2(StageLearner):
             (cov, sd), Pp = self.cross, self.theta_P
         else:
             return None
-        M = self._MEAN
+        M = self._M
         return (M @ cov) / (sd * np.sqrt(np.diagonal(M @ Pp @ M.T)))
 
     flagged = ("C_alpha", "I_z", "I_x")
@@ -923,15 +944,16 @@ class Stage2(StageLearner):
         phi = lateral.quasi_static_roll(a_y, roll_rate, k) if mask[2] else 0.0
         l_f = k.l_f
         v_x = max(u[lateral.U_VX], lateral.V_MIN)
-        c_r = max(self.theta[1], lateral.PARAM_FLOOR[1])
+        rear = lateral.C_R if self.cfg.per_axle else lateral.C_F  # the state the rear stiffness is
+        c_r = max(self.theta[rear - lateral.C_F], lateral.PARAM_FLOOR[1])
         g = k.m * a_y * l_f * v_x / k.L
         v_y = (k.L - l_f) * yaw - g / c_r
         x0 = np.concatenate([[v_y, yaw, phi, roll_rate], self.theta, [l_f]])
         P0 = self._initial_cov()
         dv_dc = g / (c_r * c_r)  # d v_y / d C_alpha_r
         rest = slice(lateral.C_F, self._n)  # the parameters and the considered l_f
-        P0[lateral.V_Y, rest] = P0[rest, lateral.V_Y] = dv_dc * P0[lateral.C_R, rest]
-        P0[lateral.V_Y, lateral.V_Y] = V_Y_START_STD**2 + dv_dc**2 * P0[lateral.C_R, lateral.C_R]
+        P0[lateral.V_Y, rest] = P0[rest, lateral.V_Y] = dv_dc * P0[rear, rest]
+        P0[lateral.V_Y, lateral.V_Y] = V_Y_START_STD**2 + dv_dc**2 * P0[rear, rear]
         return x0, P0
 
     def _consistency(self, mask) -> bool:
