@@ -87,3 +87,38 @@ def test_bad_input_is_one_line_and_exit_2(drive, capsys, bad, needle):
     err = capsys.readouterr().err
     assert code == 2
     assert len(err.strip().splitlines()) == 1 and needle in err.lower() and "Traceback" not in err
+
+
+def test_the_plots_trace_is_thinned_not_grown(drive, repo_root, monkeypatch):
+    """With trace_max, a long log's trace keeps at most that many rows, spread over the whole
+    drive (every other row dropped and the spacing doubled each time it fills)."""
+    import vdp.core.estimator as est
+    from vdp.cli import replay as replay_cli
+    from vdp.core.estimator import EstimatorConfig
+    from vdp.io.logs import open_log
+    from vdp.pipeline import Pipeline
+    from vdp.profile import load_profile
+    from vdp.replay import replay
+
+    _, log = drive
+    profile = load_profile(repo_root / "profiles" / "paper.toml")
+    full = replay(open_log(log), Pipeline(profile, EstimatorConfig(baseline=False))).trace
+    thin = replay(open_log(log), Pipeline(profile, EstimatorConfig(baseline=False, trace_max=50))).trace
+    assert len(full) > 190  # a row every 0.1 s of the 20 s drive
+    assert 25 <= len(thin) < 50
+    assert thin[0] == full[0] and full[-1][0] - thin[-1][0] < 20.0 / 25
+    dt = [b[0] - a[0] for a, b in zip(thin, thin[1:])]
+    assert max(dt) < 4 * 0.1 * 2**3  # three thinnings at most: 200 rows into fewer than 50
+    assert all(d > 0 for d in dt)
+    # vdp replay --plot caps its trace so
+    seen = {}
+    orig = est.EstimatorConfig
+
+    def spy(*a, **kw):
+        seen.update(kw)
+        return orig(*a, **kw)
+
+    monkeypatch.setattr(est, "EstimatorConfig", spy)
+    png = log.parent / "thin.png"
+    assert main(["replay", str(log), "--profile", str(repo_root / "profiles" / "paper.toml"), "--plot", str(png)]) == 0
+    assert seen["trace_max"] == replay_cli.PLOT_ROWS and png.stat().st_size > 20000

@@ -14,6 +14,8 @@ from ..core.result import CONVERGED
 from ..errors import ConfigError
 from .paths import check_output
 
+PLOT_ROWS = 20_000  # trace rows kept for --plot: a 4-hour log's 144,000 rows took ~140 MB
+
 
 def add_parser(sub):
     p = sub.add_parser(
@@ -120,7 +122,10 @@ def run(args) -> int:
         print(line)
     truth = report.load_truth(args.truth) if args.truth else None
     # the estimates' history is kept only for the plot: without one, memory stays flat on long logs
-    cfg = EstimatorConfig(baseline=args.baseline == "ekf", trace_len=None if args.plot else 0)
+    # (at most PLOT_ROWS rows, thinned as the log goes on: ~1.5 KB each, and a plot has ~600 px per panel)
+    cfg = EstimatorConfig(
+        baseline=args.baseline == "ekf", trace_len=None if args.plot else 0, trace_max=PLOT_ROWS if args.plot else None
+    )
     try:
         size = Path(args.log).stat().st_size
     except OSError:

@@ -38,6 +38,9 @@ class EstimatorConfig:
     tick: float = 0.02
     trace_every: float = 0.1  # s between trace points (for plots and history)
     trace_len: int | None = None  # None keeps all (replay); live service bounds it
+    # None: a row every trace_every; else once the trace holds this many rows, every other row
+    # is dropped and the spacing doubles, so a long log's trace (replay --plot) stays this small
+    trace_max: int | None = None
 
 
 class GyroBias:
@@ -88,6 +91,7 @@ class TwoStageEstimator:
         self.gyro_bias = GyroBias()
         self.trace: deque = deque(maxlen=self.cfg.trace_len)
         self._next_trace = None
+        self._trace_every = self.cfg.trace_every
         self._stage = None  # the supervisor's stage at the last sample
         self.handover_t: float | None = None
         self.t: float | None = None
@@ -128,9 +132,16 @@ class TwoStageEstimator:
         self._stage = stage
         # no trace kept (trace_len=0: vdp batch, replay without --plot): no row built either
         if self.trace.maxlen != 0 and (self._next_trace is None or t >= self._next_trace):
-            self._next_trace = t + self.cfg.trace_every
+            self._next_trace = t + self._trace_every
             self.trace.append(self._trace_row(t, stage))
+            if self.cfg.trace_max is not None and len(self.trace) >= self.cfg.trace_max:
+                self._thin_trace()
         return s
+
+    def _thin_trace(self) -> None:
+        """Keep every other trace row, from the first, and double the spacing of the rows to come."""
+        self.trace = deque(list(self.trace)[::2], maxlen=self.trace.maxlen)
+        self._trace_every *= 2.0
 
     def _speed(self, t: float, s) -> tuple[float, float, float]:
         """Run the GNSS + IMU speed filter; return v_x, its std and the a_x bias."""
@@ -164,6 +175,7 @@ class TwoStageEstimator:
         if stage is None:
             self.supervisor.reset()
             self.trace.clear()
+            self._trace_every = self.cfg.trace_every
 
     def snapshot(self) -> Snapshot:
         return Snapshot(
