@@ -184,11 +184,17 @@ class ChannelMap:
 
 @dataclass(frozen=True)
 class Term:
-    """One signal of a composite channel: ``weight * si`` (or a factor of a product)."""
+    """One signal of a composite channel: ``weight * si`` (or a factor of a product).
+
+    ``factors`` multiply further signals into the term (``weight * si * si_1 * ...``): what a
+    product becomes when [drivetrain] shares it out to the axles (a drive torque that is an
+    engine torque times the gearbox's ratio).
+    """
 
     map: ChannelMap  # how the signal is read; its ``channel`` is a source name or "term"
     weight: float = 1.0
     when: tuple[int, frozenset[int]] | None = None  # (index of a condition, its values): else 0
+    factors: tuple[ChannelMap, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -210,8 +216,20 @@ class Composite:
     where: str = ""
 
     @property
+    def maps(self) -> tuple[ChannelMap, ...]:
+        """Every signal it reads, in slot order: each term's signal, then the terms' further
+        factors (term by term), then the conditions (from :attr:`cond_start` on)."""
+        return (
+            tuple(t.map for t in self.terms) + tuple(f for t in self.terms for f in t.factors) + tuple(self.conditions)
+        )
+
+    @property
+    def cond_start(self) -> int:
+        return len(self.terms) + sum(len(t.factors) for t in self.terms)
+
+    @property
     def messages(self) -> set[str]:
-        return {t.map.message for t in self.terms} | {c.message for c in self.conditions}
+        return {m.message for m in self.maps}
 
 
 @dataclass(frozen=True)
@@ -256,7 +274,8 @@ class Profile:
     extra_dbcs: tuple[Path, ...] = ()  # further DBCs of the same bus (dbc = [first, ...])
     composites: dict[str, Composite] = field(default_factory=dict)
     drivetrain: Drivetrain | None = None  # None: not given (per-axle torques mapped directly)
-    sources: dict[str, ChannelMap] = field(default_factory=dict)  # drive_torque, brake_torque, ...
+    # drive_torque, brake_torque, brake_pressure: one signal, or a composite (an engine torque times a ratio)
+    sources: dict[str, ChannelMap | Composite] = field(default_factory=dict)
     cycle_ms: dict[str, int] = field(default_factory=dict)  # message periods the DBC does not give
     pad_short: bool = False  # frames shorter than their DBC length get zero bytes appended
 
@@ -645,9 +664,10 @@ def load_profile(path: str | Path) -> Profile:
     maps, comps, sources = {}, {}, {}
     for name, entry in chans_raw.items():
         if isinstance(entry, dict) and "terms" in entry:
-            if name in SOURCES:
-                raise ProfileError(f"{where} [channels.{name}]: a source cannot be a composite; map one signal")
-            comps[name] = _composite(where, name, entry)
+            if name in SOURCES:  # e.g. an engine torque times the gearbox's ratio
+                sources[name] = _composite(where, name, entry)
+            else:
+                comps[name] = _composite(where, name, entry)
         elif name in SOURCES:
             sources[name] = _channel(where, name, entry)
         else:
@@ -736,11 +756,37 @@ def _axle_torques(where, dt, sources, maps, comps) -> dict[str, Composite]:
         ("wheel_torque_front", dt.drive_front, dt.brake_balance),
         ("wheel_torque_rear", 1.0 - dt.drive_front, 1.0 - dt.brake_balance),
     ):
-        terms = [Term(sources["drive_torque"], d_share)]
-        if brake is not None:
-            terms.append(Term(brake, -b_share * gain))  # brake torque acts against the drive (eq 2)
-        out[name] = Composite(name, "sum", tuple(terms), where=f"{where} [drivetrain] -> {name}")
+        terms, conds = _shared(sources["drive_torque"], d_share, [])
+        ages = [s.max_age for s in (sources["drive_torque"], brake) if isinstance(s, Composite)]
+        if brake is not None:  # brake torque acts against the drive (eq 2)
+            more, conds = _shared(brake, -b_share * gain, conds)
+            terms += more
+        out[name] = Composite(
+            name,
+            "sum",
+            tuple(terms),
+            tuple(conds),
+            max_age=min(ages, default=0.5),
+            where=f"{where} [drivetrain] -> {name}",
+        )
     return out
+
+
+def _shared(src: ChannelMap | Composite, share: float, conds: list) -> tuple[list[Term], list]:
+    """``share`` of a source as terms of a sum (and the conditions list, extended with the source's own):
+    a signal is one term; a product one term with further factors; a sum its terms, each times ``share``."""
+    if isinstance(src, ChannelMap):
+        return [Term(src, share)], conds
+    if src.op == "product":  # the first term's weight scales the product (Composite)
+        first = src.terms[0]
+        factors = first.factors + tuple(m for t in src.terms[1:] for m in (t.map, *t.factors))
+        return [Term(first.map, first.weight * share, None, factors)], conds
+    k = len(conds)
+    terms = [
+        Term(t.map, t.weight * share, None if t.when is None else (t.when[0] + k, t.when[1]), t.factors)
+        for t in src.terms
+    ]
+    return terms, conds + list(src.conditions)
 
 
 def _composite(where: str, name: str, raw: dict) -> Composite:

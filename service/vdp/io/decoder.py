@@ -272,7 +272,7 @@ class FrameDecoder:
                     f"than the primary '{cmap.message}'"
                 )
         for comp in getattr(prof, "composites", {}).values():
-            for m in [t.map for t in comp.terms] + list(comp.conditions):
+            for m in comp.maps:
                 msg = self._message(m.where, m.message)
                 self._signal(m.where, msg, m.signal)
                 if m.sign_signal:
@@ -338,8 +338,8 @@ class FrameDecoder:
         # composite channels: each term and condition is a virtual output (index >= channels.N)
         for comp in getattr(prof, "composites", {}).values():
             state = _Composite(comp)
-            for j, m in enumerate([t.map for t in comp.terms] + list(comp.conditions)):
-                is_cond = j >= len(comp.terms)
+            for j, m in enumerate(comp.maps):
+                is_cond = j >= comp.cond_start
                 msg = self.db.get_message_by_name(m.message)
                 plan = self._plan(msg)
                 msgs[plan.key] = msg

@@ -20,17 +20,24 @@ class Composite:
     def __init__(self, comp: Any):
         self.comp = comp
         self.index = channels.INDEX[comp.channel]
-        n = len(comp.terms) + len(comp.conditions)
+        self.maps = comp.maps  # slot j reads maps[j]: terms, their further factors, conditions
+        n = len(self.maps)
         self.values: list[float | None] = [None] * n
         self.times = [-math.inf] * n
         self.slopes = [0.0] * n  # each term's rate of change between its last two frames
         self.n_terms = len(comp.terms)
+        self.cond = comp.cond_start  # slot of condition 0
         self.weights = [t.weight for t in comp.terms]
         self.when = [t.when for t in comp.terms]
+        self.factors: list[tuple[int, ...]] = []  # per term: the slots of its further factors
+        j = self.n_terms
+        for t in comp.terms:
+            self.factors.append(tuple(range(j, j + len(t.factors))))
+            j += len(t.factors)
         self.product = comp.op == "product"
 
     def label(self, j: int) -> str:
-        m = self.comp.terms[j].map if j < self.n_terms else self.comp.conditions[j - self.n_terms]
+        m = self.maps[j]
         return f"{m.message}.{m.signal}"
 
     def put(self, j: int, v: float | None, t: float) -> None:
@@ -49,18 +56,22 @@ class Composite:
                 return None
         if self.product:
             out = self.weights[0]
-            for i in range(self.n_terms):
+            for i in range(self.cond):
                 out *= vals[i]
             return out
         out = 0.0
         for i in range(self.n_terms):
             w = self.when[i]
-            if w is not None and int(vals[self.n_terms + w[0]]) not in w[1]:
+            if w is not None and int(vals[self.cond + w[0]]) not in w[1]:
                 continue  # this piece does not apply in the current gear or direction
             # a term from another message was sent up to a period ago: carried to t along its
             # last slope, or the sum lags the fastest term (a torque that lags the wheel
-            # speeds by a few ms biases stage 1's C_K by per cents on a front-driven car)
-            out += self.weights[i] * (vals[i] + self.slopes[i] * (t - self.times[i]))
+            # speeds by a few ms biases stage 1's C_K by per cents on a front-driven car).
+            # Further factors are not: a gear ratio steps, and a slope across a shift is no rate.
+            term = self.weights[i] * (vals[i] + self.slopes[i] * (t - self.times[i]))
+            for k in self.factors[i]:
+                term *= vals[k]
+            out += term
         return out
 
 
