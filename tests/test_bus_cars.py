@@ -68,8 +68,16 @@ def test_ford_quality_flags_keep_bad_samples_out():
     assert max(abs(v) for v in yaw) < 1.0
 
 
-def test_vw_names_exactly_the_missing_drive_torque():
-    prof = load_profile(ROOT / "profiles" / "vw_golf_mk7.toml")
+def test_vw_makes_its_drive_torque_or_names_exactly_that_it_lacks(tmp_path):
+    golf = ROOT / "profiles" / "vw_golf_mk7.toml"
+    prof = load_profile(golf)  # a DSG Golf: engine torque x the gearbox's ratio
+    assert set(prof.sources) == {"drive_torque", "brake_pressure"} and Pipeline(prof).capabilities()["1"] is None
+    assert [f.signal for f in prof.composites["wheel_torque_front"].terms[0].factors] == ["GE_Uefkt"]
+    # a manual Golf sends no Getriebe_11: without the drive torque, stage 1 names exactly that
+    text = golf.read_text()
+    manual = tmp_path / "golf_manual.toml"
+    manual.write_text(text[: text.index("[channels.drive_torque]")] + text[text.index("[checks]") :])
+    prof = load_profile(manual)
     assert "brake_pressure" in prof.sources and not prof.composites
     cap = Pipeline(prof).capabilities()
     assert cap["1"] == "no drive torque at the wheels (the profile maps no drive_torque)"

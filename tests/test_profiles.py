@@ -73,21 +73,23 @@ def test_profile_matches_its_dbc_and_lacks_what_real_buses_lack(name):
     # every mapped message is sent by the simulator, so the car's layout can be simulated
     assert {p.name for p in Simulation(prof, "stage1", duration=0.1).encoder.plans} == {
         m.message for cm in prof.channels.values() for m in (cm, cm.alt) if m is not None
-    }
+    } | {m for c in prof.composites.values() for m in c.messages}
 
 
 @pytest.mark.parametrize("name", CARS)
 def test_capabilities_say_which_stage_cannot_run_and_why(name):
     cap = Pipeline(car(name)).capabilities()
-    # the Golf sends a brake pressure: what it lacks is exactly the drive torque
-    torque = ("drive_torque",) if car(name).sources else ("wheel_torque_front", "wheel_torque_rear")
+    # the Golf makes its axle torques from its own signals (engine torque x ratio, brake pressure)
+    torque = () if car(name).composites else ("wheel_torque_front", "wheel_torque_rear")
     # no GNSS: a front-driven car with the [drivetrain] has its rear wheels as the speed reference
     speed = () if car(name).speed_reference else ("speed",)
     for ch in (*torque, *speed):
         assert ch in cap["1"]
+    if not torque and not speed:
+        assert cap["1"] is None and cap["2"] is None  # stage 2 takes stage 1's l_f
     # stage 2 needs no roll-rate gyro nor GNSS (its v_x can be the rear wheels'): what it
     # lacks is l_f, which stage 1 cannot give, unless the profile gives a measured one
-    if car(name).vehicle.l_f is None:
+    elif car(name).vehicle.l_f is None:
         assert "needs l_f" in cap["2"] and "[vehicle] l_f" in cap["2"]
     else:
         assert cap["2"] is None
@@ -144,12 +146,9 @@ def test_vw_uses_the_shipped_dbc():
 
 def mapped_ids(prof: Profile) -> set[int]:
     db = cantools.database.load_file(str(prof.dbc), strict=False)
-    return {
-        db.get_message_by_name(m.message).frame_id
-        for cm in prof.channels.values()
-        for m in (cm, cm.alt)
-        if m is not None
-    }
+    names = {m.message for cm in prof.channels.values() for m in (cm, cm.alt) if m is not None}
+    names |= {m for c in prof.composites.values() for m in c.messages}
+    return {db.get_message_by_name(n).frame_id for n in names}
 
 
 @pytest.mark.parametrize("name", CARS)
@@ -190,10 +189,13 @@ def test_simulate_cli_writes_the_cars_layout_and_replay_explains(name, tmp_path,
     res_path = tmp_path / "res.json"
     assert main(["replay", str(out), "--profile", str(prof.path), "--json", str(res_path), "--no-progress"]) == 0
     text = capsys.readouterr().out
-    lacks = "drive_torque" if prof.sources else "wheel_torque_front"  # the Golf sends a brake pressure
-    assert "stage 1 cannot run: " in text and lacks in text
     assert "I_x cannot run: " in text and "roll_rate" in text
     res = json.loads(res_path.read_text())
+    if prof.composites:  # the Golf: stage 1 from engine torque x the DSG's ratio, brake pressure, rear wheels
+        assert "stage 1 cannot run" not in text and res["capabilities"]["1"] is None
+        assert res["parameters"]["I_x"]["status"] == "not_run" and not res["parameters"]["I_x"]["valid"]
+        return
+    assert "stage 1 cannot run: " in text and "wheel_torque_front" in text
     # stage 2 needs l_f: from stage 1, which cannot run, or measured in the profile
     if prof.vehicle.l_f is None:
         assert "stage 2 cannot run: " in text and "l_f" in text
@@ -222,6 +224,8 @@ def test_round_trip_has_the_cars_quantisation_and_signs(name):
     for msg in sim.frames(tap=lambda t, name, values: sent.update(values)):
         for i, v in dec.decode(msg):
             ch = channels.NAMES[i]
+            if ch not in prof.channels:
+                continue  # a composite (the Golf's axle torques): tests/test_encode_composite.py
             worst[ch] = max(worst[ch], abs(v - sent[ch]))
             signs[ch].add(math.copysign(1.0, v) if abs(v) > 1e-3 else 0.0)
     assert dec.stats.errors == {} and dec.stats.unknown == {}
