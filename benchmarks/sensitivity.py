@@ -32,8 +32,8 @@ def run(profile, frames, truth: dict, moved: str | None, step: float) -> tuple[d
     handed = {n: truth[n] * (1.0 + step if n == moved else 1.0) for n in STAGE1}
     original = Stage2.set_stage1
 
-    def set_stage1(self, l_f, h, c_k, l_f_std=None):
-        original(self, handed["l_f"], handed["h"], handed["C_K"], l_f_std)
+    def set_stage1(self, l_f, h, c_k, l_f_std=None, h_std=None):
+        original(self, handed["l_f"], handed["h"], handed["C_K"], l_f_std, h_std)
 
     Stage2.set_stage1 = set_stage1
     try:

@@ -120,7 +120,7 @@ class TwoStageEstimator:
                     # C_K only from data: before stage 1 has run (a car without axle torques),
                     # stage 2 leaves the front drive force out (Stage2.set_stage1)
                     c_k = None if e["C_K"].status == NOT_RUN else e["C_K"].value
-                    l2.set_stage1(l_f, e["h"].value, c_k, l_f_std)
+                    l2.set_stage1(l_f, e["h"].value, c_k, l_f_std, e["h"].std)
                 l2.handle(t, s)
             elif l2.filter is not None:
                 l2.end_window()
@@ -210,6 +210,7 @@ class TwoStageEstimator:
                     "windows_restarted": l2.restarts,
                     "window": l2.window.as_dict(),
                     "all_windows": l2.total.as_dict(),
+                    "roll_rate_row": l2.roll_total.as_dict(),
                     "model_mismatch": l2.mismatch()[1],
                 },
             }
