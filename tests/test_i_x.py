@@ -14,7 +14,7 @@ from vdp.core.learner import NIS_MATCHED, ROLL_MODEL_ERROR, Consistency, Stage2
 from vdp.core.result import CONVERGED, NOT_IDENTIFIABLE, NOT_RUN
 from vdp.profile import load_profile
 
-IX = 2  # I_x's index among Stage2's parameters
+IX = Stage2.keys.index("I_x")  # I_x among the filter's parameters
 
 
 @pytest.fixture()
