@@ -10,8 +10,9 @@ mistake; a mistake counts as caught when a finding names the channel or key at f
 ``cars`` runs whole paper drives through the pipeline and prints the errors against the
 simulator's truth, with the status vdp reported.  The simulated driver splits the torque
 as a case's ``[drivetrain]`` says; on the cases without one (vdp's bus with per-axle
-torques) ``--drive-front``/``--brake-front`` set the split, and ``--no-traction-control``
-lets the driven wheels spin (the simulator before traction control and ABS).
+torques) ``--drive-front``/``--brake-front`` set the split, ``--no-traction-control``
+lets the driven wheels spin (the simulator before traction control and ABS), and
+``--no-spin-gate`` keeps stage 1's blocks in which a wheel spun or locked.
 """
 
 from __future__ import annotations
@@ -95,7 +96,10 @@ def car_one(args) -> dict:
     front, brake = (dtr.drive_front, dtr.brake_balance) if dtr is not None else (opt["drive_front"], opt["brake_front"])
     driver = DriverConfig(drive_front=front, brake_front=brake, slip_max=opt["slip_max"])
     sim = Simulation(prof, "paper", seed=seed, noise=opt["noise"], driver=driver)
-    pipe = Pipeline(prof, EstimatorConfig(baseline=False))
+    cfg = EstimatorConfig(baseline=False)
+    if opt.get("no_spin_gate"):
+        cfg = dataclasses.replace(cfg, learner=dataclasses.replace(cfg.learner, spin_rate=None))
+    pipe = Pipeline(prof, cfg)
     for msg in sim.frames():
         pipe.feed(msg)
     par, truth = pipe.result().to_dict()["parameters"], sim.truth["parameters"]
@@ -157,6 +161,9 @@ def main() -> int:
     ap.add_argument("--drive-front", type=float, help="cars: front share of the drive torque (no [drivetrain])")
     ap.add_argument("--brake-front", type=float, help="cars: front share of the brake torque (no [drivetrain])")
     ap.add_argument("--no-traction-control", action="store_true", help="cars: the driver lets the wheels spin and lock")
+    ap.add_argument(
+        "--no-spin-gate", action="store_true", help="cars: stage 1 keeps blocks where a wheel spun or locked"
+    )
     a = ap.parse_args()
     seeds = list(range(a.first_seed, a.first_seed + a.seeds))
     if a.what == "check":
@@ -181,6 +188,7 @@ def main() -> int:
         "drive_front": d.drive_front if a.drive_front is None else a.drive_front,
         "brake_front": d.brake_front if a.brake_front is None else a.brake_front,
         "slip_max": None if a.no_traction_control else d.slip_max,
+        "no_spin_gate": a.no_spin_gate,
     }
     jobs = [(c, s, opt) for c in CASES for s in seeds]
     with ProcessPoolExecutor(a.jobs, initializer=_cases, initargs=(tmp,)) as ex:

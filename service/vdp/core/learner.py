@@ -135,7 +135,7 @@ class LearnerConfig:
     bend: float = 0.0
     # a block in which an axle's slip changed faster than this [1/s] saw a wheel spin or
     # lock (Stage1._spun); None: no such check.  The paper drive's stage 1 changes the
-    # slip by at most about 0.1/s (a jerk of 2.5 m/s^3 on a front axle of C_K = 10).
+    # slip by at most about 0.15/s (a front axle at its grip, traction control holding it).
     spin_rate: float | None = 1.0
     spin_slip: float = 0.2  # beyond this |slip| a road tyre is past its grip (about 0.1-0.2)
 
