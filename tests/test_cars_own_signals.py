@@ -26,7 +26,7 @@ RUNS = {
     "ford_escape_2020": {"1", "2", "I_x"},
     "vw_golf_mk7": {"1", "2"},  # drive torque = engine torque x the DSG's ratio; no roll-rate gyro
     "toyota_rav4": {"2"},  # stage 2 standalone on the published l_f; no wheel torque
-    "hyundai_elantra_2017": set(),
+    "hyundai_elantra_2017": {"1", "2"},  # engine torque % x the ratio of the reported gear; no roll-rate gyro
     "hyundai_ioniq5_2022": set(),
 }
 
