@@ -1,10 +1,11 @@
 """CPU time of the estimator against the whole in-memory pipeline, on the `paper` drive.
 
-    PYTHONPATH=TREE/service python benchmarks/estimator_cost.py LABEL
+    PYTHONPATH=TREE/service python benchmarks/estimator_cost.py LABEL [--per-axle]
 
 Run it with PYTHONPATH on two trees (say, before and after a change), back to back: it
 prints, per seed, the pipeline's CPU time, the part spent inside
-``TwoStageEstimator.handle``, and that part's share.
+``TwoStageEstimator.handle``, and that part's share.  ``--per-axle``: stage 2 estimates
+each axle's cornering stiffness (LearnerConfig.per_axle; a tree that has it).
 """
 
 from __future__ import annotations
@@ -24,10 +25,17 @@ def main() -> int:
 
     logging.disable(logging.WARNING)
     prof = load_profile(ROOT / "profiles" / "paper.toml")
+    args = [a for a in sys.argv[1:] if a != "--per-axle"]
+    cfg = None
+    if "--per-axle" in sys.argv:
+        from vdp.core.estimator import EstimatorConfig
+        from vdp.core.learner import LearnerConfig
+
+        cfg = EstimatorConfig(learner=LearnerConfig(per_axle=True))
     cells = []
     for seed in (1, 2):
         frames = list(simulate(prof, "paper", seed=seed, noise="realistic")[0])
-        pipe = Pipeline(prof)
+        pipe = Pipeline(prof, cfg)
         est = pipe.estimator
         spent = [0.0]
 
@@ -42,7 +50,7 @@ def main() -> int:
             pipe.feed(m)
         total = time.process_time() - t0
         cells.append(f"seed {seed}: pipeline {total:.2f} s, estimator {spent[0]:.2f} s ({spent[0] / total:.0%})")
-    print((sys.argv[1] + ": " if len(sys.argv) > 1 else "") + "; ".join(cells))
+    print((args[0] + ": " if args else "") + "; ".join(cells))
     return 0
 
 

@@ -1,6 +1,7 @@
 """Robustness of the estimator on vdp's own simulator: car sets x prior scales x seeds.
 
     python benchmarks/robust.py --cars paper,small,suv --scales 0.6,1,1.6 --seeds 3 --jobs 2 [-v]
+        [--per-axle] [--axle-ratio 1.3]
 
 Each car set is the paper profile's bus layout (dbc/vdp.dbc) with the car's known
 constants, truth and priors replaced.  ``--scales`` multiplies the priors' *means*
@@ -10,6 +11,11 @@ Per parameter and filter it prints the share within the issue's tolerance, the
 +-2 sigma coverage (truth inside value +- 2 std), and how many estimates were
 reported *valid* with the truth outside 3 std: the count that must be 0.  Where a
 parameter is not valid, its reason is tallied.
+
+``--per-axle`` runs stage 2 with each axle's cornering stiffness (LearnerConfig.per_axle)
+and adds rows for them (from C_alpha's extra, "valid" = its per_axle_valid);
+``--axle-ratio R`` makes the simulated rear axle R times as stiff as the front, their
+mean kept at the car's C_alpha.
 """
 
 from __future__ import annotations
@@ -26,6 +32,8 @@ sys.path.insert(0, str(ROOT / "service"))
 from vdp.core.params import NAMES  # noqa: E402
 
 TOL = {"l_f": 0.01, "h": 0.03, "C_K": 0.02, "C_alpha": 0.03, "I_z": 0.05, "I_x": 0.10}
+AXLES = ("C_alpha_front", "C_alpha_rear")
+TOL.update(dict.fromkeys(AXLES, 0.03))
 
 # Car sets on vdp's bus: known constants, truth of the unknowns, priors (value, std).
 CARS = {
@@ -78,16 +86,22 @@ def car_profile(car: str, scale: float):
 
 
 def run_one(args) -> dict:
-    car, scale, seed, noise = args
+    car, scale, seed, noise, per_axle, ratio = args
     import logging
 
+    from vdp.core.estimator import EstimatorConfig
+    from vdp.core.learner import LearnerConfig
     from vdp.pipeline import Pipeline
     from vdp.sim.run import simulate
 
     logging.disable(logging.WARNING)
     prof, truth = car_profile(car, scale)
-    frames, _ = simulate(prof, "paper", seed=seed, noise=noise, params=truth)
-    pipe = Pipeline(prof)
+    params = dict(truth)
+    c = params.pop("C_alpha")
+    axles = {"C_alpha_front": 2.0 * c / (1.0 + ratio), "C_alpha_rear": 2.0 * c * ratio / (1.0 + ratio)}
+    frames, _ = simulate(prof, "paper", seed=seed, noise=noise, params={**params, **axles})
+    truth.update(axles)
+    pipe = Pipeline(prof, EstimatorConfig(learner=LearnerConfig(per_axle=per_axle)))
     t0 = time.process_time()
     for msg in frames:
         pipe.feed(msg)
@@ -107,6 +121,16 @@ def run_one(args) -> dict:
                 "status": e["status"],
                 "reason": e.get("reason"),
             }
+            x = e.get("extra") or {}
+            for a in AXLES if name == "C_alpha" and x.get(AXLES[0]) is not None else ():
+                v, sd, tv = x[a], x.get(a + "_std"), truth[a]
+                out[kind][a] = {
+                    "err": (v - tv) / tv,
+                    "z": abs(v - tv) / sd if sd else None,
+                    "valid": bool(x.get("per_axle_valid")),
+                    "status": "separated" if x.get("per_axle_valid") else "not separated",
+                    "reason": x.get("per_axle_reason"),
+                }
     return out
 
 
@@ -115,8 +139,10 @@ def summarise(runs: list[dict], kind: str) -> list[str]:
         f"| {kind} | parameter | within tol (all) | within tol (valid) | valid | ±2σ covers | valid & >3σ | statuses |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for name in NAMES:
-        r = [x[kind][name] for x in runs]
+    for name in NAMES + AXLES:
+        r = [x[kind][name] for x in runs if name in x[kind]]
+        if not r:
+            continue
         n = len(r)
         errs = [x for x in r if x["err"] is not None]
         within = sum(1 for x in errs if abs(x["err"]) <= TOL[name])
@@ -144,26 +170,33 @@ def main() -> int:
     ap.add_argument("--noise", default="realistic")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
+    ap.add_argument("--per-axle", action="store_true", help="stage 2 estimates each axle's C_alpha")
+    ap.add_argument("--axle-ratio", type=float, default=1.0, help="simulated rear/front cornering stiffness")
     a = ap.parse_args()
     cars = a.cars.split(",")
     for c in cars:
         if c not in CARS:
             ap.error(f"unknown car set {c!r}; known: {', '.join(CARS)}")
     scales = [float(s) for s in a.scales.split(",")]
-    jobs = [(c, s, seed, a.noise) for c in cars for s in scales for seed in range(a.first_seed, a.first_seed + a.seeds)]
+    seeds = range(a.first_seed, a.first_seed + a.seeds)
+    jobs = [(c, s, seed, a.noise, a.per_axle, a.axle_ratio) for c in cars for s in scales for seed in seeds]
     with ProcessPoolExecutor(max_workers=a.jobs) as ex:
         runs = list(ex.map(run_one, jobs))
     if a.verbose:
         for r in runs:
             for kind in ("ukf", "ekf"):
                 cells = []
-                for n in NAMES:
+                for n in [n for n in NAMES + AXLES if n in r[kind]]:
                     x = r[kind][n]
                     e = "-" if x["err"] is None else f"{100 * x['err']:+.1f}%"
                     z = "" if x["z"] is None else f"/{x['z']:.1f}σ"
                     cells.append(f"{n}={e}{z}{'' if x['valid'] else '(' + x['status'][:5] + ')'}")
                 print(f"{r['car']} x{r['scale']:g} seed {r['seed']} {kind}: " + " ".join(cells))
-    print(f"### vdp simulator, `paper` drive, noise `{a.noise}`: cars {cars}, prior scales {scales}, {a.seeds} seeds")
+    print(
+        f"### vdp simulator, `paper` drive, noise `{a.noise}`: cars {cars}, prior scales {scales}, {a.seeds} seeds"
+        + (", per-axle C_alpha" if a.per_axle else "")
+        + (f", rear/front cornering stiffness {a.axle_ratio:g}" if a.axle_ratio != 1.0 else "")
+    )
     print()
     for kind in ("ukf", "ekf"):
         print("\n".join(summarise(runs, kind)))
