@@ -70,6 +70,23 @@ def test_json_never_carries_nan(drive, repo_root):
     assert set(res["parameters"]) == set(NAMES)
 
 
+def test_per_axle_reports_each_axle_in_c_alphas_extra(drive, repo_root, capsys):
+    d, log = drive
+    out = d / "axles.json"
+    prof = str(repo_root / "profiles" / "paper.toml")
+    assert main(["replay", str(log), "--profile", prof, "--json", str(out), "--per-axle", "--no-progress"]) == 0
+    e = json.loads(out.read_text())["parameters"]["C_alpha"]
+    x = e["extra"]
+    # stage 2 never ran in this drive: both axles are the prior's, and not valid, with the reason
+    assert x["C_alpha_front"] == x["C_alpha_rear"] == e["value"]
+    assert x["per_axle_valid"] is False and x["per_axle_reason"] == "stage 2 has not run"
+    text = capsys.readouterr().out
+    assert "C_alpha per axle (C_alpha is their mean): front" in text and "not valid: stage 2 has not run" in text
+    # one C_alpha (the default): no per-axle numbers
+    main(["replay", str(log), "--profile", prof, "--json", str(out), "--no-progress"])
+    assert "extra" not in json.loads(out.read_text())["parameters"]["C_alpha"]
+
+
 def test_baseline_flags_that_contradict_are_refused(drive, capsys):
     _, log = drive
     assert main(["replay", str(log), "--baseline", "ekf", "--no-ekf", "--no-progress"]) == 2

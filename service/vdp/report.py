@@ -114,7 +114,27 @@ def table(result: RunResult, truth: dict | None = None) -> str:
         lines.append(row)
     if any(params[n].reason for n in NAMES):
         lines.append("! not valid: the profile check found a mismatch it rests on (see above)")
+    lines += axle_lines(params, truth)
     return "\n".join(lines)
+
+
+def axle_lines(params: Mapping[str, Estimate], truth: dict | None = None) -> list[str]:
+    """C_alpha per axle (its ``extra``, when stage 2 estimates each axle), one line, with the
+    truth's per-axle values if known and why they are not valid."""
+    e = params.get("C_alpha")
+    x = e.extra if e is not None else {}
+    if x.get("C_alpha_front") is None:
+        return []
+    line = (
+        f"C_alpha per axle (C_alpha is their mean): front {_fmt(x['C_alpha_front'])} ± "
+        f"{_fmt(x.get('C_alpha_front_std'), 2)}, rear {_fmt(x['C_alpha_rear'])} ± "
+        f"{_fmt(x.get('C_alpha_rear_std'), 2)} N/rad"
+    )
+    per = (truth or {}).get("per_axle") or {}
+    if "C_alpha_front" in per and "C_alpha_rear" in per:
+        line += f" (truth {_fmt(per['C_alpha_front'])} / {_fmt(per['C_alpha_rear'])})"
+    why = x.get("per_axle_reason")
+    return [line, f"  not valid: {why}"] if why else [line]
 
 
 def write_json(doc: dict | RunResult, path: str | Path) -> None:

@@ -50,6 +50,12 @@ def add_parser(sub):
     p.add_argument("--no-ekf", action="store_true", help="no EKF baseline (the default; kept for scripts)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument(
+        "--per-axle",
+        action="store_true",
+        help="stage 2 estimates the front and the rear cornering stiffness separately (C_alpha is their "
+        "mean; each in C_alpha's extra); off: one C_alpha for both axles",
+    )
+    p.add_argument(
         "--per-frame",
         action="store_true",
         help="read a candump log frame by frame instead of in blocks (slower, same result)",
@@ -97,6 +103,7 @@ class Progress:
 def run(args) -> int:
     from .. import profilecheck, report
     from ..core.estimator import EstimatorConfig
+    from ..core.learner import LearnerConfig
     from ..io.bulk import replay_log
     from ..pipeline import Pipeline
     from ..profile import load_profile
@@ -124,7 +131,10 @@ def run(args) -> int:
     # the estimates' history is kept only for the plot: without one, memory stays flat on long logs
     # (at most PLOT_ROWS rows, thinned as the log goes on: ~1.5 KB each, and a plot has ~600 px per panel)
     cfg = EstimatorConfig(
-        baseline=args.baseline == "ekf", trace_len=None if args.plot else 0, trace_max=PLOT_ROWS if args.plot else None
+        learner=LearnerConfig(per_axle=args.per_axle),
+        baseline=args.baseline == "ekf",
+        trace_len=None if args.plot else 0,
+        trace_max=PLOT_ROWS if args.plot else None,
     )
     try:
         size = Path(args.log).stat().st_size
