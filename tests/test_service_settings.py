@@ -31,6 +31,16 @@ def test_defaults_and_relative_paths(tmp_path):
     assert s.profile == (tmp_path / "p.toml").resolve()
     assert s.store.path == (tmp_path / "db" / "x.sqlite").resolve()
     assert s.api.host == "127.0.0.1" and s.bus.listen_only is True
+    assert s.service.per_axle is False  # one C_alpha for both axles unless asked
+
+
+def test_per_axle_reaches_the_live_estimator(tmp_path):
+    from vdp.live.service import Service
+
+    s = load_settings(write(tmp_path, f'profile = "{ROOT / "profiles" / "paper.toml"}"\n[service]\nper_axle = true\n'))
+    assert s.service.per_axle is True
+    svc = Service(s)  # built, not started
+    assert all(l2.cfg.per_axle for l2 in svc.estimation.pipeline.estimator.s2.values())
 
 
 @pytest.mark.parametrize(
@@ -45,6 +55,7 @@ def test_defaults_and_relative_paths(tmp_path):
         ('profile = "p.toml"\n[raw_log]\nmax_files = 1\n', "'max_files': must be at least 2"),
         ('profile = "p.toml"\n[store]\nsynchronous = "off"\n', "'synchronous'"),
         ('profile = "p.toml"\n[service]\nreconnect_max = 0.1\n', "'reconnect_max'"),
+        ('profile = "p.toml"\n[service]\nper_axle = "yes"\n', "'per_axle'"),
         ('profile = "p.toml"\n[bus.kwargs]\nchannel = "x"\n', r"\[bus.kwargs\]"),
         ('profile = "p.toml"\n[mystery]\n', "unknown section"),
         ('profile = "p.toml"\nbus = 3\n', r"\[bus\]: must be a table"),

@@ -84,6 +84,8 @@ class ServiceSettings:
     reconnect_max: float = 30.0
     silence: float = 5.0  # s without any frame: the bus is reported silent
     diverged_hold: float = 60.0  # s /health stays degraded after a filter reset
+    # stage 2 estimates the front and the rear cornering stiffness separately (LearnerConfig.per_axle)
+    per_axle: bool = False
 
 
 @dataclass(frozen=True)

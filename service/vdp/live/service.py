@@ -58,6 +58,7 @@ def profile_check_reasons(check: dict | None) -> list[str]:
 class Service:
     def __init__(self, settings: Settings, profile=None, opener: Callable | None = None, pipeline=None):
         from ..core.estimator import EstimatorConfig
+        from ..core.learner import LearnerConfig
         from ..pipeline import Pipeline
         from ..profile import load_profile
 
@@ -66,7 +67,8 @@ class Service:
         self.fingerprint = profile_fingerprint(self.profile)
         self.ingest = Ingest(settings, self.profile, opener)
         # The live trace only backs plots of recent data; history lives in the store.
-        pipe = pipeline if pipeline is not None else Pipeline(self.profile, EstimatorConfig(trace_len=600))
+        cfg = EstimatorConfig(trace_len=600, learner=LearnerConfig(per_axle=settings.service.per_axle))
+        pipe = pipeline if pipeline is not None else Pipeline(self.profile, cfg)
         self.estimation = Estimation(pipe, self.ingest.queue, settings.service.publish_interval)
         self.writer = StoreWriter(settings.store, self.fingerprint, self.profile.vehicle.name)
         self.restored: dict | None = None
