@@ -34,7 +34,7 @@ import numpy as np
 from ..errors import ProfileError
 from ..io import dbcfix
 from ..io.checks import vdp_checksum
-from ..io.decoder import check_fine
+from ..io.signals import check_fine
 from ..profile import ChannelMap, Composite, Profile
 
 log = logging.getLogger(__name__)
