@@ -20,6 +20,8 @@ STAGE = {
     "vdp.channels": 0,
     "vdp.settings": 0,
     "vdp.profile": 0,
+    "vdp.units": 0,  # the profile's units table
+    "vdp.opendbc": 0,  # finds (and repairs, caches) a profile's opendbc DBC
     "vdp.core.params": 0,
     "vdp.core.result": 0,
     "vdp.core.sample": 0,

@@ -19,19 +19,15 @@ then the sum of the two decoded values.
 the installed opendbc package (the ``opendbc`` extra): a file it ships, or one its
 generator builds (``NAME`` ends in ``_generated``, e.g. Toyota's).  Generated DBCs,
 and shipped ones that cantools cannot parse as they are, are written to vdp's cache
-directory (see :func:`cache_dir`) and the profile points there.  docs/PROFILES.md
-describes every key.
+directory (:mod:`vdp.opendbc`) and the profile points there.  The units a profile may
+name are in :mod:`vdp.units`.  docs/PROFILES.md describes every key.
 """
 
 from __future__ import annotations
 
-import difflib
-import functools
 import logging
 import math
-import os
 import sys
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,81 +40,11 @@ else:  # pragma: no cover
 from . import channels
 from .core.params import NAMES
 from .errors import ProfileError
+from .opendbc import _opendbc_generated, cache_dir  # noqa: F401  (tests and callers read them here)
+from .opendbc import opendbc_path as _opendbc_path
+from .units import _UNIT_LIST, CHANNEL_KINDS, SOURCES, TERM, UNIT_ALIASES, UNIT_FACTORS  # noqa: F401
 
 log = logging.getLogger(__name__)
-
-# Unit -> (factor to SI, SI unit kind).  Linear speeds become rad/s for wheel
-# channels through the wheel radius (see ChannelMap.convert).
-UNIT_FACTORS: dict[str, tuple[float, str]] = {
-    "rad/s": (1.0, "angular_rate"),
-    "deg/s": (math.pi / 180.0, "angular_rate"),
-    "rpm": (2.0 * math.pi / 60.0, "angular_rate"),
-    "m/s": (1.0, "speed"),
-    "km/h": (1.0 / 3.6, "speed"),
-    "kph": (1.0 / 3.6, "speed"),
-    "mph": (0.44704, "speed"),
-    "kn": (0.514444, "speed"),
-    "N*m": (1.0, "torque"),
-    "Nm": (1.0, "torque"),
-    "N.m": (1.0, "torque"),
-    "kN*m": (1000.0, "torque"),
-    "rad": (1.0, "angle"),
-    "deg": (math.pi / 180.0, "angle"),
-    "m/s^2": (1.0, "accel"),
-    "m/s2": (1.0, "accel"),
-    "g": (9.80665, "accel"),
-    "bar": (1e5, "pressure"),
-    "mbar": (100.0, "pressure"),
-    "kPa": (1e3, "pressure"),
-    "MPa": (1e6, "pressure"),
-    "Pa": (1.0, "pressure"),
-    "psi": (6894.757, "pressure"),
-    "1": (1.0, "ratio"),
-    "%": (0.01, "ratio"),
-}
-# VW's DBCs (opendbc vw_*.dbc) spell units like this; same meaning as above.
-UNIT_ALIASES: dict[str, str] = {
-    "Unit_DegreOfArcPerSecon": "deg/s",
-    "Unit_MinutInver": "rpm",
-    "Unit_KiloMeterPerHour": "km/h",
-    "Unit_NewtoMeter": "Nm",
-    "Unit_DegreOfArc": "deg",
-    "Unit_MeterPerSeconSquar": "m/s^2",
-    "Unit_ForceOfGravi": "g",
-    # and others' (opendbc's hyundai_canfd)
-    "km^h": "km/h",
-    "Deg/s": "deg/s",
-}
-UNIT_FACTORS.update({alias: UNIT_FACTORS[unit] for alias, unit in UNIT_ALIASES.items()})
-_UNIT_LIST = ", ".join(u for u in UNIT_FACTORS if u not in UNIT_ALIASES)
-
-# What kind of unit each canonical channel accepts.
-CHANNEL_KINDS: dict[str, tuple[str, ...]] = {
-    "wheel_speed_fl": ("angular_rate", "speed"),
-    "wheel_speed_fr": ("angular_rate", "speed"),
-    "wheel_speed_rl": ("angular_rate", "speed"),
-    "wheel_speed_rr": ("angular_rate", "speed"),
-    "wheel_torque_front": ("torque",),
-    "wheel_torque_rear": ("torque",),
-    "steering_angle": ("angle",),
-    "accel_x": ("accel",),
-    "accel_y": ("accel",),
-    "yaw_rate": ("angular_rate",),
-    "roll_rate": ("angular_rate",),
-    "speed": ("speed",),
-}
-
-# Source channels: what production buses send instead of per-axle torque.  They never
-# reach the estimator themselves; [drivetrain] turns them into wheel_torque_front/rear.
-SOURCES: dict[str, tuple[str, ...]] = {
-    "drive_torque": ("torque",),  # total drive torque at the wheels, of the driven axle(s)
-    "brake_torque": ("torque",),  # total brake torque, a positive magnitude
-    "brake_pressure": ("pressure",),  # master-cylinder pressure; times brake_gain is brake_torque
-}
-CHANNEL_KINDS.update(SOURCES)
-# Any unit kind is allowed in a term of a composite channel (its weight converts it).
-TERM = "term"
-CHANNEL_KINDS[TERM] = tuple({k for _, k in UNIT_FACTORS.values()})
 
 PARAMETERS = NAMES  # the six unknowns (core.params): each needs a prior
 # optional per-axle cornering stiffness priors (stage 2 estimates each axle; C_alpha is their
@@ -842,112 +768,3 @@ def _composite(where: str, name: str, raw: dict) -> Composite:
     if max_age <= 0:
         raise ProfileError(f"{w}: 'max_age' must be positive")
     return Composite(name, op, tuple(terms), tuple(conds), max_age, w)
-
-
-def cache_dir() -> Path:
-    """Where vdp writes DBCs it derives from opendbc: ``$VDP_CACHE_DIR``, else
-    ``$XDG_CACHE_HOME/vdp``, else ``~/.cache/vdp``."""
-    env = os.environ.get("VDP_CACHE_DIR")
-    if env:
-        return Path(env)
-    xdg = os.environ.get("XDG_CACHE_HOME")
-    return (Path(xdg) if xdg else Path.home() / ".cache") / "vdp"
-
-
-def _opendbc_path(where: str, name: str) -> Path:
-    try:
-        import opendbc  # optional extra: pip install vdp[opendbc]
-    except ImportError:
-        raise ProfileError(
-            f"{where} [can]: dbc 'opendbc:{name}' needs the opendbc package; "
-            f"install it with: pip install 'vdp[opendbc]'"
-        ) from None
-    stem = name[:-4] if name.endswith(".dbc") else name
-    base = Path(opendbc.__file__).parent / "dbc"
-    shipped = base / (stem + ".dbc")
-    if shipped.is_file():
-        text = shipped.read_text(encoding="utf-8", errors="replace")
-        repaired = _repaired(shipped, text)
-        return shipped if repaired == text else _cached(where, stem, repaired)
-    try:
-        generated = _opendbc_generated()
-    except Exception as exc:  # opendbc's own scripts; whatever they raise, say where it came from
-        raise ProfileError(f"{where} [can]: opendbc's DBC generator failed: {type(exc).__name__}: {exc}") from None
-    if stem in generated:
-        return _cached(where, stem, _repaired(Path(f"{stem}.dbc (generated by opendbc)"), generated[stem]))
-    names = sorted({p.stem for p in base.glob("*.dbc")} | set(generated))
-    close = difflib.get_close_matches(stem, names, n=5, cutoff=0.5)
-    hint = f"similar: {', '.join(close)}" if close else f"it has {len(names)}, e.g. {', '.join(names[:8])}"
-    raise ProfileError(
-        f"{where} [can]: opendbc has no DBC named '{stem}' (neither in {base} nor generated by its generator); {hint}"
-    )
-
-
-def _repaired(path: Path, text: str) -> str:
-    """opendbc's DBC text with what cantools cannot parse repaired (:mod:`vdp.io.dbcfix`), said once."""
-    import cantools
-
-    from .io import dbcfix
-
-    try:
-        cantools.database.load_string(text, database_format="dbc", strict=False)
-        return text
-    except Exception as exc:  # cantools raises parser-specific errors of many types
-        fixed, reasons = dbcfix.repair(text)
-        if reasons and str(path) not in _REPAIRED:
-            _REPAIRED.add(str(path))
-            log.warning(
-                "opendbc's %s does not parse as it is (%s); using a repaired copy: %s",
-                path.name,
-                dbcfix.first_line(exc),
-                "; ".join(reasons),
-            )
-        return fixed
-
-
-_REPAIRED: set[str] = set()
-
-
-@functools.lru_cache(maxsize=1)
-def _opendbc_generated() -> dict[str, str]:
-    """{name: DBC text} of every DBC opendbc's generator builds (about 50 ms, once per process)."""
-    try:
-        from opendbc.dbc.generator.generator import generate_all
-    except ImportError:  # an opendbc without the in-memory generator: only shipped files
-        return {}
-    return generate_all()
-
-
-def _cached(where: str, stem: str, text: str) -> Path:
-    """``text`` as ``<cache>/opendbc-<version>/<stem>.dbc``, rewritten only when it differs."""
-    try:
-        from importlib.metadata import version
-
-        ver = version("opendbc")
-    except Exception:  # metadata missing in odd installs; the content check below still holds
-        ver = "unknown"
-    data = text.encode("utf-8")
-    user = os.getuid() if hasattr(os, "getuid") else "user"
-    dirs = [cache_dir() / f"opendbc-{ver}", Path(tempfile.gettempdir()) / f"vdp-{user}" / f"opendbc-{ver}"]
-    errors = []
-    for d in dirs:
-        path = d / f"{stem}.dbc"
-        try:
-            if path.is_file() and path.read_bytes() == data:
-                return path
-            d.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=d, prefix=f".{stem}.", suffix=".tmp")
-            try:
-                with os.fdopen(fd, "wb") as f:
-                    f.write(data)
-                os.replace(tmp, path)  # atomic: a concurrent reader sees the old or the new file
-            except BaseException:
-                Path(tmp).unlink(missing_ok=True)
-                raise
-            return path
-        except OSError as exc:
-            errors.append(f"{d}: {exc.strerror or exc}")
-    raise ProfileError(
-        f"{where} [can]: cannot write the opendbc DBC '{stem}' to a cache directory "
-        f"({'; '.join(errors)}); set VDP_CACHE_DIR to a writable directory"
-    )
