@@ -215,3 +215,11 @@ def test_a_signal_both_factor_and_term_is_refused():
     }
     with pytest.raises(ProfileError, match="further factor of a product in one place and a term of a sum"):
         Encoder(profile(comps), DB)
+
+
+def test_a_signal_both_channel_and_term_is_refused():
+    a = ("IMU_ACCEL", "ACCEL_X")
+    comps = {"wheel_torque_front": Composite("wheel_torque_front", "sum", (Term(term_map(a, "a"), 2.0),))}
+    prof = dataclasses.replace(profile(comps), channels={"accel_x": PAPER.channels["accel_x"]})
+    with pytest.raises(ProfileError, match="ACCEL_X: it is also accel_x's signal"):
+        Encoder(prof, DB)

@@ -392,8 +392,15 @@ class Composites:
                     raise ProfileError(f"{comp.where}: {cm.message}.{cm.signal} is both an enum condition and a term")
                 j = keys.get(key)
                 if j is None:
+                    sp = enc.signal_plan(cm, by_name)
+                    plain = next((p.channel for p in by_name[cm.message].signals if p.signal == cm.signal), None)
+                    if plain is not None:
+                        raise ProfileError(
+                            f"{cm.where}: the simulator cannot encode {cm.message}.{cm.signal}: it is also "
+                            f"{plain}'s signal, and one value cannot serve both"
+                        )
                     j = keys[key] = len(self.plans)
-                    self.plans.append(enc.signal_plan(cm, by_name))
+                    self.plans.append(sp)
                     maps.append(cm)
                     role[j] = how
                 elif _mapping(maps[j], enc) != _mapping(cm, enc):
@@ -505,10 +512,13 @@ class Composites:
             if not grown:
                 break
         if not (np.all(sol >= self.lo) and np.all(sol <= self.hi)):
-            from scipy.optimize import lsq_linear
+            if len(self.free) == 1:  # one signal: the nearest value within its range is the best
+                sol = np.clip(sol, self.lo, self.hi)
+            else:
+                from scipy.optimize import lsq_linear
 
-            lo, hi = self.lo, np.maximum(self.hi, self.lo + 1e-12)
-            sol = lsq_linear(A, target, bounds=(lo, hi), method="bvls").x
+                lo, hi = self.lo, np.maximum(self.hi, self.lo + 1e-12)
+                sol = lsq_linear(A, target, bounds=(lo, hi), method="bvls").x
         x = list(c)
         for j, i in col.items():
             x[j] = float(sol[i])
