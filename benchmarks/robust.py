@@ -1,7 +1,7 @@
 """Robustness of the estimator on vdp's own simulator: car sets x prior scales x seeds.
 
     python benchmarks/robust.py --cars paper,small,suv --scales 0.6,1,1.6 --seeds 3 --jobs 2 [-v]
-        [--per-axle] [--axle-ratio 1.3]
+        [--per-axle] [--axle-ratio 1.3] [--axle-split 0.5]
 
 Each car set is the paper profile's bus layout (dbc/vdp.dbc) with the car's known
 constants, truth and priors replaced.  ``--scales`` multiplies the priors' *means*
@@ -86,9 +86,13 @@ def car_profile(car: str, scale: float):
 
 
 def run_one(args) -> dict:
-    car, scale, seed, noise, per_axle, ratio = args
+    car, scale, seed, noise, per_axle, ratio, split = args
     import logging
 
+    from vdp.core import learner
+
+    if split is not None:
+        learner.AXLE_SPLIT = split
     from vdp.core.estimator import EstimatorConfig
     from vdp.core.learner import LearnerConfig
     from vdp.pipeline import Pipeline
@@ -172,6 +176,9 @@ def main() -> int:
     ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
     ap.add_argument("--per-axle", action="store_true", help="stage 2 estimates each axle's C_alpha")
     ap.add_argument("--axle-ratio", type=float, default=1.0, help="simulated rear/front cornering stiffness")
+    ap.add_argument(
+        "--axle-split", type=float, help="prior std of the axles' half-difference / C_alpha's (learner.AXLE_SPLIT)"
+    )
     a = ap.parse_args()
     cars = a.cars.split(",")
     for c in cars:
@@ -179,7 +186,9 @@ def main() -> int:
             ap.error(f"unknown car set {c!r}; known: {', '.join(CARS)}")
     scales = [float(s) for s in a.scales.split(",")]
     seeds = range(a.first_seed, a.first_seed + a.seeds)
-    jobs = [(c, s, seed, a.noise, a.per_axle, a.axle_ratio) for c in cars for s in scales for seed in seeds]
+    jobs = [
+        (c, s, seed, a.noise, a.per_axle, a.axle_ratio, a.axle_split) for c in cars for s in scales for seed in seeds
+    ]
     with ProcessPoolExecutor(max_workers=a.jobs) as ex:
         runs = list(ex.map(run_one, jobs))
     if a.verbose:
@@ -196,6 +205,7 @@ def main() -> int:
         f"### vdp simulator, `paper` drive, noise `{a.noise}`: cars {cars}, prior scales {scales}, {a.seeds} seeds"
         + (", per-axle C_alpha" if a.per_axle else "")
         + (f", rear/front cornering stiffness {a.axle_ratio:g}" if a.axle_ratio != 1.0 else "")
+        + (f", AXLE_SPLIT {a.axle_split:g}" if a.axle_split is not None else "")
     )
     print()
     for kind in ("ukf", "ekf"):
