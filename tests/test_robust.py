@@ -96,6 +96,47 @@ def test_batch_solution_finds_the_truth_from_a_far_start_and_linear_start_needs_
     assert 0.7 < fit.chi2 < 1.3  # the noise is what R says
 
 
+def test_batch_reads_the_initial_stiffness_of_a_bending_tyre_with_slip_offsets():
+    """A brush-like tyre (mu 1) with rolling-resistance offsets that differ per axle: the linear law
+    reads C_K well low, the bending law with offsets gets l_f, h and C_K back (core.longitudinal)."""
+    k = longitudinal.Known(m=1600.0, L=2.5, r=0.3, J=0.6)
+    rng = np.random.default_rng(5)
+    n = 600
+    a_x = 4.0 * np.sin(np.linspace(0, 20, n))
+    l_f, h, c_k = 1.3, 0.6, 15.0
+    f_zf, f_zr = longitudinal.axle_loads(l_f, h, a_x, k)
+    share = 0.5 + 0.3 * np.sin(np.linspace(0, 7, n))  # front share of the drive force varies
+    f = k.m * a_x
+    U = np.zeros((n, longitudinal.N_U))
+    U[:, longitudinal.U_TF] = share * f * k.r
+    U[:, longitudinal.U_TR] = (1 - share) * f * k.r
+    U[:, longitudinal.U_AX] = a_x
+    U[:, longitudinal.U_VX] = 20.0
+
+    def brush(q):  # slip of a brush tyre at load share q (mu 1), exact
+        return np.sign(q) * 3.0 / c_k * (1.0 - (1.0 - np.abs(q)) ** (1.0 / 3.0))
+
+    s_f = brush(share * f / f_zf) - 0.0006
+    s_r = brush((1 - share) * f / f_zr) - 0.0009
+    Z = np.stack([20.0 * (1 + s_f), 20.0 * (1 + s_r)], axis=1) / k.r + rng.normal(0, 0.005, (n, 2))
+    R = np.broadcast_to(np.eye(2) * 0.005**2, (n, 2, 2)).copy()
+    truth = np.array([l_f, h, c_k])
+
+    b3 = Bounds(3, log=(1, 2), logit={0: (0.0, 2.5)})
+    t3 = b3.from_si(np.array([1.25, 0.55, 12.0]))
+    lin = batch.solve(lambda t, u: longitudinal.hx(b3.to_si(t), u, k), U, Z, R, t3, np.eye(3), [t3])
+    assert b3.to_si(lin.t)[2] < 0.9 * c_k  # the straight line reads the bend as a softer tyre
+
+    b6 = Bounds(longitudinal.N_X, log=(1, 2), logit={0: (0.0, 2.5)})
+    t6 = b6.from_si(np.array([1.25, 0.55, 12.0, 0.0, 0.0, 0.0]))
+    P6 = np.diag([1.0, 1.0, 1.0, 0.5**2, 0.005**2, 0.005**2])
+    fit = batch.solve(lambda t, u: longitudinal.hx(b6.to_si(t), u, k), U, Z, R, t6, P6, [t6])
+    x = b6.to_si(fit.t)
+    err = np.abs(x[:3] - truth) / truth
+    assert np.all(err < [0.01, 0.05, 0.03]), x
+    np.testing.assert_allclose(x[4:], [-0.0006, -0.0009], atol=2e-4)
+
+
 # -- whole drives with priors off -----------------------------------------------------------
 @pytest.mark.slow
 @pytest.mark.parametrize("scale", [0.6, 1.6])
