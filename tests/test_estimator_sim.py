@@ -56,6 +56,13 @@ def test_paper_drive_converges_to_truth(profile, noise, seed):
         assert l2.l_f_correlation()[0] > 0.1, kind  # C_alpha's
     stages = {w.stage for w in snap.windows}
     assert stages == {1, 2}
+    # vdp's own tyre is eq (14)'s straight line through zero: stage 1 finds neither a bend
+    # nor a slip offset (core.longitudinal), and says so in what it reports of its learners
+    for kind, l1 in pipe.estimator.s1.items():
+        tyre = snap.supervisor["learners"][kind]["stage1"]["tyre"]
+        assert tyre == l1.tyre() and not l1.shaped and tyre["law"] == "linear (eq 14)"
+        assert abs(tyre["bend"]) < 0.1, (kind, tyre)
+        assert abs(tyre["slip_offset_front"]) < 5e-4 and abs(tyre["slip_offset_rear"]) < 5e-4, (kind, tyre)
 
 
 @pytest.mark.slow

@@ -72,17 +72,16 @@ def test_stage_1_runs_and_l_f_is_near(case, tmp_path_factory):
 TODAY = "issue 11: today's estimator is confidently wrong on a real tyre law (est is fixing it)"
 # (case, what) that today's estimator misses on these drives (measured at 8a6a448)
 MISSES = {
-    ("brush/small", "C_K"),
     ("brush/small", "C_alpha"),
     ("mb/bmw_320i", "C_alpha"),
     ("brush/small", "I_z"),
+    # stage 2 (axle): I_z read +3 % here only while stage 1's h was 11 % high; with h within
+    # 1 % (stage 1's bending tyre and slip offsets) this short drive gives I_z +14 % and C_alpha -4 %
+    ("mb/bmw_320i", "I_z"),
     ("brush/small", "C_alpha_front"),
     ("mb/bmw_320i", "C_alpha_front"),
     ("brush/small", "C_alpha_rear"),
     ("mb/bmw_320i", "C_alpha_rear"),
-    # est: a model mismatch now makes these not valid (before: valid with the truth beyond 3 sigma),
-    # but the widened std does not yet reach the truth within 2 sigma
-    ("brush/small", "h"),
 }
 
 

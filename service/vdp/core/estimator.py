@@ -204,6 +204,7 @@ class TwoStageEstimator:
                     "batch_chi2_per_dof": None if f is None else round(f.chi2, 3),
                     "batch_whiteness_lag1": None if f is None else round(f.rho, 3),
                     "model_mismatch": l1.mismatch()[1],
+                    "tyre": l1.tyre(),
                 },
                 "stage2": {
                     "seconds_in_windows": round(l2.samples * tick, 2),
