@@ -46,8 +46,8 @@ def test_ford_layout_round_trips_with_1_hz_whole_mph_gps():
     assert st["errors"] == {} and st["invalid_samples"] == {}
     assert gps == 12  # once a second, as the profile's cycle_ms says
     assert st["samples"]["speed"] == 12 and st["samples"]["wheel_torque_front"] > 1000
-    # whole mph: the speed filter's GNSS noise carries the rounding (half of 0.447 m/s)
-    assert pipe.estimator.cfg.speed.gnss_noise > 0.2
+    # whole mph: the speed filter carries the rounding (0.447 m/s steps) as a state of its own
+    assert pipe.estimator.cfg.speed.gnss_step == pytest.approx(0.44704)
 
 
 def test_ford_quality_flags_keep_bad_samples_out():

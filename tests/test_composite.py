@@ -185,7 +185,7 @@ def test_free_rolling_axle_is_the_speed_reference(tmp_path):
     assert wheel_reference(SpeedConfig(), 30.0, 32.0, 0.0, 0.3) is None
 
 
-def test_coarse_gnss_speed_gets_its_rounding_noise(tmp_path):
+def test_coarse_gnss_speed_gets_its_rounding_state(tmp_path):
     from vdp.core.speed import gnss_noise
 
     text = PAPER.replace('dbc = "', 'dbc = ["').replace(
@@ -197,10 +197,11 @@ def test_coarse_gnss_speed_gets_its_rounding_noise(tmp_path):
     )
     p = tmp_path / "mph.toml"
     p.write_text(text)
-    noise = Pipeline(load_profile(p)).estimator.cfg.speed.gnss_noise
-    assert noise == pytest.approx(gnss_noise(0.05, 0.44704)) and noise > 0.2  # whole mph: 0.447 m/s steps
-    fine = Pipeline(load_profile(ROOT / "profiles" / "paper.toml")).estimator.cfg.speed.gnss_noise
-    assert fine == pytest.approx(0.05, rel=1e-4)  # 1 mm/s steps change nothing
+    cfg = Pipeline(load_profile(p)).estimator.cfg.speed
+    # whole mph: 0.447 m/s steps, a rounding-error state of their own (vdp.core.speed)
+    assert cfg.gnss_step == pytest.approx(0.44704) and cfg.gnss_noise == 0.05
+    fine = Pipeline(load_profile(ROOT / "profiles" / "paper.toml")).estimator.cfg.speed
+    assert fine.gnss_step == 0.0 and fine.gnss_noise == pytest.approx(gnss_noise(0.05, 0.001))  # 1 mm/s: as white
 
 
 @pytest.mark.slow

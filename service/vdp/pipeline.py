@@ -246,12 +246,14 @@ def _lacks(missing: list[str]) -> str | None:
 def speed_config(profile: Profile, db: Any, base: Any) -> Any:
     """The speed filter's settings for this car: the GNSS noise inflated by the speed signal's
     resolution, or the free-rolling axle as the reference when there is no GNSS."""
-    from .core.speed import gnss_noise
+    from .core.speed import ROUNDING_STATE_MIN, gnss_noise
 
     cm = profile.channels.get("speed")
     if cm is not None:
         sig = db.get_message_by_name(cm.message).get_signal_by_name(cm.fine or cm.signal)
         step = abs(sig.conversion.scale * cm.scale * cm.factor(profile.vehicle)) if not sig.is_float else 0.0
+        if step >= ROUNDING_STATE_MIN:  # a coarse step: its rounding error gets a state of its own
+            return dataclasses.replace(base, gnss_step=step, wheel_ref=None)
         return dataclasses.replace(base, gnss_noise=gnss_noise(base.gnss_noise, step), wheel_ref=None)
     if getattr(profile, "speed_reference", None) == "wheels":
         return dataclasses.replace(base, wheel_ref=profile.drivetrain.free_axle)

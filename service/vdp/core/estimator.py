@@ -21,7 +21,7 @@ from .. import channels as ch
 from .learner import LearnerConfig, Stage1, Stage2
 from .result import NOT_RUN, SETTLED, Estimate, Snapshot, WindowSpan
 from .sample import Sample
-from .speed import SpeedConfig, SpeedFilter, wheel_reference
+from .speed import SpeedConfig, speed_filter, wheel_reference
 from .supervisor import GateConfig, Supervisor
 
 log = logging.getLogger(__name__)
@@ -87,7 +87,7 @@ class TwoStageEstimator:
         if self.cfg.speed.wheel_ref is not None:
             need1, need2 = (tuple(i for i in n if i != ch.SPEED) for n in (need1, need2))
         self.supervisor = Supervisor(self.cfg.gate, need1, need2, wheel_radius=vehicle.wheel_radius)
-        self.speed = SpeedFilter(self.cfg.speed)
+        self.speed = speed_filter(self.cfg.speed)
         self.gyro_bias = GyroBias()
         self.trace: deque = deque(maxlen=self.cfg.trace_len)
         self._next_trace = None
@@ -160,7 +160,14 @@ class TwoStageEstimator:
         if s.gap:
             self.speed.reset()
         self.speed.step(t, ax, gnss, noise)
-        return self.speed.v, self.speed.std, self.speed.bias
+        std = self.speed.std
+        # stage 1 takes the speed's error as correlated over speed_corr^2 x 10 ms (4 s); one
+        # that stays longer (a coarse 1 Hz GNSS: about 10 s) counts for less: its std widens by
+        # sqrt(2 tau / that), 2 tau being how far apart two of its errors are independent
+        assumed = self.cfg.learner.speed_corr**2 * 0.01
+        if 2.0 * self.speed.corr_time > assumed:
+            std *= math.sqrt(2.0 * self.speed.corr_time / assumed)
+        return self.speed.v, std, self.speed.bias
 
     def reset(self, stage: int | None = None) -> None:
         """Clear one stage (1 or 2) or both (None)."""

@@ -13,17 +13,23 @@ at the ground speed (no slip, eq 14 with F_x = 0) up to the tyre's rolling radiu
 the measurement (``wheel_noise``), and while the free axle is braked the IMU
 carries the speed alone, with the bias learnt before.
 
-A GNSS speed in coarse steps (whole mph in Ford's GPS messages: 0.447 m/s) has a
-rounding error of up to half a step that stays put while the speed changes slowly, so its
-noise is inflated by half a step (:func:`gnss_noise`).  That is not all it takes: the
-error is correlated in time, which a white measurement noise cannot say, and stage 1's
-stds stay somewhat narrow on such a GNSS (BENCHMARKS.md, "Production bus layouts").
+A GNSS speed in coarse steps (whole mph in Ford's GPS messages: 0.447 m/s, once a second)
+carries a rounding error that white noise cannot describe: uniform over a step (std
+step/sqrt 12) while the speed sweeps through steps, but the same value sample after sample
+while the speed stays within one step.  Such a GNSS gets a third state, the rounding error
+``e`` (``gnss_step`` > 0): each GNSS speed measures ``v_x + e``, and ``e`` forgets itself as
+the speed travels, by ``exp(-6 |dv| / step)`` over a speed change ``dv`` (the initial slope of
+a sawtooth's autocorrelation, ``1 - 6 d`` at ``d`` steps).  While the car accelerates the
+steps average out; at constant speed the filter keeps the step's uncertainty instead of
+averaging a constant error away.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+import numpy as np
 
 
 @dataclass(frozen=True)
@@ -36,14 +42,21 @@ class SpeedConfig:
     wheel_ref: str | None = None
     wheel_noise: float = 0.05  # m/s: rolling radius error and noise of the axle's mean wheel speed
     brake_torque_max: float = 20.0  # N m: a free axle torque below minus this is braking
+    # the GNSS speed's quantisation step [m/s]; a step this coarse gets a rounding-error state
+    gnss_step: float = 0.0
+
+
+ROUNDING_STATE_MIN = 0.035  # m/s: a coarser step than this gets its state (its std 1/5 of 0.05 m/s)
+DECORRELATE = 6.0  # per step of speed travelled: the sawtooth's autocorrelation 1 - 6 d
 
 
 def gnss_noise(base: float, step: float) -> float:
-    """GNSS speed noise [m/s] for a signal quantised in ``step`` m/s.
+    """GNSS speed noise [m/s] for a signal quantised in a fine ``step`` m/s (below
+    ``ROUNDING_STATE_MIN``; a coarser one gets :class:`RoundedSpeedFilter`).
 
     The rounding error is uniform (std step/sqrt 12) but not white: while the speed changes
-    by less than a step the error stays the same, so averaging many samples does not shrink
-    it as the filter assumes.  Half a step, its largest value, is taken as its std instead.
+    by less than a step the error stays the same.  For a step this fine, half of it, the
+    error's largest value, is taken as a white noise's std.
     """
     return math.sqrt(base * base + 0.25 * step * step)
 
@@ -60,6 +73,11 @@ def wheel_reference(
     if math.isfinite(axle_torque) and axle_torque < -cfg.brake_torque_max:
         return None  # braked: the wheels slip, they are no reference now
     return 0.5 * (ws_left + ws_right) * wheel_radius
+
+
+def speed_filter(cfg: SpeedConfig) -> SpeedFilter:
+    """The speed filter for ``cfg``: with a rounding-error state for a coarse GNSS step."""
+    return RoundedSpeedFilter(cfg) if cfg.gnss_step > 0.0 else SpeedFilter(cfg)
 
 
 class SpeedFilter:
@@ -83,6 +101,10 @@ class SpeedFilter:
     @property
     def std(self) -> float:
         return math.sqrt(self.p_vv) if self.ready else math.nan
+
+    # a fine GNSS (or the wheels) decorrelates the speed's error within stage 1's assumed
+    # time (LearnerConfig.speed_corr): not tracked here
+    corr_time = 0.0
 
     def step(self, t: float, a_x: float, gnss: float | None, noise: float | None = None) -> None:
         """Advance to ``t`` with the measured a_x; correct with a speed measured at ``t``
@@ -119,3 +141,83 @@ class SpeedFilter:
         self.p_vv = p_vv - k_v * p_vv
         self.p_vb = p_vb - k_v * p_vb
         self.p_bb = p_bb - k_b * p_vb
+
+
+class RoundedSpeedFilter(SpeedFilter):
+    """:class:`SpeedFilter` with a third state, the GNSS speed's rounding error ``e``.
+
+    State ``[v_x, b_ax, e]``, covariance ``P`` (3x3).  A GNSS speed measures ``v_x + e`` with
+    the white ``gnss_noise``; the free-rolling axle, ``v_x`` alone.  ``e`` is a first-order
+    Gauss-Markov process of variance step^2 / 12 whose correlation decays with the speed
+    travelled (module docstring).
+    """
+
+    def reset(self) -> None:
+        self.v = math.nan
+        self.e = 0.0
+        self.tau = 0.0  # s: the speed error's correlation time (corr_time)
+        self.t_meas: float | None = None
+        self.P = np.zeros((3, 3))
+        self.P[1, 1] = self.p_bb
+        self.t: float | None = None
+        self.a_prev = math.nan
+
+    @property
+    def p_vv(self) -> float:
+        return float(self.P[0, 0])
+
+    @property
+    def corr_time(self) -> float:
+        """How long [s] the speed's error stays correlated: the interval between measurements
+        over the share of an error each one removes (the gain on v_x), averaged.  About 5 s
+        for whole mph at 1 Hz (about 1 s for a 10 Hz GNSS of 0.05 m/s)."""
+        return self.tau
+
+    def step(self, t: float, a_x: float, gnss: float | None, noise: float | None = None) -> None:
+        c = self.cfg
+        q = c.gnss_step
+        var_e = q * q / 12.0
+        is_gnss = noise is None
+        r = c.gnss_noise if is_gnss else noise
+        dt = None if self.t is None else t - self.t
+        self.p_bb = float(self.P[1, 1])  # the bias outlives a reset, with its uncertainty
+        if not math.isfinite(a_x) or dt is None or dt <= 0 or dt > c.max_gap:
+            self.reset()
+            self.P[1, 1] = self.p_bb
+            self.t = t if math.isfinite(a_x) else None
+        elif self.ready:
+            a_mean = 0.5 * (a_x + self.a_prev) if math.isfinite(self.a_prev) else a_x
+            dv = dt * (a_mean - self.bias)
+            self.v += dv
+            phi = math.exp(-DECORRELATE * abs(dv) / q)
+            self.e *= phi
+            F = np.array([[1.0, -dt, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, phi]])
+            Q = np.diag([(c.accel_noise * dt) ** 2, c.bias_walk**2 * dt, var_e * (1.0 - phi * phi)])
+            self.P = F @ self.P @ F.T + Q
+            self.t = t
+        self.a_prev = a_x
+        if gnss is None or not math.isfinite(gnss):
+            return
+        if not self.ready:
+            self.v, self.e = gnss, 0.0
+            P = np.zeros((3, 3))
+            P[1, 1] = self.P[1, 1]
+            if is_gnss:  # v = z - e - noise: v and e start anticorrelated
+                P[0, 0], P[2, 2], P[0, 2] = r * r + var_e, var_e, -var_e
+            else:
+                P[0, 0], P[2, 2] = r * r, var_e
+            P[2, 0] = P[0, 2]
+            self.P = P
+            self.t = t
+            return
+        h = np.array([1.0, 0.0, 1.0 if is_gnss else 0.0])
+        Ph = self.P @ h
+        k = Ph / (h @ Ph + r * r)
+        if self.t_meas is not None and t > self.t_meas and k[0] > 0.0:
+            tau = min((t - self.t_meas) / float(k[0]), 120.0)
+            self.tau = tau if self.tau == 0.0 else self.tau + 0.1 * (tau - self.tau)
+        self.t_meas = t
+        x = np.array([self.v, self.bias, self.e]) + k * (gnss - self.v - h[2] * self.e)
+        self.v, self.bias, self.e = float(x[0]), float(x[1]), float(x[2])
+        self.P = self.P - np.outer(k, Ph)
+        self.P = 0.5 * (self.P + self.P.T)
