@@ -100,7 +100,7 @@ def main() -> int:
     case = next(c for c in bus.CASES if a.case in c)
     print(f"{case}, paper drive, {a.noise} noise, speed: {a.speed}, speed std to stage 1: {a.speed_std or 'filter'}")
     print(
-        "| seed | v err mean | v err RMS | std to stage 1 | autocorr 1/2/5 s | GNSS fixes: mean, std (n) | l_f | h | C_K |"
+        "| seed | v err mean | v err RMS | std to stage 1 | autocorr 1/2/5 s | fixes: mean, std (n) | l_f | h | C_K |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     for seed in range(a.first_seed, a.first_seed + a.seeds):
