@@ -72,7 +72,7 @@ class RunResult:
     supervisor: Mapping[str, Any]
     windows: tuple[WindowSpan, ...]
     resets: Mapping[str, int]
-    capabilities: Mapping[str, str | None]  # per stage "1"/"2": None if it can run, else why not
+    capabilities: Mapping[str, str | None]  # per stage "1"/"2", and "I_x": None if it can run, else why not
     decode: Mapping[str, Any]  # the decoder's statistics (DecodeStats.as_dict())
     clock: Clock
     channels: Mapping[str, Freshness]

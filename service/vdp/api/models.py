@@ -53,7 +53,8 @@ class Estimates(_Model):
     stage: str = Field(description="stage1, stage2 or done")
     supervisor: Supervisor
     capabilities: dict[str, str | None] = Field(
-        default_factory=dict, description="per stage: null if it can run, else why not"
+        default_factory=dict,
+        description="per stage ('1', '2') and for 'I_x' (no roll-rate gyro): null if it can run, else why not",
     )
     coaching: dict[str, Any] | None = Field(
         None,
