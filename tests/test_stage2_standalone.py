@@ -69,6 +69,7 @@ def test_without_roll_rate_i_x_is_not_run_and_c_alpha_i_z_are_estimated(repo_roo
             assert e.samples > 0 and e.status != NOT_RUN
         for name in ("l_f", "h", "C_K"):  # stage 1 never ran: no front drive force from its prior
             assert params[name].status == NOT_RUN
+        assert f"the profile's l_f = {prof.vehicle.l_f:.3g}" in params["l_f"].reason
     for l2 in pipe.estimator.s2.values():
         assert l2.known.C_K == 0.0 and l2.known.l_f == prof.vehicle.l_f and l2.roll_updates == 0
     # I_x not_run for want of a gyro does not hold the estimator back from "done"

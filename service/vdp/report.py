@@ -101,7 +101,7 @@ def table(result: RunResult, truth: dict | None = None) -> str:
     for name in NAMES:
         p = params[name]
         e = ekf.get(name)
-        status = p.status + ("!" if p.reason else "")  # not valid: the profile check failed
+        status = p.status + ("!" if p.reason else "")  # a reason follows the table
         row = (
             f"{name:8} {_fmt(p.value):>10} {_fmt(p.std, 2):>10} {p.unit:7} "
             f"{status:17} {_fmt(e.value if e is not None else None):>10}"
@@ -112,8 +112,9 @@ def table(result: RunResult, truth: dict | None = None) -> str:
             err_e = "-" if ce.get("rel_error") is None else f"{100 * ce['rel_error']:+.2f}%"
             row += f" {_fmt(c['truth']):>10} {err:>8} {err_e:>8}"
         lines.append(row)
-    if any(params[n].reason for n in NAMES):
-        lines.append("! not valid: the profile check found a mismatch it rests on (see above)")
+    # why each marked parameter is what it is (a profile-check mismatch, a model mismatch,
+    # roll not excited, no roll-rate gyro, a measured l_f ...)
+    lines += [f"! {n}: {params[n].reason}" for n in NAMES if params[n].reason]
     lines += axle_lines(params, truth)
     return "\n".join(lines)
 
