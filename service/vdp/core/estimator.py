@@ -246,7 +246,10 @@ class TwoStageEstimator:
         if e is not None and e.status == NOT_RUN and getattr(v, "l_f", None) is not None:
             # the l_f stage 2 uses is the profile's, not this (stage 1's prior): say so
             l_f, sd = self.l_f(kind)
-            why = f"not estimated (stage 1 has not run); stage 2 uses the profile's l_f = {l_f:.3g} ± {sd:.2g} m ([vehicle] l_f)"
+            why = (
+                f"not estimated (stage 1 has not run); stage 2 uses the profile's "
+                f"l_f = {l_f:.3g} ± {sd:.2g} m ([vehicle] l_f)"
+            )
             out["l_f"] = replace(e, reason=why)
         return out
 
