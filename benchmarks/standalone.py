@@ -16,6 +16,10 @@ with l_f given in the profile ([vehicle] l_f, l_f_std), through the same pipelin
 
 Per parameter and filter: mean and worst relative error, +-2 sigma coverage, how many
 ended valid, valid with the truth beyond 3 sigma, and the statuses.
+
+``--true-stage1`` (a diagnostic, never the estimator's way): hand stage 2 the simulator's h
+and C_K as if stage 1 had found them exactly, so that the front drive force is in the model;
+the difference to a plain run is what leaving it out costs.
 """
 
 from __future__ import annotations
@@ -62,19 +66,31 @@ def _profile(case: str):
 
 
 def run_one(job) -> dict:
-    case, scenario, seed = job
+    case, scenario, seed, true_stage1 = job
     import logging
 
+    from vdp.core.learner import Stage2
     from vdp.pipeline import Pipeline
     from vdp.sim.run import simulate
 
     logging.getLogger("vdp").setLevel(logging.ERROR)
     prof, params = _profile(case)
     frames, truth = simulate(prof, scenario, seed=seed, noise="realistic", params=params)
-    pipe = Pipeline(prof)
-    for m in frames:
-        pipe.feed(m)
-    res = pipe.result()
+    if true_stage1:  # the diagnostic: stage 2 gets the simulator's h and C_K
+        tp, original = truth["parameters"], Stage2.set_stage1
+
+        def handed(self, l_f, h, c_k, l_f_std=None, h_std=None):
+            original(self, l_f, tp["h"], tp["C_K"], l_f_std, 0.0)
+
+        Stage2.set_stage1 = handed
+    try:
+        pipe = Pipeline(prof)
+        for m in frames:
+            pipe.feed(m)
+        res = pipe.result()
+    finally:
+        if true_stage1:
+            Stage2.set_stage1 = original
     out = {"case": case, "seed": seed, "capabilities": pipe.capabilities(), "stage2_windows": 0}
     out["stage2_windows"] = sum(1 for w in res.windows if w.stage == 2)
     for kind, params_ in (("ukf", res.parameters), ("ekf", res.baseline_ekf or {})):
@@ -141,12 +157,13 @@ def main() -> int:
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
+    ap.add_argument("--true-stage1", action="store_true", help="diagnostic: stage 2 gets the true h and C_K")
     a = ap.parse_args()
     cases = [c for c in a.cases.split(",") if c]
     for c in cases:
         if c not in CASES:
             ap.error(f"unknown case {c!r}; choose from {', '.join(CASES)}")
-    jobs = [(c, a.scenario, s) for c in cases for s in range(a.first_seed, a.first_seed + a.seeds)]
+    jobs = [(c, a.scenario, s, a.true_stage1) for c in cases for s in range(a.first_seed, a.first_seed + a.seeds)]
     if a.jobs > 1:
         with ProcessPoolExecutor(a.jobs) as ex:
             runs = list(ex.map(run_one, jobs))
@@ -160,7 +177,8 @@ def main() -> int:
                 if d["err"] is not None and d["z"] is not None
             ]
             print(f"{r['case']} seed {r['seed']}: " + "; ".join(cells))
-    print(f"### Stage 2 standalone, scenario `{a.scenario}`\n")
+    diag = " (diagnostic: true h and C_K handed to stage 2)" if a.true_stage1 else ""
+    print(f"### Stage 2 standalone, scenario `{a.scenario}`{diag}\n")
     for c in cases:
         print("\n".join(summarise(runs, c)))
     return 0
