@@ -148,3 +148,35 @@ def test_replay_says_the_same(tmp_path, capsys):
         capsys.readouterr().out
     )
     assert json.loads(out.read_text())["profile_check"]["coverage"]["missing"] == ["GNSS_VELOCITY"]
+
+
+def test_a_finding_shows_in_health_and_the_estimates_it_doubts_are_not_valid(tmp_path):
+    """A sign-flipped a_x on a live bus: the check's finding is a /health reason, and every
+    parameter (all rest on a_x) is reported not valid, from the first check on."""
+    import dataclasses
+
+    paper = load_profile(PAPER)
+    chans = dict(paper.channels)
+    chans["accel_x"] = dataclasses.replace(chans["accel_x"], sign=-1.0)
+    flipped = dataclasses.replace(paper, channels=chans)
+    settings = make_settings(tmp_path)
+    svc = Service(settings, profile=flipped)
+    svc.start()
+    wait_up(svc)
+    client = TestClient(create_app(settings, svc))
+    tx = can.Bus(interface="virtual", channel=svc.bus_cfg.channel, preserve_timestamps=True)
+    try:
+        frames = drive(30.0)
+        for msg in frames:
+            tx.send(msg)
+        wait_frames(svc, len(frames))
+        svc.sync()
+        reasons = client.get("/health").json()["reasons"]
+        assert any(r.startswith("profile check: accel_x looks sign-flipped") for r in reasons), reasons
+        st = client.get("/status").json()["profile_check"]
+        assert [f["subject"] for f in st["findings"]] == ["accel_x"] and st["coverage"]["seen"] == 7
+        for name, e in client.get("/estimates").json()["parameters"].items():
+            assert e["valid"] is False and "profile check: accel_x" in e["reason"], (name, e)
+    finally:
+        tx.shutdown()
+        svc.stop()

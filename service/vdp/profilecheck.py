@@ -511,8 +511,9 @@ class Monitor:
     times), then every ``every`` seconds of bus time.  Each check also counts which of the
     profile's messages the bus carried (:func:`coverage`): a bus that carries none or few of
     them (fewer than half) is an :attr:`error` with the counts and the ids the bus carries
-    most.  Each new finding and each change of coverage is logged once; :meth:`mark` applies
-    the newest report to estimates.
+    most; after the first check the counts are kept current at every update.  Each new
+    finding, and each change of which messages are seen, is logged once; :meth:`mark`
+    applies the newest report to estimates.
     """
 
     def __init__(
@@ -535,7 +536,7 @@ class Monitor:
         self.report = check_profile(profile)
         self.coverage: Coverage | None = None
         self._said: set[str] = set()
-        self._said_coverage: str | None = None
+        self._said_coverage: tuple | None = None
         self._say()
 
     @property
@@ -572,6 +573,9 @@ class Monitor:
         if now >= self.next_check:
             self.next_check = now + self.every
             self.check(now)
+        elif self.checks and self.decoder is not None:  # the counts stay current between checks
+            self.coverage = coverage(self.decoder, source="bus")
+            self._say()
 
     def check(self, now: float) -> None:
         """Check now: the messages seen so far, and the profile against the samples kept."""
@@ -591,7 +595,7 @@ class Monitor:
         cov = self.coverage
         if cov is None:
             return
-        said = cov.message(top=False)
+        said = (cov.seen, tuple(cov.missing), tuple(cov.refused))  # a change of what is seen, not of counts
         if said == self._said_coverage:
             return
         self._said_coverage = said
@@ -600,7 +604,7 @@ class Monitor:
         elif cov.seen < len(cov.wanted):
             log.warning("profile check: %s", cov.message())
         else:
-            log.info("profile check: %s", said)
+            log.info("profile check: %s", cov.message(top=False))
 
     def mark(self, params):
         """``params`` (name -> Estimate) with those the newest report doubts marked not valid."""
