@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from helpers.sim import Frames
 from vdp import channels
 from vdp.core.estimator import EstimatorConfig
 from vdp.pipeline import Pipeline
@@ -77,19 +78,6 @@ def test_a_drive_through_its_own_dbc_decodes_every_mapped_channel(name):
     assert st["errors"] == {} and st["invalid_samples"] == {} and st["unknown_ids"] == []
     mapped = set(prof.channels) | set(prof.composites)
     assert set(st["samples"]) == mapped  # composites (the axle torques from the sources) too
-
-
-class Frames:
-    def __init__(self, sim):
-        self.sim, self.position, self.path = sim, 0, f"simulated {sim.scenario.name}"
-
-    def __iter__(self):
-        return self.sim.frames()
-
-    class stats:
-        @staticmethod
-        def as_dict() -> dict:
-            return {}
 
 
 @pytest.mark.slow

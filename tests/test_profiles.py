@@ -19,6 +19,7 @@ import cantools
 import pytest
 
 from conftest import REAL
+from helpers.sim import Frames
 from vdp import channels
 from vdp.cli import main
 from vdp.core.estimator import EstimatorConfig
@@ -272,21 +273,6 @@ def test_hyundai_falls_back_to_the_yaw_rate_sensor_when_esp12_is_silent():
 
 
 # -- both stages on a car's layout, with vdp's add-on sensors --------------------------
-
-
-class Frames:
-    """A simulated drive as a replay source (what open_log returns, minus the file)."""
-
-    def __init__(self, sim: Simulation):
-        self.sim, self.position, self.path = sim, 0, f"simulated {sim.scenario.name}"
-
-    def __iter__(self):
-        return self.sim.frames()
-
-    class stats:
-        @staticmethod
-        def as_dict() -> dict:
-            return {}
 
 
 def run_drive(prof: Profile, scenario: str, seed: int, params=None, duration=None) -> tuple[RunResult, dict]:
