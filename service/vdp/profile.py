@@ -25,7 +25,6 @@ name are in :mod:`vdp.units`.  docs/PROFILES.md describes every key.
 
 from __future__ import annotations
 
-import logging
 import math
 import sys
 from dataclasses import dataclass, field
@@ -43,8 +42,6 @@ from .errors import ProfileError
 from .opendbc import _opendbc_generated, cache_dir  # noqa: F401  (tests and callers read them here)
 from .opendbc import opendbc_path as _opendbc_path
 from .units import _UNIT_LIST, CHANNEL_KINDS, SOURCES, TERM, UNIT_ALIASES, UNIT_FACTORS  # noqa: F401
-
-log = logging.getLogger(__name__)
 
 PARAMETERS = NAMES  # the six unknowns (core.params): each needs a prior
 # optional per-axle cornering stiffness priors (stage 2 estimates each axle; C_alpha is their
