@@ -180,3 +180,43 @@ def test_a_finding_shows_in_health_and_the_estimates_it_doubts_are_not_valid(tmp
     finally:
         tx.shutdown()
         svc.stop()
+
+
+def test_frames_on_another_bus_channel_are_named(tmp_path, capsys):
+    """The profile reads [can] channel = "can0", the bus (or the log) is another: the error
+    says so, instead of "the ids the bus carries most: none"."""
+    import dataclasses
+
+    from vdp.cli import main
+    from vdp.sim.run import write_log
+
+    can0 = dataclasses.replace(load_profile(PAPER), bus_channel="can0")
+    settings = make_settings(tmp_path / "live")
+    svc = Service(settings, profile=can0)
+    svc.start()
+    wait_up(svc)
+    tx = can.Bus(interface="virtual", channel=svc.bus_cfg.channel, preserve_timestamps=True)
+    try:
+        frames = drive(11.0)
+        for msg in frames:
+            tx.send(msg)
+        wait_frames(svc, len(frames))
+        err = svc.status()["profile_check"]["error"]
+        assert f"{len(frames)} frames came on other bus channels ({svc.bus_cfg.channel} ({len(frames)}))" in err
+        assert "than the profile's [can] channel 'can0'" in err
+    finally:
+        tx.shutdown()
+        svc.stop()
+    log = tmp_path / "can1.log"
+    frames = drive(11.0)
+    for m in frames:
+        m.channel = "can1"
+    write_log(frames, log)
+    text = PAPER.read_text().replace("[can]\n", '[can]\nchannel = "can0"\n')
+    prof = tmp_path / "can0.toml"
+    prof.write_text(text.replace('dbc = "../dbc/vdp.dbc"', f'dbc = "{ROOT / "dbc" / "vdp.dbc"}"'))
+    capsys.readouterr()
+    assert main(["profile", "check", str(log), "--profile", str(prof)]) != 0
+    err = capsys.readouterr().err
+    assert "0 of 7 of the profile's messages seen" in err
+    assert f"{len(frames)} frames came on other bus channels (can1 ({len(frames)}))" in err

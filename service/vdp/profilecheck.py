@@ -387,6 +387,8 @@ class Coverage:
     other: list[tuple[str, int]]  # the log's most frequent ids the profile does not decode
     source: str = "log"  # "log" or "bus": what the message says holds the frames
     refused: dict[str, dict[str, int]] = field(default_factory=dict)  # unseen message -> its frames' errors by kind
+    other_channels: dict[str, int] = field(default_factory=dict)  # frames left out: on another bus channel
+    bus_channel: str | None = None  # the profile's [can] channel
 
     @property
     def seen(self) -> int:
@@ -406,6 +408,13 @@ class Coverage:
             n = sum(kinds.values())
             why = ", ".join(f"{k} {c}" for k, c in sorted(kinds.items(), key=lambda kv: -kv[1]))
             out += f"; {name} came {n} time{'s' if n > 1 else ''}, none decoded ({why})"
+        if self.other_channels and self.seen < len(self.wanted):
+            n = sum(self.other_channels.values())
+            names = ", ".join(f"{c} ({k})" for c, k in sorted(self.other_channels.items(), key=lambda kv: -kv[1]))
+            out += (
+                f"; {n} frames came on other bus channels ({names}) than the profile's [can] channel "
+                f"'{self.bus_channel}': set it to the channel the car's bus is on, or delete it"
+            )
         if top:
             ids = ", ".join(f"{i} ({n})" for i, n in self.other[:8]) or "none"
             out += f"; the ids the {'bus carries' if self.source == 'bus' else 'log holds'} most: {ids}"
@@ -418,6 +427,7 @@ class Coverage:
             "frames": dict(self.wanted),
             "missing": self.missing,
             "refused": {k: dict(v) for k, v in self.refused.items()},
+            "other_channels": dict(self.other_channels),
             "top_ids": [{"id": i, "count": n} for i, n in self.other[:8]],
             "message": self.message(),
         }
@@ -433,7 +443,7 @@ def check_log(
     """
     from .buffer import Aligner
     from .io.decoder import FrameDecoder
-    from .io.logs import open_log
+    from .io.logs import channel_keys, open_log
 
     dec = FrameDecoder(profile)
     stale = np.full(ch.N, 0.5)
@@ -457,6 +467,10 @@ def check_log(
                     ts.append(s.t)
                     rows.append(s.values)
     cov = coverage(dec)
+    st = src.stats
+    if getattr(st, "skipped", 0):  # the log source left out the frames of other bus channels
+        names = sorted(c for c in getattr(st, "channels", ()) if c not in channel_keys(profile.bus_channel))
+        cov.other_channels = {", ".join(names) or "?": st.skipped}
     if strict_coverage and cov.seen * 2 < len(cov.wanted):
         raise ProfileError(f"{path}: the log does not fit profile {profile.path}: {cov.message()}")
     rep = Report()
@@ -490,7 +504,14 @@ def coverage(dec, source: str = "log") -> Coverage:
             if kinds:
                 refused[p.name] = kinds
     other = sorted(dec.stats.unknown.copy().items(), key=lambda kv: -kv[1])
-    return Coverage(wanted, [(_hex(k), n) for k, n in other], source, refused)
+    return Coverage(
+        wanted,
+        [(_hex(k), n) for k, n in other],
+        source,
+        refused,
+        dict(getattr(dec.stats, "other_channels", {})),
+        dec.profile.bus_channel,
+    )
 
 
 def lines(rep: Report) -> list[str]:

@@ -59,6 +59,7 @@ class DecodeStats:
         self.decoded = 0  # frames accepted (all mapped signals good)
         self.error_frames = 0
         self.skipped_channel = 0  # frames of another bus channel
+        self.other_channels: dict[str, int] = {}  # those channels' names (the first 16) -> frames
         self.unknown: dict[int, int] = {}  # plan key -> count (the first MAX_UNKNOWN distinct ids)
         self.unknown_other = 0  # frames of further unknown ids: a burst of random ids cannot grow the table
         self.errors: dict[tuple[int, str], int] = {}  # (plan key, kind) -> count
@@ -425,6 +426,9 @@ class FrameDecoder:
             ch = msg.channel
             if ch is not None and ch not in self._want:
                 st.skipped_channel += 1
+                oc, name = st.other_channels, str(ch)
+                if name in oc or len(oc) < 16:
+                    oc[name] = oc.get(name, 0) + 1
                 return []
         key = msg.arbitration_id
         if msg.is_extended_id:
