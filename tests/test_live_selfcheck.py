@@ -220,3 +220,37 @@ def test_frames_on_another_bus_channel_are_named(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "0 of 7 of the profile's messages seen" in err
     assert f"{len(frames)} frames came on other bus channels (can1 ({len(frames)}))" in err
+
+
+def test_the_real_rav4_capture_passes_the_live_self_check(tmp_path, monkeypatch):
+    """comma2k19's RAV4 (15 s, tests/data) on a live bus: its 3 messages seen, a_x against
+    dv/dt judged and right, no finding, nothing in /health."""
+    import dataclasses
+
+    from vdp.io.logs import open_log
+
+    pytest.importorskip("opendbc")
+    monkeypatch.setenv("VDP_CACHE_DIR", str(tmp_path / "cache"))
+    # the virtual bus names its own channel: the profile's "can0" is for the log, not this bus
+    prof = dataclasses.replace(load_profile(ROOT / "profiles" / "toyota_rav4.toml"), bus_channel=None)
+    with open_log(ROOT / "tests" / "data" / "rav4-2018-highway-15s.log.gz", channel="can0") as src:
+        frames = list(src)
+
+    settings = make_settings(tmp_path)
+    svc = Service(settings, profile=prof)
+    svc.start()
+    wait_up(svc)
+    client = TestClient(create_app(settings, svc))
+    tx = can.Bus(interface="virtual", channel=svc.bus_cfg.channel, preserve_timestamps=True)
+    try:
+        for msg in frames:
+            tx.send(msg)
+        wait_frames(svc, len(frames))
+        svc.sync()
+        st = client.get("/status").json()["profile_check"]
+        assert st["error"] is None and st["findings"] == [] and st["coverage"]["seen"] == 3
+        assert 0.8 < st["measured"]["accel_x_per_dv_dt"] < 1.25
+        assert not any("profile check" in r for r in client.get("/health").json()["reasons"])
+    finally:
+        tx.shutdown()
+        svc.stop()
