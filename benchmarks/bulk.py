@@ -58,8 +58,8 @@ def replay(path: Path, bulk: bool, ekf: bool, front_only: bool = False, trace: b
         return pipe
 
     t0 = clock()
-    doc, _ = replay_log(path, make, bulk=bulk)
-    return clock() - t0, doc
+    res, _ = replay_log(path, make, bulk=bulk)
+    return clock() - t0, res.to_dict()
 
 
 def main() -> int:
@@ -88,6 +88,7 @@ def main() -> int:
         )
         return 0
     n, tb1 = bare(path)
+    print(f"log: {path}, {n:,} frames; bare can.LogReader (first): {tb1:.1f} s of CPU", flush=True)
     rows = []
     for label, bulk, ekf, front in (
         ("front only, per-frame", False, False, True),
@@ -99,6 +100,7 @@ def main() -> int:
     ):
         t, doc = replay(path, bulk, ekf, front)
         rows.append((label, t, doc))
+        print(f"{label:27}: {t:6.1f} s of CPU, {n / t:10,.0f} frames/s, {tb1 / t:5.2f}x the first", flush=True)
     _, tb2 = bare(path)
     tb = 0.5 * (tb1 + tb2)
     dec = rows[0][2]["log"]["decode"]
