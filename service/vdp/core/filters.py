@@ -116,8 +116,11 @@ class JointFilter:
         if not mask.any():
             return
         R = self.R if R is None else R
+        z = np.asarray(z)
+        if not mask.all():  # (the selection costs as much as a Cholesky factor: not when all rows are in)
+            z, R = z[mask], R[np.ix_(mask, mask)]
         try:
-            self._update(np.asarray(z)[mask], R[np.ix_(mask, mask)], mask, u)
+            self._update(z, R, mask, u)
         except (np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
             raise FilterError(f"{self.kind} update: {exc}") from None
         self._check()
