@@ -51,7 +51,7 @@ def main() -> int:
     cpu = {"vdp": 0.0, "filterpy": 0.0}
     for d in a.drives:
         scenario, seed = d.split(":")
-        frames, _ = simulate(profile, scenario, seed=int(seed), noise="realistic")
+        frames = list(simulate(profile, scenario, seed=int(seed), noise="realistic")[0])
         out = {}
         for name, (ukf, ekf) in (
             ("vdp", (filters.UKF, filters.EKF)),
