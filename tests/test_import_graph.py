@@ -8,6 +8,8 @@ lazy import against the flow is caught as well as a top-level one.
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 PKG = Path(__file__).resolve().parents[1] / "service" / "vdp"
@@ -55,7 +57,7 @@ ALLOWED = {
     ("vdp.io.bulk", "vdp.replay"),
 }
 
-CORE_MAY_IMPORT = {"numpy", "scipy", "filterpy", "math", "dataclasses", "typing", "collections", "functools"}
+CORE_MAY_IMPORT = {"numpy", "scipy", "math", "dataclasses", "typing", "collections", "functools"}
 CORE_MAY_IMPORT |= {"logging", "__future__"}
 
 
@@ -148,3 +150,12 @@ def test_the_checker_sees_a_violation():
     assert "vdp.core.result" in deps["vdp.core.learner"]
     assert "vdp.io.decoder" in deps["vdp.pipeline"]
     assert stage("vdp.api.app") > stage("vdp.store") > stage("vdp.core.learner") > stage("vdp.buffer")
+
+
+def test_the_pipeline_imports_neither_filterpy_nor_scipy():
+    """A replay's start-up: core/filters.py writes the filter steps out, so filterpy (whose
+    EKF module pulls in scipy.stats, ~0.8 s) stays the tests' reference only (BENCHMARKS.md,
+    "Start-up").  A fresh interpreter, since this one's tests import both."""
+    code = "import sys, vdp.pipeline; print(sorted(m for m in ('filterpy', 'scipy') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout
