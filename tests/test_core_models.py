@@ -52,35 +52,37 @@ def test_stage1_measurement_jacobian(v, l_f, h, c_k, tf, tr, ax):
     h=st.floats(0.3, 0.9),
     c_k=st.floats(4, 20),
     b=st.floats(-0.3, 1.0),
+    c=st.floats(-0.3, 1.0),
     s0f=st.floats(-0.005, 0.005),
     s0r=st.floats(-0.005, 0.005),
     tf=st.floats(-2000, 2000),
     tr=st.floats(-2000, 2000),
     ax=st.floats(-6, 6),
 )
-def test_stage1_measurement_jacobian_with_the_tyre_shape(v, l_f, h, c_k, b, s0f, s0r, tf, tr, ax):
-    x = np.array([l_f, h, c_k, b, s0f, s0r])
+def test_stage1_measurement_jacobian_with_the_tyre_shape(v, l_f, h, c_k, b, c, s0f, s0r, tf, tr, ax):
+    x = np.array([l_f, h, c_k, b, c, s0f, s0r])
     u = np.array([tf, tr, ax, v, 0.01, ax / 0.3, ax / 0.31])
     H = longitudinal.jac_h(x, u, K1)
     assert H.shape == (2, longitudinal.N_X)
-    N = numjac(lambda xx: longitudinal.hx(xx, u, K1), x, eps=1e-6 * np.maximum(np.abs(x), [1, 1, 1, 1, 1e-3, 1e-3]))
+    N = numjac(lambda xx: longitudinal.hx(xx, u, K1), x, eps=1e-6 * np.maximum(np.abs(x), [1, 1, 1, 1, 1, 1e-3, 1e-3]))
     np.testing.assert_allclose(H, N, rtol=1e-5, atol=1e-7)
 
 
 def test_stage1_tyre_law_starts_at_c_k_and_follows_a_brush_tyre():
-    """The bend's initial slope is C_K whatever b is, and with b = 1 / (3 mu) it follows the
-    brush tyre's inverse law, s = (3 mu / C_K)(1 - (1 - u / mu)^(1/3)), to half the friction limit."""
+    """The bend's initial slope is C_K whatever b and c are, and with b = 1 / (3 mu), c = 5 / (27 mu^2)
+    it follows the brush tyre's inverse law, s = (3 mu / C_K)(1 - (1 - u / mu)^(1/3)), to half the
+    friction limit."""
     mu, c_k = 1.0, 15.0
-    b = 1.0 / (3.0 * mu)
+    b, c = 1.0 / (3.0 * mu), 5.0 / (27.0 * mu * mu)
     u = np.linspace(-0.5, 0.5, 41)
-    s = u / c_k * longitudinal.bend(u, b)
+    s = u / c_k * longitudinal.bend(u, b, c)
     brush = np.sign(u) * 3.0 * mu / c_k * (1.0 - (1.0 - np.abs(u) / mu) ** (1.0 / 3.0))
     np.testing.assert_allclose(s, brush, rtol=0.025, atol=1e-12)  # 2.0 % short at u = 0.5
     small = 1e-6
-    assert small / c_k * longitudinal.bend(small, 0.8) == pytest.approx(small / c_k, rel=1e-5)
+    assert small / c_k * longitudinal.bend(small, 0.8, 0.6) == pytest.approx(small / c_k, rel=1e-5)
     # the paper's linear law is b = 0, and the three-parameter state means exactly that
     x3 = np.array([1.4, 0.637, 10.0])
-    x6 = np.array([1.4, 0.637, 10.0, 0.0, 0.0, 0.0])
+    x6 = np.array([1.4, 0.637, 10.0, 0.0, 0.0, 0.0, 0.0])
     uu = np.array([900.0, 400.0, 1.2, 18.0, 0.01, 4.0, 4.0])
     np.testing.assert_allclose(longitudinal.hx(x3, uu, K1), longitudinal.hx(x6, uu, K1))
 

@@ -128,13 +128,13 @@ def test_batch_reads_the_initial_stiffness_of_a_bending_tyre_with_slip_offsets()
     assert b3.to_si(lin.t)[2] < 0.9 * c_k  # the straight line reads the bend as a softer tyre
 
     b6 = Bounds(longitudinal.N_X, log=(1, 2), logit={0: (0.0, 2.5)})
-    t6 = b6.from_si(np.array([1.25, 0.55, 12.0, 0.0, 0.0, 0.0]))
-    P6 = np.diag([1.0, 1.0, 1.0, 0.5**2, 0.005**2, 0.005**2])
+    t6 = b6.from_si(np.array([1.25, 0.55, 12.0, 0.0, 0.0, 0.0, 0.0]))
+    P6 = np.diag([1.0, 1.0, 1.0, 0.5**2, 1.0, 0.005**2, 0.005**2])
     fit = batch.solve(lambda t, u: longitudinal.hx(b6.to_si(t), u, k), U, Z, R, t6, P6, [t6])
     x = b6.to_si(fit.t)
     err = np.abs(x[:3] - truth) / truth
     assert np.all(err < [0.01, 0.05, 0.03]), x
-    np.testing.assert_allclose(x[4:], [-0.0006, -0.0009], atol=2e-4)
+    np.testing.assert_allclose(x[5:], [-0.0006, -0.0009], atol=2e-4)
 
 
 # -- whole drives with priors off -----------------------------------------------------------

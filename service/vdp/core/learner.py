@@ -112,6 +112,7 @@ AXLE_CORR_MAX = 0.95  # |correlation| of the two beyond this: the data know one 
 # car).  A free difference costs l_f its information where one axle only brakes (a
 # front-driven car: l_f's std 0.8 % instead of 0.5 %).
 BEND_PRIOR = (0.0, 0.5)
+CUBIC_PRIOR = (0.0, 1.0)  # c = 5 / (27 mu^2) of a brush tyre, 0.13-0.29; a Magic-Formula tyre's 0.3-0.6
 OFFSET_STD = 0.002  # their common part
 OFFSET_SPLIT_STD = 0.0005  # (s_0f - s_0r) / 2
 # Three more parameters cost l_f, h and C_K precision (a front-driven car on vdp's own tyre:
@@ -121,7 +122,7 @@ OFFSET_SPLIT_STD = 0.0005  # (s_0f - s_0r) / 2
 # times (1 + rho) / (1 - rho) for their correlation) when the shape is free.  On vdp's own
 # simulator that drop stayed at 0.3-25, on the independent models 119-1,001 (BENCHMARKS.md,
 # "A stage 1 that holds with a real tyre").
-SHAPE_OFF_STD = (1e-4, 1e-6)  # b, each offset
+SHAPE_OFF_STD = (1e-4, 1e-4, 1e-6)  # b, c, each offset
 SHAPE_LR = 60.0
 
 
@@ -504,13 +505,14 @@ class StageLearner:
 
 
 def _shape_prior(free: bool) -> tuple[np.ndarray, np.ndarray]:
-    """(mean, covariance) of stage 1's tyre shape (b, s_0f, s_0r): free, or held at the straight line."""
+    """(mean, covariance) of stage 1's tyre shape (b, c, s_0f, s_0r): free, or held at the straight line."""
     if not free:
-        b, s = SHAPE_OFF_STD
-        return np.zeros(3), np.diag([b * b, s * s, s * s])
+        b, c, s = SHAPE_OFF_STD
+        return np.zeros(4), np.diag([b * b, c * c, s * s, s * s])
     c, d = OFFSET_STD**2, OFFSET_SPLIT_STD**2  # s_0f = common + split, s_0r = common - split
-    P = np.array([[BEND_PRIOR[1] ** 2, 0.0, 0.0], [0.0, c + d, c - d], [0.0, c - d, c + d]])
-    return np.array([BEND_PRIOR[0], 0.0, 0.0]), P
+    P = np.diag([BEND_PRIOR[1] ** 2, CUBIC_PRIOR[1] ** 2, c + d, c + d])
+    P[2, 3] = P[3, 2] = c - d
+    return np.array([BEND_PRIOR[0], CUBIC_PRIOR[0], 0.0, 0.0]), P
 
 
 class Stage1(StageLearner):
@@ -534,7 +536,7 @@ class Stage1(StageLearner):
         self.spread: np.ndarray | None = None  # model_error()
         self.shaped = False  # the tyre's shape is free (the data showed it), else held at the straight line
         self.shape_prior = _shape_prior(False)
-        self.shape = self.shape_prior  # (b, s_0f, s_0r) and their covariance when the filter was last dropped
+        self.shape = self.shape_prior  # (b, c, s_0f, s_0r) and their covariance when the filter was last dropped
         self._good_shape = self.shape
         self.filter = self._start_filter()
 
@@ -554,6 +556,7 @@ class Stage1(StageLearner):
         return {
             "law": "bending, with slip offsets" if self.shaped else "linear (eq 14)",
             "bend": round(b, 4),
+            "bend_cubic": round(float(x[longitudinal.CUBIC]), 4),
             "mu_brush": round(1.0 / (3.0 * b), 3) if b > 0.0 else None,
             "slip_offset_front": round(float(x[longitudinal.S_0F]), 6),
             "slip_offset_rear": round(float(x[longitudinal.S_0R]), 6),
@@ -579,17 +582,28 @@ class Stage1(StageLearner):
     flagged = ("l_f", "h", "C_K")
 
     def mismatch(self) -> tuple[float, str | None]:
-        """From the batch fit's front-minus-rear residuals: white when the model explains the data."""
+        """From the batch fit's front-minus-rear residuals (white when the model explains the
+        data) and from the tyre's shape: once the data have freed it (a real tyre), what comes
+        with a real tyre and the slips cannot separate is in play too (its stiffness's load
+        sensitivity against h, speed-dependent load shifts against l_f).  On the brush cars the
+        residuals of the bending law were white enough (lag-1 0.11) with l_f 0.8 % and h 8 %
+        off at 13 and 10 std."""
         f = self.fit
-        if f is None or f.chi2 < CHI2_QUIET:  # residuals far below the noise: their colour says nothing
+        if f is None:
             return 1.0, None
-        why = None
-        if f.rho > RHO_MISMATCH:
-            why = (
-                f"model mismatch: stage 1's front-minus-rear residuals follow the manoeuvre "
+        why = []
+        quiet = f.chi2 < CHI2_QUIET  # residuals far below the noise: their colour says nothing
+        if not quiet and f.rho > RHO_MISMATCH:
+            why.append(
+                f"stage 1's front-minus-rear residuals follow the manoeuvre "
                 f"(lag-1 correlation {f.rho:.2f} > {RHO_MISMATCH}); the tyre law or a force it leaves out"
             )
-        return _widen(f.rho), why
+        if self.shaped:
+            why.append(
+                "the tyre's force-slip curve bends or is offset at zero torque (a real tyre): its "
+                "stiffness's load sensitivity, which the slips cannot tell from h, is not in the model"
+            )
+        return (1.0 if quiet else _widen(f.rho)), ("model mismatch: " + "; ".join(why)) if why else None
 
     def model_error(self) -> np.ndarray | None:
         """How far apart the batch optima of the low- and the high-slip half of the blocks are.

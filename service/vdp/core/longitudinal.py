@@ -1,15 +1,18 @@
 """Stage 1: the longitudinal model, eqs (1)-(3), (13), (14), for a parameter-only filter.
 
-Filter state: the parameters ``x = [l_f, h, C_K, b, s_0f, s_0r]`` (a random walk, Table 4).
-``C_K`` is the small-slip (initial) stiffness per unit load; ``b`` and the ``s_0`` are
-the two things a real tyre adds to eq (14), estimated beside it and not reported:
+Filter state: the parameters ``x = [l_f, h, C_K, b, c, s_0f, s_0r]`` (a random walk,
+Table 4).  ``C_K`` is the small-slip (initial) stiffness per unit load; the bend ``b, c``
+and the offsets ``s_0`` are the two things a real tyre adds to eq (14), estimated beside
+it and not reported:
 
-* **the bend** ``b``: a real tyre's force-slip curve bends long before the friction
-  limit, so at the loads of brisk driving eq (14)'s straight line reads a stiffness
-  12-24 % low (brush tyres, BENCHMARKS.md).  The slip is taken as eq (14) times
-  ``1 + b|u| + (5/3) b^2 u^2`` with ``u = F_x / F_z``: the series of a brush tyre's
-  inverse law to third order, ``b = 1 / (3 mu)``; ``b = 0`` is the paper's linear tyre.
-  Its initial slope is C_K whatever b is.
+* **the bend** ``b``, ``c``: a real tyre's force-slip curve bends long before the
+  friction limit, so at the loads of brisk driving eq (14)'s straight line reads a
+  stiffness 12-24 % low (brush tyres, BENCHMARKS.md).  The slip is taken as eq (14)
+  times ``1 + b|u| + c u^2`` with ``u = F_x / F_z``, the inverse law's series to third
+  order: a brush tyre's has ``b = 1 / (3 mu)`` and ``c = 5 / (27 mu^2)``; a Magic-Formula
+  tyre's is odd and smooth at zero slip, ``b = 0`` and ``c > 0`` (with c tied to b, C_K
+  came out 5-9 % high on the multi-body cars; free, within 2 %).  ``b = c = 0`` is the
+  paper's linear tyre.  The initial slope is C_K whatever the bend.
 * **the slip offsets** ``s_0f``, ``s_0r``: each axle's slip at zero wheel torque.
   Rolling resistance takes ``f_r F_z`` from the force the torque gives (a braking slip
   of ``-f_r / C_K``), a tyre's own shift (Pacejka's S_Hx) adds to it, and a rolling
@@ -19,7 +22,7 @@ the two things a real tyre adds to eq (14), estimated beside it and not reported
   0.0003), and that difference moved h by 10 %, since stage 1 reads l_f and h from the
   front-minus-rear slip.
 
-A state vector of only ``[l_f, h, C_K]`` is the paper's model (``b = s_0 = 0``).
+A state vector of only ``[l_f, h, C_K]`` is the paper's model (``b = c = s_0 = 0``).
 Inputs ``u = [T_f, T_r, a_x, v_x]``: axle torques, IMU a_x, and v_x from the
 speed filter (:mod:`vdp.core.speed`, GNSS + IMU).  Measurements
 ``z = [omega_f, omega_r]``: the axle wheel speeds [rad/s].
@@ -49,14 +52,14 @@ from dataclasses import dataclass
 import numpy as np
 
 # state indices
-L_F, H, C_K, BEND, S_0F, S_0R = range(6)
-N_X = 6
-STATE_NAMES = ("l_f", "h", "C_K", "b", "s_0f", "s_0r")
-STATE_UNITS = ("m", "m", "1", "1", "1", "1")
+L_F, H, C_K, BEND, CUBIC, S_0F, S_0R = range(7)
+N_X = 7
+STATE_NAMES = ("l_f", "h", "C_K", "b", "c", "s_0f", "s_0r")
+STATE_UNITS = ("m", "m", "1", "1", "1", "1", "1")
 PARAM_SLICE = slice(0, 3)  # the reported parameters; b and the offsets are the tyre's shape, not reported
 CONSIDER = None  # no consider state (see lateral)
 # typical magnitudes: the filter works in x / SCALE for a well-conditioned covariance
-SCALE = np.array([1.0, 1.0, 10.0, 0.3, 1e-3, 1e-3])
+SCALE = np.array([1.0, 1.0, 10.0, 0.3, 0.3, 1e-3, 1e-3])
 
 # input columns
 U_TF, U_TR, U_AX, U_VX, U_VX_STD, U_WDF, U_WDR = range(7)
@@ -101,21 +104,22 @@ def tyre_forces(u, k: Known):
 
 
 def _shape(x):
-    """(b, s_0f, s_0r) of a state; zeros for the paper's three-parameter state."""
+    """(b, c, s_0f, s_0r) of a state; zeros for the paper's three-parameter state."""
     if x.shape[-1] > BEND:
-        return x[..., BEND], x[..., S_0F], x[..., S_0R]
-    return 0.0, 0.0, 0.0
+        return x[..., BEND], x[..., CUBIC], x[..., S_0F], x[..., S_0R]
+    return 0.0, 0.0, 0.0, 0.0
 
 
-def bend(u, b):
-    """Slip over eq (14)'s linear slip at load share u = F_x / F_z: 1 + b|u| + (5/3) b^2 u^2.
+def bend(u, b, c):
+    """Slip over eq (14)'s linear slip at load share u = F_x / F_z: 1 + b|u| + c u^2.
 
-    The brush tyre's inverse law, ``s = (3 mu / C_K)(1 - (1 - |u| / mu)^(1/3))``, to third
-    order in u with ``b = 1 / (3 mu)``; a polynomial has no pole at the friction limit for a
-    wild sigma point to fall into, and it stays positive for any b.
+    The inverse law's series to third order: the brush tyre's,
+    ``s = (3 mu / C_K)(1 - (1 - |u| / mu)^(1/3))``, has ``b = 1 / (3 mu)``,
+    ``c = 5 / (27 mu^2)``.  A polynomial has no pole at the friction limit for a wild sigma
+    point to fall into.
     """
     a = np.abs(u)
-    return 1.0 + b * a + (5.0 / 3.0) * b * b * a * a
+    return 1.0 + b * a + c * a * a
 
 
 def slips(x, u, k: Known):
@@ -123,9 +127,9 @@ def slips(x, u, k: Known):
     f_zf, f_zr = axle_loads(x[..., L_F], x[..., H], u[..., U_AX], k)
     f_xf, f_xr = tyre_forces(u, k)
     c_k = np.maximum(x[..., C_K], 1e-3)
-    b, s0f, s0r = _shape(x)
+    b, c, s0f, s0r = _shape(x)
     u_f, u_r = f_xf / f_zf, f_xr / f_zr
-    return s0f + u_f / c_k * bend(u_f, b), s0r + u_r / c_k * bend(u_r, b)
+    return s0f + u_f / c_k * bend(u_f, b, c), s0r + u_r / c_k * bend(u_r, b, c)
 
 
 def fx(x, dt, u, k: Known):
@@ -150,13 +154,13 @@ def jac_h(x, u, k: Known):
     """d hx / d x, analytic (replaces the paper's eqs (20)-(21), which have typos; NOTES 7).
 
     Per axle, with ``u = F_x / F_z`` and ``s = s_0 + (u / C_K) bend(u)``:
-    ``ds/du = (1 + 2 b|u| + 5 b^2 u^2) / C_K`` and ``du/dF_z = -u / F_z``;
-    ``ds/dC_K = -(s - s_0) / C_K``; ``ds/db = (u / C_K)(|u| + (10/3) b u^2)``; ``ds/ds_0 = 1``
-    for the axle's own offset.
+    ``ds/du = (1 + 2 b|u| + 3 c u^2) / C_K`` and ``du/dF_z = -u / F_z``;
+    ``ds/dC_K = -(s - s_0) / C_K``; ``ds/db = (u / C_K)|u|``; ``ds/dc = (u / C_K) u^2``;
+    ``ds/ds_0 = 1`` for the axle's own offset.
     """
     n = x.shape[-1]
     l_f, h, c_k = x[L_F], x[H], max(x[C_K], 1e-3)
-    b = _shape(x)[0]
+    b, c = _shape(x)[:2]
     a_x, v = u[U_AX], u[U_VX]
     f_zf, f_zr = axle_loads(l_f, h, a_x, k)
     f_xf, f_xr = tyre_forces(u, k)
@@ -172,10 +176,11 @@ def jac_h(x, u, k: Known):
         q = f_x / f_z
         a = abs(q)
         lin = q / c_k  # eq (14)'s slip
-        ds_du = (1.0 + 2.0 * b * a + 5.0 * b * b * a * a) / c_k
+        ds_du = (1.0 + 2.0 * b * a + 3.0 * c * a * a) / c_k
         out[row, L_F:C_K] = g * ds_du * (-q / f_z) * dfz
-        out[row, C_K] = -g * lin * bend(q, b) / c_k
+        out[row, C_K] = -g * lin * bend(q, b, c) / c_k
         if n > BEND:
-            out[row, BEND] = g * lin * (a + (10.0 / 3.0) * b * a * a)
+            out[row, BEND] = g * lin * a
+            out[row, CUBIC] = g * lin * a * a
             out[row, off] = g
     return out
