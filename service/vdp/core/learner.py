@@ -56,7 +56,7 @@ SETTLE_TIME = 0.2  # s
 SETTLED_YAW_ACC = 0.15  # rad/s^2
 SETTLED_STEER_RATE = math.radians(3.0)  # rad/s of road-wheel angle
 V_Y_START_STD = 0.05  # m/s: the steady-state start's own error (transients, slopes), beside C_alpha's share
-# Model mismatch (BENCHMARKS.md, "Honest uncertainty"): on vdp's own simulator, whose model
+# Model mismatch (BENCHMARKS.md, "The independent models after est's work"): on vdp's own simulator, whose model
 # is the estimator's, stage 2's NIS per row is about 0.18 and both lag-1 autocorrelations
 # about 0; on the independent models they reached 1.2 and 0.65.  Beyond these the model
 # does not explain the data: the stds widen by sqrt((1 + rho) / (1 - rho)) (the evidence
@@ -154,7 +154,7 @@ class LearnerConfig:
     # Stage 2 estimates the front and the rear cornering stiffness separately (published:
     # their mean as C_alpha, each in its extra); off: one C_alpha for both axles.  Off by
     # default: on the independent models the split moved I_z (bmw_320i's short drive from
-    # +3 % to -14 %) while both axles stay about 30 % low (BENCHMARKS.md, "Per-axle C_alpha")
+    # +3 % to -14 %) while both axles stay about 30 % low (BENCHMARKS.md, "Per-axle cornering stiffness")
     per_axle: bool = False
     # Stage 1 reads C_K as the small-slip (initial) stiffness of a tyre law that bends
     # (core.longitudinal), so it takes only blocks where both axles use at most this share of
