@@ -45,7 +45,7 @@ def add_parser(sub):
         choices=("none", "ekf"),
         default="none",
         help="run a baseline filter beside the UKF and report it (JSON 'baseline_ekf', the table's EKF "
-        "column): ekf, the paper's EKF (Table 5), about 1.7x the replay's CPU; default none",
+        "column): ekf, the paper's EKF (Table 5), about 1.5x the replay's CPU (BENCHMARKS.md); default none",
     )
     p.add_argument("--no-ekf", action="store_true", help="no EKF baseline (the default; kept for scripts)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
