@@ -48,7 +48,7 @@ REFUSED = {
 def test_refused_opendbc_dbcs_load_repaired_with_a_warning(name, tmp_path, caplog):
     import cantools
 
-    from vdp.profile import _opendbc_generated
+    from vdp.opendbc import _opendbc_generated
 
     text = _opendbc_generated()[name]
     path = tmp_path / f"{name}.dbc"

@@ -18,8 +18,9 @@ from hypothesis import strategies as st
 from vdp import channels
 from vdp.errors import ProfileError
 from vdp.io.decoder import FrameDecoder
-from vdp.profile import TERM, ChannelMap, Composite, Drivetrain, Term, load_profile
+from vdp.profile import ChannelMap, Composite, Drivetrain, Term, load_profile
 from vdp.sim.encode import Encoder
+from vdp.units import TERM
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = load_profile(ROOT / "profiles" / "paper.toml")

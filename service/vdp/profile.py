@@ -39,9 +39,8 @@ else:  # pragma: no cover
 from . import channels
 from .core.params import NAMES
 from .errors import ProfileError
-from .opendbc import _opendbc_generated, cache_dir  # noqa: F401  (tests and callers read them here)
 from .opendbc import opendbc_path as _opendbc_path
-from .units import _UNIT_LIST, CHANNEL_KINDS, SOURCES, TERM, UNIT_ALIASES, UNIT_FACTORS  # noqa: F401
+from .units import _UNIT_LIST, CHANNEL_KINDS, SOURCES, TERM, UNIT_FACTORS
 
 PARAMETERS = NAMES  # the six unknowns (core.params): each needs a prior
 # optional per-axle cornering stiffness priors (stage 2 estimates each axle; C_alpha is their

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from . import channels
-from .profile import CHANNEL_KINDS, SOURCES, UNIT_FACTORS
+from .units import CHANNEL_KINDS, SOURCES, UNIT_FACTORS
 
 # channel -> (patterns that must all match the lower-case "message.signal", patterns that add)
 _B = r"(^|[._])"  # a token boundary before

@@ -39,8 +39,8 @@ from .. import channels
 from ..core.sample import Sample
 from ..result import RunResult
 from .decoder import MAX_UNKNOWN, compile_extractor
-from .decoder import _limits as limits  # with the profile's range overrides
 from .logs import _ID_CACHE_MAX, _MAX_CHANNELS, EXT_KEY, LogStats, channel_keys, open_log
+from .signals import range_limits as limits  # with the profile's range overrides
 
 log = logging.getLogger(__name__)
 

@@ -29,7 +29,8 @@ import cantools
 
 from .. import channels
 from ..errors import ProfileError
-from ..profile import UNIT_FACTORS, Profile
+from ..profile import Profile
+from ..units import UNIT_FACTORS
 from . import dbcfix
 from .checks import counter_ok, vdp_checksum
 from .logs import EXT_KEY as _EXT
@@ -39,7 +40,6 @@ from .mapping import invalid as _invalid
 from .signals import cantools_extractor as _cantools_extractor
 from .signals import check_fine, compile_extractor, limits  # noqa: F401  (limits: the decoder's API)
 from .signals import nothing as _nothing
-from .signals import range_limits as _limits  # noqa: F401  (vdp.io.bulk reads it from here)
 
 log = logging.getLogger(__name__)
 

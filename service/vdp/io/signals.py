@@ -19,7 +19,7 @@ from typing import Any
 from cantools.database.errors import DecodeError as _CantoolsDecodeError
 
 from ..errors import ProfileError
-from ..profile import UNIT_FACTORS
+from ..units import UNIT_FACTORS
 
 log = logging.getLogger(__name__)
 
