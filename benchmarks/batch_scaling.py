@@ -6,7 +6,7 @@ Simulates (once, in /tmp) ``--logs`` paper drives (112 s each, seeds 1..N, with
 4 unrelated ids at 100 Hz), then runs ``vdp batch DIR --out OUT --redo`` once
 per worker count and prints the wall time of the whole command and of the
 task phase (``ran N logs in X s``, after the cluster is up), and the CPU time
-the workers spent on the logs (runs.parquet's ``cpu_s``).  Wall time moves with
+the threads that replayed the logs spent on them (runs.parquet's ``cpu_s``).  Wall time moves with
 other load on the machine; CPU time much less.
 """
 
