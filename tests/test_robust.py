@@ -137,6 +137,24 @@ def test_batch_reads_the_initial_stiffness_of_a_bending_tyre_with_slip_offsets()
     np.testing.assert_allclose(x[5:], [-0.0006, -0.0009], atol=2e-4)
 
 
+def test_stage1_small_slip_gate_holds_a_wild_h_to_its_sane_range(profile):
+    """A filter far off (an EKF from priors x1.6 sat at h = 845 m) must not gate out every
+    ordinary block: the gate reads h within its sane range (2 m at most)."""
+    from vdp.core.learner import Stage1
+
+    l1 = Stage1("ekf", profile.vehicle, profile.priors, LearnerConfig())
+    k = l1.known
+    x = l1.filter_state()[0]
+    # 2 m/s^2 of brisk acceleration, shared out like the static loads
+    f = k.m * 2.0
+    u = np.array([0.57 * f * k.r, 0.43 * f * k.r, 2.0, 15.0, 0.05, 0.0, 0.0])
+    assert l1._load_share(u).max() < l1.cfg.small_slip  # at the priors: an ordinary block
+    x[longitudinal.H] = 845.0
+    l1.filter.set_state(l1.bounds.from_si(x), l1.filter.P)
+    share = l1._load_share(u)
+    assert np.all(np.isfinite(share)) and share.max() < l1.cfg.small_slip
+
+
 # -- whole drives with priors off -----------------------------------------------------------
 @pytest.mark.slow
 @pytest.mark.parametrize("scale", [0.6, 1.6])

@@ -701,9 +701,13 @@ class Stage1(StageLearner):
         return np.eye(2) * (n.wheel_speed * n.inflate) ** 2 / 2.0  # mean of the two wheels of an axle
 
     def _load_share(self, u) -> np.ndarray:
-        """|F_x| / F_z of each axle for a block's inputs, at the current l_f and h."""
+        """|F_x| / F_z of each axle for a block's inputs, at the current l_f and h held to their
+        sane ranges: an EKF started far off (priors x1.6) once sat at h = 845 m, where every
+        block looked beyond the small-slip range and none reached the filter or the batch
+        check that would have re-seeded it."""
         x = self.bounds.to_si(self.filter.x)
-        f_zf, f_zr = longitudinal.axle_loads(x[longitudinal.L_F], x[longitudinal.H], u[longitudinal.U_AX], self.known)
+        h = min(max(x[longitudinal.H], BY_NAME["h"].lo), BY_NAME["h"].hi)
+        f_zf, f_zr = longitudinal.axle_loads(x[longitudinal.L_F], h, u[longitudinal.U_AX], self.known)
         f_xf, f_xr = longitudinal.tyre_forces(u, self.known)
         return np.abs([f_xf / f_zf, f_xr / f_zr])
 
