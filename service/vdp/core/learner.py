@@ -291,6 +291,24 @@ class RollExcitation:
         self.phi, self.w = phi1, w1
 
 
+def _verdict(c: Consistency, size: str, colour: str, kind: str) -> tuple[float, str | None]:
+    """(factor on the stds, reason or None) from innovations' size (NIS) and whiteness.
+
+    ``size`` and ``colour`` name the innovations in the two reasons, ``kind`` heads them.
+    """
+    nis, rho = c.ratio, c.rho
+    if nis is None or c.n < Consistency.RECENT:
+        return 1.0, None
+    if nis < 0.5 * NIS_MATCHED:
+        rho = None  # residuals far below the noise (a noise-free drive): their colour says nothing
+    why = []
+    if nis > NIS_MISMATCH:
+        why.append(f"{size} {math.sqrt(nis / NIS_MATCHED):.1f}x the size a matching model leaves")
+    if rho is not None and rho > RHO_MISMATCH_2:
+        why.append(f"{colour} not white (lag-1 correlation {rho:.2f} > {RHO_MISMATCH_2})")
+    return _widen(rho, nis), (f"{kind}: " + "; ".join(why)) if why else None
+
+
 class StageLearner:
     """Common machinery: filter life cycle, last-good copies, snapshot."""
 
@@ -1060,18 +1078,7 @@ class Stage2(StageLearner):
     def roll_mismatch(self) -> tuple[float, str | None]:
         """(factor on I_x's std, reason or None) from the roll-rate row's own innovations: their
         size (NIS) and whiteness, as :meth:`mismatch` tests all rows."""
-        c = self.roll_total
-        nis, rho = c.ratio, c.rho
-        if nis is None or c.n < Consistency.RECENT:
-            return 1.0, None
-        if nis < 0.5 * NIS_MATCHED:
-            rho = None  # far below the noise: its colour says nothing
-        why = []
-        if nis > NIS_MISMATCH:
-            why.append(f"roll-rate innovations {math.sqrt(nis / NIS_MATCHED):.1f}x the size a matching model leaves")
-        if rho is not None and rho > RHO_MISMATCH_2:
-            why.append(f"roll-rate innovations not white (lag-1 correlation {rho:.2f} > {RHO_MISMATCH_2})")
-        return _widen(rho, nis), ("roll model mismatch: " + "; ".join(why)) if why else None
+        return _verdict(self.roll_total, "roll-rate innovations", "roll-rate innovations", "roll model mismatch")
 
     def adjust(self, name: str, value: float, std: float) -> tuple[float, str | None]:
         """I_x's std carries what eq (9) takes as known but is not (see ROLL_MODEL_ERROR):
@@ -1118,18 +1125,7 @@ class Stage2(StageLearner):
 
     def mismatch(self) -> tuple[float, str | None]:
         """From the innovations of every window kept: their size (NIS) and whiteness."""
-        c = self.total
-        nis, rho = c.ratio, c.rho
-        if nis is None or c.n < Consistency.RECENT:
-            return 1.0, None
-        if nis < 0.5 * NIS_MATCHED:
-            rho = None  # residuals far below the noise (a noise-free drive): their colour says nothing
-        why = []
-        if nis > NIS_MISMATCH:
-            why.append(f"innovations {math.sqrt(nis / NIS_MATCHED):.1f}x the size a matching model leaves")
-        if rho is not None and rho > RHO_MISMATCH_2:
-            why.append(f"a_y innovations not white (lag-1 correlation {rho:.2f} > {RHO_MISMATCH_2})")
-        return _widen(rho, nis), ("model mismatch: " + "; ".join(why)) if why else None
+        return _verdict(self.total, "innovations", "a_y innovations", "model mismatch")
 
     def _bounds(self) -> Bounds:
         return Bounds(
