@@ -21,18 +21,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.netns, pytest.mark.timeout(900)]
 UDP_SCRIPT = HELPERS + textwrap.dedent(r"""
     tmp, root = sys.argv[1], sys.argv[2]
     port = 18080  # a private namespace: nothing else listens here
-    proc = serve(tmp, f'''
-    profile = "{root}/profiles/paper.toml"
-    [bus]
-    interface = "udp_multicast"
-    channel = "239.74.163.2"
-    [raw_log]
-    dir = "{tmp}/raw"
-    [store]
-    path = "{tmp}/state.sqlite"
-    [api]
-    port = {port}
-    ''')
+    proc = serve(tmp, config(tmp, root, "udp_multicast", "239.74.163.2", port))
     out = {"first_health": wait_http(proc, port)}
     sim = subprocess.run(VDP + ["simulate", "--scenario", "paper", "--noise", "none", "--seed", "1",
                                 "--bus-interface", "udp_multicast", "--sim-speed", "1", "--duration", "12"],

@@ -9,13 +9,11 @@ again: the service must say so and resume by itself.
 from __future__ import annotations
 
 import json
-import shutil
-import subprocess
 import textwrap
 
 import pytest
 
-from helpers.netns import HELPERS, ROOT, run_in_netns
+from helpers.netns import HELPERS, ROOT, netns_reason, run_in_netns
 
 pytestmark = [pytest.mark.slow, pytest.mark.netns, pytest.mark.timeout(900)]
 
@@ -23,36 +21,18 @@ SETUP = "ip link set lo up && ip link add dev vcan0 type vcan && ip link set vca
 
 
 def vcan_reason() -> str | None:
-    if not shutil.which("unshare") or not shutil.which("ip"):
-        return "needs unshare (util-linux) and ip (iproute2)"
-    try:
-        r = subprocess.run(["unshare", "-n", "bash", "-c", SETUP], capture_output=True, text=True, timeout=20)
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        return f"unshare -n failed: {exc}"
-    if r.returncode != 0:
-        return f"cannot create vcan0 here (no SocketCAN/vcan in this kernel?): {(r.stderr or r.stdout).strip()[:200]}"
-    return None
+    return netns_reason(SETUP, "cannot create vcan0 here (no SocketCAN/vcan in this kernel?)")
 
 
 VCAN_SCRIPT = HELPERS + textwrap.dedent(r"""
     tmp, root = sys.argv[1], sys.argv[2]
     port = 18080
-    proc = serve(tmp, f'''
-    profile = "{root}/profiles/paper.toml"
-    [bus]
-    interface = "socketcan"
-    channel = "vcan0"
-    [raw_log]
-    dir = "{tmp}/raw"
-    [store]
-    path = "{tmp}/state.sqlite"
-    [api]
-    port = {port}
+    proc = serve(tmp, config(tmp, root, "socketcan", "vcan0", port, '''
     [service]
     reconnect_min = 0.1
     reconnect_max = 0.5
     silence = 1.0
-    ''')
+    '''))
     out = {"first_health": wait_http(proc, port)}
 
     def simulate(seconds):

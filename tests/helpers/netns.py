@@ -17,16 +17,19 @@ ROOT = Path(__file__).resolve().parents[2]
 NETNS_SETUP = "ip link set lo up && ip link set lo multicast on && ip route add 224.0.0.0/4 dev lo"
 
 
-def netns_reason() -> str | None:
-    """Why a private network namespace with multicast on lo cannot be made here (None: it can)."""
+def netns_reason(setup: str = NETNS_SETUP, cannot: str = "unshare -n is not permitted here") -> str | None:
+    """Why ``setup`` cannot run inside a private network namespace here (None: it can).
+
+    ``cannot`` starts the reason when the setup itself fails (e.g. no vcan in this kernel).
+    """
     if not shutil.which("unshare") or not shutil.which("ip"):
         return "needs unshare (util-linux) and ip (iproute2)"
     try:
-        r = subprocess.run(["unshare", "-n", "bash", "-c", NETNS_SETUP], capture_output=True, text=True, timeout=20)
+        r = subprocess.run(["unshare", "-n", "bash", "-c", setup], capture_output=True, text=True, timeout=20)
     except (OSError, subprocess.TimeoutExpired) as exc:
         return f"unshare -n failed: {exc}"
     if r.returncode != 0:
-        return f"unshare -n is not permitted here: {(r.stderr or r.stdout).strip()[:200]}"
+        return f"{cannot}: {(r.stderr or r.stdout).strip()[:200]}"
     return None
 
 
@@ -53,6 +56,21 @@ HELPERS = textwrap.dedent(r"""
     def get(port, path):
         with urllib.request.urlopen(f"http://127.0.0.1:{port}{path}", timeout=10) as r:
             return r.read().decode()
+
+    # vdp serve's TOML: the paper profile on the given bus, raw log and store under tmp
+    def config(tmp, root, interface, channel, port, extra=""):
+        return f'''
+    profile = "{root}/profiles/paper.toml"
+    [bus]
+    interface = "{interface}"
+    channel = "{channel}"
+    [raw_log]
+    dir = "{tmp}/raw"
+    [store]
+    path = "{tmp}/state.sqlite"
+    [api]
+    port = {port}
+    ''' + extra
 
     def serve(tmp, config):
         cfg = os.path.join(tmp, "vdp.toml")
