@@ -117,12 +117,13 @@ def profile(repo_root):
 
 def _stage2_pair(kind: str, profile, monkeypatch):
     """A stage-2 filter (bounded transforms, consider state l_f) built twice on the same
-    start: once as vdp.core.filters runs it, once on filterpy's generic steps."""
+    start: once as vdp.core.filters runs it, once on filterpy's generic steps.  (The compiled
+    steps are held to vdp.core.filters' in tests/test_kernels.py.)"""
     from helpers import filterpy_ref
     from vdp.core import learner as lm
-    from vdp.core.learner import Stage2
+    from vdp.core.learner import LearnerConfig, Stage2
 
-    l2 = Stage2(kind, profile.vehicle, profile.priors)
+    l2 = Stage2(kind, profile.vehicle, profile.priors, LearnerConfig(compiled=False))
     l2.set_stage1(1.4, 0.6, 10.0, l_f_std=0.002)
     x0, P0 = l2._start(np.array([0.1, 0.01, 2.0]), np.ones(3, dtype=bool), [0.05, 15.0, 50.0, 0.3])
     lean = l2._new_filter(x0, P0, l2._R())
@@ -174,16 +175,19 @@ def test_written_out_steps_fail_as_filterpys_do(kind, profile, monkeypatch):
 @pytest.mark.slow
 def test_a_drive_gives_the_same_estimates_as_on_filterpys_steps(profile, monkeypatch):
     """The first 72 s of the paper drive (both stages), UKF and EKF: every estimate and
-    every trace row as on filterpy's steps, to float noise."""
+    every trace row as on filterpy's steps, to float noise (vdp.core.filters' numpy steps;
+    tests/test_kernels.py holds the compiled ones to these)."""
     from helpers import filterpy_ref
     from vdp.core import learner as lm
+    from vdp.core.estimator import EstimatorConfig
+    from vdp.core.learner import LearnerConfig
     from vdp.pipeline import Pipeline
     from vdp.sim.run import Simulation
 
     frames = list(Simulation(profile, "paper", 2, "realistic", duration=72.0).frames())
 
     def run():
-        pipe = Pipeline(profile)
+        pipe = Pipeline(profile, EstimatorConfig(learner=LearnerConfig(compiled=False)))
         for m in frames:
             pipe.feed(m)
         return pipe.result(trace=True)

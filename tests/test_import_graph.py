@@ -59,6 +59,7 @@ ALLOWED = {
 
 CORE_MAY_IMPORT = {"numpy", "scipy", "math", "dataclasses", "typing", "collections", "functools"}
 CORE_MAY_IMPORT |= {"logging", "__future__"}
+CORE_MAY_IMPORT |= {"numba"}  # core.kernels: the compiled filter steps, imported at the first filter
 
 
 def module_name(path: Path) -> str:

@@ -65,6 +65,7 @@ N_Z = 3
 V_MIN = 1.0  # m/s, guards the slip-angle denominators
 MAX_SUBSTEP = 0.01  # s: midpoint steps this short keep the yaw/lateral error well below the noise
 ROLL_SPLIT = 4  # roll steps per sub-step: its fast pole (~70 1/s) wants ~2.5 ms (a power of 2)
+_ROLL_SQUARINGS = ROLL_SPLIT.bit_length() - 1  # S^ROLL_SPLIT by squaring (a constant: core.kernels compiles _roll_map)
 PARAM_FLOOR = np.array([1.0e3, 1.0e3, 50.0, 50.0])  # keeps a wild sigma point physical
 _FLOOR = tuple(PARAM_FLOOR.tolist())
 
@@ -245,7 +246,7 @@ def _roll_map(i_x, h: float, k: Known):
         p1, p2, q1, q2 = p1 + (2.0 - cm) * v1, p2 + (2.0 - cm) * v2, q1 + cm * v1, q2 + cm * v2
     # T = S^n by squaring (n a power of two)
     t11, t12, t21, t22 = s11, s12, s21, s22
-    for _ in range(n.bit_length() - 1):
+    for _ in range(_ROLL_SQUARINGS):
         t11, t12, t21, t22 = (t11 * t11 + t12 * t21, t12 * (t11 + t22), t21 * (t11 + t22), t21 * t12 + t22 * t22)
     return (t11, t12, t21, t22), (p1, p2), (q1, q2)
 

@@ -166,6 +166,9 @@ class LearnerConfig:
     # slip by at most about 0.15/s (a front axle at its grip, traction control holding it).
     spin_rate: float | None = 1.0
     spin_slip: float = 0.2  # beyond this |slip| a road tyre is past its grip (about 0.1-0.2)
+    # the UKF's steps compiled (core.kernels: the same numbers, ~N x less CPU); False: numpy
+    # (core.filters with the models as written), the reference the tests compare them with
+    compiled: bool = True
 
     @property
     def block(self) -> int:
@@ -174,6 +177,22 @@ class LearnerConfig:
     @property
     def stage2_every(self) -> int:
         return max(1, round(self.stage2_step / self.tick))
+
+
+_KERNELS: list = []  # core.kernels once imported, or None when numba cannot be
+
+
+def _compiled(name: str):
+    """core.kernels' compiled UKF class ``name``, or None (numba missing: the numpy path does
+    the same work).  Imported at the first filter, not with this module: numba takes ~0.5 s."""
+    if not _KERNELS:
+        try:
+            from . import kernels
+        except ImportError as exc:
+            log.warning("compiled filter steps unavailable (%s); using numpy's", exc)
+            kernels = None
+        _KERNELS.append(kernels)
+    return None if _KERNELS[0] is None else getattr(_KERNELS[0], name)
 
 
 def _widen(rho: float | None, nis: float | None = None) -> float:
@@ -315,6 +334,7 @@ class StageLearner:
     stage = 0
     names: tuple[str, ...] = ()
     model = None
+    compiled_ukf: str | None = None  # the model's compiled UKF in core.kernels, if it has one
 
     def __init__(self, kind: str, vehicle, priors, cfg: LearnerConfig | None = None):
         self.kind = kind
@@ -514,6 +534,9 @@ class StageLearner:
         scale = np.where(b.transformed, 1.0, m.SCALE)
         fx, hx = b.wrap_fx(self._fx), b.wrap_hx(self._hx)
         if self.kind == "ukf":
+            cls = _compiled(self.compiled_ukf) if self.cfg.compiled and self.compiled_ukf else None
+            if cls is not None:
+                return cls(t0, P0, Q, R, scale, fx, hx, b, self.known, m.CONSIDER)
             return UKF(t0, P0, Q, R, scale, fx, hx, m.CONSIDER)
         jf, jh = b.wrap_jac_f(self._jac_f), b.wrap_jac_h(self._jac_h)
         return EKF(t0, P0, Q, R, scale, fx, hx, jf, jh, m.CONSIDER)
@@ -539,6 +562,7 @@ class Stage1(StageLearner):
     stage = 1
     names = STAGE1
     model = longitudinal
+    compiled_ukf = "LongitudinalUKF"
 
     def reset(self) -> None:
         v = self.vehicle
@@ -873,6 +897,7 @@ class Stage2(StageLearner):
     stage = 2
     names = STAGE2
     model = lateral
+    compiled_ukf = "LateralUKF"
     keys = ("C_alpha_f", "C_alpha_r", "I_z", "I_x")  # the filter's parameters (lateral.PARAM_SLICE)
     # published = _MEAN @ filter's: C_alpha = (C_alpha_f + C_alpha_r) / 2, I_z, I_x
     _MEAN = np.array([[0.5, 0.5, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])

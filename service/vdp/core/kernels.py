@@ -1,0 +1,535 @@
+"""Compiled (numba) UKF steps on vdp's two models: the numpy filters' numbers, without numpy's per-call cost.
+
+The UKF's arrays are tiny (stage 2: 19 sigma points of 9 states; stage 1: 15 of 7), so
+the numpy path (core.filters with core.lateral / core.longitudinal) spends its time in
+the per-call overhead of ~100 array operations per step, not in arithmetic.  Here one
+compiled call does a whole predict or update: the sigma points, the bounded transform
+(core.bounds), the model on each point, the unscented transform and the gain.
+
+The physics is not copied where numba can compile it as written: lateral's ``_rates``
+(eqs 5, 7, 10-12), ``_roll_map`` (eq 9) and ``_geometry`` are compiled from their own
+source.  What is written out again here is the glue numba cannot take as it is (numpy's
+broadcasting over sigma points, ``tolist``): lateral.fx's sub-step loop, the floors of
+``_unpack``, the input grid of ``_inputs``, longitudinal.slips and hx, and the filter
+steps of core.filters.UKF, in the same operations and order.  tests/test_kernels.py
+holds both paths to the same numbers (models, filter steps, and the estimates of whole
+drives); a change to the models there must be followed here, and that test says so.
+
+Every function is compiled on first use and cached on disk (``cache=True``: the next
+process loads it instead of compiling).  The learners import this module only when they
+build their first filter (numba's import costs ~0.5 s), and take the numpy path when
+numba cannot be imported or ``LearnerConfig.compiled`` is off.  Small matrix products are
+loops here, not BLAS, so nothing pulls in scipy's BLAS wrappers.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import typing
+
+import numpy as np
+from numba import njit
+
+from ..errors import FilterError
+from . import lateral, longitudinal
+from .filters import UKF
+
+log = logging.getLogger(__name__)
+
+# status codes of a step (the learner's FilterError messages, as the numpy path words them)
+OK, NOT_PD, SINGULAR = 0, 1, 2
+MESSAGES = {NOT_PD: "Matrix is not positive definite", SINGULAR: "Singular matrix"}
+
+# a model's constants as numba takes them (attribute access on a named tuple)
+Lat = collections.namedtuple("Lat", "m L r k_phi c_phi l_f h C_K g per_axle ck_slope")
+Lon = collections.namedtuple("Lon", "m L r J g")
+
+# bounded transforms per state (core.bounds): 0 free, 1 log, 2 logit
+FREE, LOG, LOGIT = 0, 1, 2
+
+
+def lat_known(k: lateral.Known) -> Lat:
+    return Lat(k.m, k.L, k.r, k.k_phi, k.c_phi, k.l_f, k.h, k.C_K, k.g, k.per_axle, k.ck_slope)
+
+
+def lon_known(k: longitudinal.Known) -> Lon:
+    return Lon(k.m, k.L, k.r, k.J, k.g)
+
+
+def transforms(bounds) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(kind per state, lo, span) of a core.bounds.Bounds, as the kernels take them."""
+    kind = np.zeros(bounds.n, dtype=np.int64)
+    lo = np.zeros(bounds.n)
+    span = np.ones(bounds.n)
+    kind[bounds.log] = LOG
+    kind[bounds.logit] = LOGIT
+    lo[bounds.logit] = bounds.lo
+    span[bounds.logit] = bounds.span
+    return kind, lo, span
+
+
+_jit = njit(cache=True, nogil=True)
+
+# the physics, compiled from core.lateral's own source
+_rates = _jit(lateral._rates)
+_roll_map = _jit(lateral._roll_map)
+_geometry = _jit(lateral._geometry)
+
+V_MIN = lateral.V_MIN
+F0, F1, F2, F3 = (float(v) for v in lateral.PARAM_FLOOR)
+LOGIT_MAX = 30.0
+MIN_LOAD = longitudinal.MIN_LOAD_FRACTION
+
+
+@_jit
+def _max(a, b):
+    """The builtin max of two floats (the second only when it is larger)."""
+    return b if b > a else a
+
+
+@_jit
+def _to_si(t, kind, lo, span, out):
+    """core.bounds.Bounds.to_si of one state."""
+    for i in range(t.shape[0]):
+        if kind[i] == LOG:
+            out[i] = np.exp(t[i])
+        elif kind[i] == LOGIT:
+            q = min(max(t[i], -LOGIT_MAX), LOGIT_MAX)
+            out[i] = lo[i] + span[i] / (1.0 + np.exp(-q))
+        else:
+            out[i] = t[i]
+
+
+# -- the UKF's linear algebra (core.filters.UKF) ------------------------------
+@_jit
+def _cholesky(A, L):
+    """Lower Cholesky factor of A (its lower triangle, as LAPACK reads it); False if not PD."""
+    n = A.shape[0]
+    for j in range(n):
+        s = A[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if s <= 0.0:  # (a NaN goes on, as numpy's does: the filter's check names it non-finite)
+            return False
+        d = math.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / d
+        for i in range(j):
+            L[i, j] = 0.0
+    return True
+
+
+@_jit
+def _points(x, P, lam_n, sig):
+    """x, x + U_k, x - U_k for the rows U_k of the upper Cholesky factor of (lambda + n) P."""
+    n = x.shape[0]
+    L = np.empty((n, n))
+    if not _cholesky(lam_n * P, L):
+        return False
+    for j in range(n):
+        sig[0, j] = x[j]
+    for k in range(n):
+        for j in range(n):
+            sig[1 + k, j] = x[j] + L[j, k]
+            sig[1 + n + k, j] = x[j] - L[j, k]
+    return True
+
+
+@_jit
+def _transform(sig, Wm, Wc, noise):
+    """(mean, Wc-weighted covariance + noise, deviations) of transformed sigma points."""
+    m, n = sig.shape
+    mean = np.zeros(n)
+    for i in range(m):
+        for j in range(n):
+            mean[j] += Wm[i] * sig[i, j]
+    d = np.empty((m, n))
+    for i in range(m):
+        for j in range(n):
+            d[i, j] = sig[i, j] - mean[j]
+    cov = np.zeros((n, n))
+    for i in range(m):
+        w = Wc[i]
+        for a in range(n):
+            da = d[i, a]
+            for b in range(n):
+                cov[a, b] += da * (w * d[i, b])
+    return mean, cov + noise, d
+
+
+@_jit
+def _inv(S):
+    """Inverse by Gauss-Jordan with partial pivoting; None-like (ok False) when singular."""
+    n = S.shape[0]
+    A = S.copy()
+    out = np.eye(n)
+    for c in range(n):
+        p = c
+        for r in range(c + 1, n):
+            if abs(A[r, c]) > abs(A[p, c]):
+                p = r
+        if A[p, c] == 0.0 or not math.isfinite(A[p, c]):
+            return out, False
+        if p != c:
+            for j in range(n):
+                A[c, j], A[p, j] = A[p, j], A[c, j]
+                out[c, j], out[p, j] = out[p, j], out[c, j]
+        piv = A[c, c]
+        for j in range(n):
+            A[c, j] /= piv
+            out[c, j] /= piv
+        for r in range(n):
+            if r != c:
+                f = A[r, c]
+                if f != 0.0:
+                    for j in range(n):
+                        A[r, j] -= f * A[c, j]
+                        out[r, j] -= f * out[c, j]
+    return out, True
+
+
+@_jit
+def _mm(A, B):
+    """A @ B (small: loops, no BLAS)."""
+    out = np.zeros((A.shape[0], B.shape[1]))
+    for i in range(A.shape[0]):
+        for k in range(A.shape[1]):
+            a = A[i, k]
+            for j in range(B.shape[1]):
+                out[i, j] += a * B[k, j]
+    return out
+
+
+@_jit
+def _mmt(A, B):
+    """A @ B.T"""
+    out = np.zeros((A.shape[0], B.shape[0]))
+    for i in range(A.shape[0]):
+        for j in range(B.shape[0]):
+            s = 0.0
+            for k in range(A.shape[1]):
+                s += A[i, k] * B[j, k]
+            out[i, j] = s
+    return out
+
+
+@_jit
+def _mv(A, v):
+    """A @ v"""
+    out = np.zeros(A.shape[0])
+    for i in range(A.shape[0]):
+        s = 0.0
+        for k in range(A.shape[1]):
+            s += A[i, k] * v[k]
+        out[i] = s
+    return out
+
+
+@_jit
+def _gain_step(x, P, sig, hz, z, R, Wm, Wc, consider):
+    """The UKF's update from the measurement sigma points ``hz`` (rows already selected):
+    (x, P, y, S, status).  core.filters.UKF._update, operation by operation."""
+    zp, S, dz = _transform(hz, Wm, Wc, R)
+    m, n = sig.shape
+    nz = hz.shape[1]
+    Pxz = np.zeros((n, nz))
+    for i in range(m):
+        w = Wc[i]
+        for a in range(n):
+            da = sig[i, a] - x[a]
+            for b in range(nz):
+                Pxz[a, b] += da * (w * dz[i, b])
+    Si, ok = _inv(S)
+    y = z - zp
+    if not ok:
+        return x, P, y, S, SINGULAR
+    K = _mm(Pxz, Si)
+    if consider >= 0:
+        K[consider, :] = 0.0
+    x = x + _mv(K, y)
+    KSK = _mmt(_mm(K, S), K)
+    if consider < 0:
+        P = P - KSK
+    else:
+        KPxz = _mmt(K, Pxz)
+        P = P - KPxz - KPxz.T + KSK
+    return x, P, y, S, OK
+
+
+# -- stage 2: core.lateral on scaled, bounded sigma points ---------------------
+@_jit
+def _lat_grid(us, j, w, n, k):
+    """lateral._inputs of lateral._input_grid(us, n): (2n+1, 6) per-step input constants."""
+    g = np.empty((2 * n + 1, 6))
+    base = k.C_K * k.m / k.L
+    for i in range(2 * n + 1):
+        if us.shape[0] == 1:  # one row, held over the step
+            d, v_x, w_f, a_x = us[0, 0], us[0, 1], us[0, 2], us[0, 3]
+        else:
+            a, b, c = j[i], j[i] + 1, w[i]
+            d = us[a, 0] + c * (us[b, 0] - us[a, 0])
+            v_x = us[a, 1] + c * (us[b, 1] - us[a, 1])
+            w_f = us[a, 2] + c * (us[b, 2] - us[a, 2])
+            a_x = us[a, 3] + c * (us[b, 3] - us[a, 3])
+        g[i, 0] = d
+        g[i, 1] = max(v_x, V_MIN)
+        g[i, 2] = np.sin(d)
+        g[i, 3] = np.cos(d)
+        g[i, 4] = base * (k.g * k.L - a_x * k.h)
+        g[i, 5] = w_f * k.r
+    return g
+
+
+@_jit
+def _row(g, i):
+    return (g[i, 0], g[i, 1], g[i, 2], g[i, 3], g[i, 4], g[i, 5])
+
+
+@_jit
+def _lat_params(x, k):
+    """_unpack's floors: (c_f, c_r, i_z, i_x) of an SI state."""
+    c_r = x[lateral.C_R] if k.per_axle else x[lateral.C_F]
+    return _max(x[lateral.C_F], F0), _max(c_r, F1), _max(x[lateral.I_Z], F2), _max(x[lateral.I_X], F3)
+
+
+@_jit
+def _lat_fx(x, dt, g, n, k):
+    """lateral.fx of one SI state on the input constants ``g`` of n sub-steps (in place)."""
+    h = dt / n
+    v_y, yaw, phi, phi_d = x[lateral.V_Y], x[lateral.YAW], x[lateral.PHI], x[lateral.PHI_D]
+    c_f, c_r, i_z, i_x = _lat_params(x, k)
+    geo = _geometry(x[lateral.L_F], k)
+    T, p, q = _roll_map(i_x, h, k)
+    t11, t12, t21, t22 = T
+    p1, p2 = p
+    q1, q2 = q
+    start = _rates(v_y, yaw, c_f, c_r, i_z, _row(g, 0), geo, k, _max)
+    for i in range(n):
+        vy_d, yaw_d, a0 = start[0], start[1], start[2]
+        mid = _rates(v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_f, c_r, i_z, _row(g, 2 * i + 1), geo, k, _max)
+        v_y = v_y + h * mid[0]
+        yaw = yaw + h * mid[1]
+        start = _rates(v_y, yaw, c_f, c_r, i_z, _row(g, 2 * i + 2), geo, k, _max)
+        a1 = start[2]
+        phi, phi_d = (t11 * phi + t12 * phi_d + p1 * a0 + q1 * a1, t21 * phi + t22 * phi_d + p2 * a0 + q2 * a1)
+    x[lateral.V_Y], x[lateral.YAW], x[lateral.PHI], x[lateral.PHI_D] = v_y, yaw, phi, phi_d
+
+
+@_jit
+def _lat_ay(x, pre, k):
+    """lateral.hx's a_y (eq 7) of one SI state."""
+    c_f, c_r, i_z, _ = _lat_params(x, k)
+    return _rates(x[lateral.V_Y], x[lateral.YAW], c_f, c_r, i_z, pre, _geometry(x[lateral.L_F], k), k, _max)[2]
+
+
+@_jit
+def lat_predict(x, P, lam_n, Wm, Wc, Q, scale, kind, lo, span, dt, us, j, w, n, k, consider):
+    """core.filters.UKF.predict on lateral.fx: (x, P, sigmas of the update, status)."""
+    m, nx = 2 * x.shape[0] + 1, x.shape[0]
+    sig = np.empty((m, nx))
+    if not _points(x, P, lam_n, sig):
+        return x, P, sig, NOT_PD
+    held = x[consider] if consider >= 0 else 0.0
+    g = _lat_grid(us, j, w, n, k)
+    t = np.empty(nx)
+    s = np.empty(nx)
+    for i in range(m):
+        for a in range(nx):
+            t[a] = sig[i, a] * scale[a]
+        _to_si(t, kind, lo, span, s)
+        _lat_fx(s, dt, g, n, k)
+        for a in range(nx):  # Bounds.wrap_fx: the transformed entries are constants of fx
+            sig[i, a] = (s[a] if kind[a] == FREE else t[a]) / scale[a]
+    x, P, _ = _transform(sig, Wm, Wc, Q * dt)
+    out = np.empty((m, nx))
+    if not _points(x, P, lam_n, out):
+        return x, P, out, NOT_PD
+    if consider >= 0:
+        x[consider] = held
+    return x, P, out, OK
+
+
+@_jit
+def lat_update(x, P, sig, Wm, Wc, R, scale, kind, lo, span, z, rows, u, k, consider):
+    """core.filters.UKF._update on lateral.hx, measurement rows ``rows``: (x, P, y, S, status)."""
+    m, nx = sig.shape
+    d, v_x = u[lateral.U_DELTA], u[lateral.U_VX]
+    base = k.C_K * k.m / k.L
+    pre = (
+        d,
+        max(v_x, V_MIN),
+        math.sin(d),
+        math.cos(d),
+        base * (k.g * k.L - u[lateral.U_AX] * k.h),
+        u[lateral.U_WF] * k.r,
+    )
+    hz = np.empty((m, rows.shape[0]))
+    t = np.empty(nx)
+    s = np.empty(nx)
+    for i in range(m):
+        for a in range(nx):
+            t[a] = sig[i, a] * scale[a]
+        _to_si(t, kind, lo, span, s)
+        full = (s[lateral.YAW], s[lateral.PHI_D], _lat_ay(s, pre, k))
+        for r in range(rows.shape[0]):
+            hz[i, r] = full[rows[r]]
+    return _gain_step(x, P, sig, hz, z, R, Wm, Wc, consider)
+
+
+# -- stage 1: core.longitudinal -------------------------------------------------
+@_jit
+def _lon_hx(x, u, k, out):
+    """longitudinal.hx of one SI state (eqs 3, 13, 14 with the bend and the offsets)."""
+    l_f, h = x[longitudinal.L_F], x[longitudinal.H]
+    a_x = u[longitudinal.U_AX]
+    mg = k.m * k.g
+    shift = k.m * a_x * h / k.L
+    lo_ = MIN_LOAD * mg
+    f_zf = max(mg * (k.L - l_f) / k.L - shift, lo_)
+    f_zr = max(mg * l_f / k.L + shift, lo_)
+    f_xf = (u[longitudinal.U_TF] - k.J * u[longitudinal.U_WDF]) / k.r
+    f_xr = (u[longitudinal.U_TR] - k.J * u[longitudinal.U_WDR]) / k.r
+    c_k = max(x[longitudinal.C_K], 1e-3)
+    if x.shape[0] > longitudinal.BEND:
+        b, c, s0f, s0r = x[longitudinal.BEND], x[longitudinal.CUBIC], x[longitudinal.S_0F], x[longitudinal.S_0R]
+    else:
+        b, c, s0f, s0r = 0.0, 0.0, 0.0, 0.0
+    u_f, u_r = f_xf / f_zf, f_xr / f_zr
+    a_f, a_r = abs(u_f), abs(u_r)
+    s_f = s0f + u_f / c_k * (1.0 + b * a_f + c * a_f * a_f)
+    s_r = s0r + u_r / c_k * (1.0 + b * a_r + c * a_r * a_r)
+    v = u[longitudinal.U_VX]
+    out[0] = v * (1.0 + s_f) / k.r
+    out[1] = v * (1.0 + s_r) / k.r
+
+
+@_jit
+def lon_predict(x, P, lam_n, Wm, Wc, Q, scale, dt):
+    """core.filters.UKF.predict on longitudinal.fx (a random walk): (x, P, sigmas, status)."""
+    m, nx = 2 * x.shape[0] + 1, x.shape[0]
+    sig = np.empty((m, nx))
+    if not _points(x, P, lam_n, sig):
+        return x, P, sig, NOT_PD
+    for i in range(m):
+        for a in range(nx):
+            sig[i, a] = sig[i, a] * scale[a] / scale[a]  # _fx_s: fx(xs * scale) / scale
+    x, P, _ = _transform(sig, Wm, Wc, Q * dt)
+    out = np.empty((m, nx))
+    if not _points(x, P, lam_n, out):
+        return x, P, out, NOT_PD
+    return x, P, out, OK
+
+
+@_jit
+def lon_update(x, P, sig, Wm, Wc, R, scale, kind, lo, span, z, u, k):
+    """core.filters.UKF._update on longitudinal.hx, both rows: (x, P, y, S, status)."""
+    m, nx = sig.shape
+    hz = np.empty((m, 2))
+    t = np.empty(nx)
+    s = np.empty(nx)
+    for i in range(m):
+        for a in range(nx):
+            t[a] = sig[i, a] * scale[a]
+        _to_si(t, kind, lo, span, s)
+        _lon_hx(s, u, k, hz[i])
+    return _gain_step(x, P, sig, hz, z, R, Wm, Wc, -1)
+
+
+# -- the filters: core.filters.UKF with its steps compiled ---------------------------
+
+
+def _raise(step: str, status: int) -> None:
+    raise FilterError(f"ukf {step}: {MESSAGES[status]}")
+
+
+class _CompiledUKF(UKF):
+    """UKF whose predict and update run compiled (one call each); ``fx``/``hx`` stay the
+    numpy model's (the reference), unused by the steps."""
+
+    def __init__(self, x0, P0, Q_rate, R, scale, fx, hx, bounds, known, consider: int | None = None):
+        super().__init__(x0, P0, Q_rate, R, scale, fx, hx, consider)
+        self._kind, self._lo, self._span = transforms(bounds)
+        self._c = -1 if consider is None else int(consider)
+        self._Wm = np.ascontiguousarray(self._Wm)
+        self._Wc = np.ascontiguousarray(self._Wc)
+        self._known = known
+
+
+class LateralUKF(_CompiledUKF):
+    """Stage 2's UKF (core.lateral) compiled."""
+
+    _grids: typing.ClassVar[dict] = {}  # lateral._grid_weights per (rows, sub-steps), contiguous
+
+    def __init__(self, x0, P0, Q_rate, R, scale, fx, hx, bounds, known: lateral.Known, consider=None):
+        super().__init__(x0, P0, Q_rate, R, scale, fx, hx, bounds, lat_known(known), consider)
+
+    @classmethod
+    def _grid(cls, rows: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+        g = cls._grids.get((rows, n))
+        if g is None:
+            if rows > 1:
+                j, w = lateral._grid_weights(rows, n)
+                g = (np.ascontiguousarray(j, dtype=np.int64), np.ascontiguousarray(w[:, 0]))
+            else:
+                g = (np.zeros(2 * n + 1, dtype=np.int64), np.zeros(2 * n + 1))
+            cls._grids[(rows, n)] = g
+        return g
+
+    def predict(self, dt: float, u) -> None:
+        f = self._f
+        us = np.asarray(u, dtype=float)
+        if us.ndim == 1:
+            us = us[None, :]
+        n = max(1, math.ceil(dt / lateral.MAX_SUBSTEP - 1e-9))  # lateral.fx's sub-steps
+        j, w = self._grid(len(us), n)
+        x, P, sig, status = lat_predict(
+            f.x, f.P, self._lam_n, self._Wm, self._Wc, self.Q_rate, self.scale,
+            self._kind, self._lo, self._span, float(dt), us, j, w, n, self._known, self._c,
+        )  # fmt: skip
+        if status != OK:
+            _raise("predict", status)
+        f.x, f.P, self._sigmas = x, P, sig
+        self._check()
+
+    def _update(self, z, R, mask, u) -> None:
+        f = self._f
+        rows = np.flatnonzero(mask)
+        x, P, y, S, status = lat_update(
+            f.x, f.P, self._sigmas, self._Wm, self._Wc, np.ascontiguousarray(R, dtype=float), self.scale,
+            self._kind, self._lo, self._span, np.asarray(z, dtype=float), rows,
+            np.asarray(u, dtype=float), self._known, self._c,
+        )  # fmt: skip
+        if status != OK:
+            _raise("update", status)
+        f.x, f.P, f.y, f.S = x, P, y, S
+
+
+class LongitudinalUKF(_CompiledUKF):
+    """Stage 1's UKF (core.longitudinal) compiled."""
+
+    def __init__(self, x0, P0, Q_rate, R, scale, fx, hx, bounds, known: longitudinal.Known, consider=None):
+        super().__init__(x0, P0, Q_rate, R, scale, fx, hx, bounds, lon_known(known), consider)
+
+    def predict(self, dt: float, u) -> None:
+        f = self._f
+        x, P, sig, status = lon_predict(f.x, f.P, self._lam_n, self._Wm, self._Wc, self.Q_rate, self.scale, float(dt))
+        if status != OK:
+            _raise("predict", status)
+        f.x, f.P, self._sigmas = x, P, sig
+        self._check()
+
+    def _update(self, z, R, mask, u) -> None:
+        f = self._f
+        x, P, y, S, status = lon_update(
+            f.x, f.P, self._sigmas, self._Wm, self._Wc, np.ascontiguousarray(R, dtype=float), self.scale,
+            self._kind, self._lo, self._span, np.asarray(z, dtype=float), np.asarray(u, dtype=float), self._known,
+        )  # fmt: skip
+        if status != OK:
+            _raise("update", status)
+        f.x, f.P, f.y, f.S = x, P, y, S

@@ -1,0 +1,174 @@
+"""The compiled UKF steps (core.kernels) give the numpy path's numbers (core.filters on the
+models as written in core.lateral and core.longitudinal).
+
+A change to a model's source that the compiled glue does not follow shows here first: the
+single steps differ, then the drive's estimates.  The tolerances are floating-point noise
+(below): ~1e-9 of a std per step, ~1e-9 of a whole drive's estimates.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vdp.core import kernels, lateral, longitudinal
+from vdp.core.bounds import Bounds
+from vdp.core.estimator import EstimatorConfig
+from vdp.core.filters import UKF
+from vdp.core.learner import LearnerConfig
+from vdp.errors import FilterError
+from vdp.pipeline import Pipeline
+from vdp.profile import load_profile
+from vdp.sim.run import simulate
+
+# One step from the same state, in units of the state's std (x) and of the product of stds (P).
+# The paper's alpha = 0.01 gives weights of ~3e4 of both signs, which cancel: a last-bit
+# difference in a propagated sigma point (sin, exp, a sum's order) comes out at ~1e-9 of a std,
+# (the points sit 0.017 std from the mean); the tolerance is ten times that.
+STEP_TOL = 1e-8
+MEAN_ROUNDING = 1e-10  # and the weighted mean rounds to ~3e4 x 2e-16 of the state's own size
+DRIVE_RTOL = 1e-7
+
+
+def _lat_pair(per_axle: bool):
+    k = lateral.Known(m=1600.0, L=2.7, r=0.31, k_phi=9e4, c_phi=6e3, l_f=1.25, h=0.55, C_K=11.0, per_axle=per_axle)
+    b = Bounds(lateral.N_X, log=(lateral.C_F, lateral.C_R, lateral.I_Z, lateral.I_X))
+    x0 = b.from_si(np.array([0.1, 0.15, 0.01, 0.02, 7e4, 6e4, 2500.0, 600.0, 1.25]))
+    P0 = np.diag([0.3**2, 0.02**2, 0.01**2, 0.02**2, 0.3**2, 0.3**2, 0.2**2, 0.5**2, 1e-4])
+    P0[4, 6] = P0[6, 4] = 0.01
+    Q = np.diag([1e-5, 4e-4, 1e-8, 2.5e-5, 1e-8, 1e-8, 1e-8, 1e-8, 0.0])
+    R = np.diag([3e-6, 3e-6, 5e-3])
+    scale = np.where(b.transformed, 1.0, lateral.SCALE)
+    fx = b.wrap_fx(lambda x, dt, u: lateral.fx(x, dt, u, k))
+    hx = b.wrap_hx(lambda x, u: lateral.hx(x, u, k))
+    ref = UKF(x0, P0, Q, R, scale, fx, hx, lateral.CONSIDER)
+    fast = kernels.LateralUKF(x0, P0, Q, R, scale, fx, hx, b, k, lateral.CONSIDER)
+    return ref, fast
+
+
+def _lon_pair(n_x: int):
+    k = longitudinal.Known(m=1600.0, L=2.7, r=0.31, J=1.2)
+    b = Bounds(n_x, log=(longitudinal.H, longitudinal.C_K), logit={longitudinal.L_F: (0.0, 2.7)})
+    x0 = b.from_si(np.array([1.3, 0.6, 9.0, 0.2, 0.1, 1e-3, -5e-4][:n_x]))
+    P0 = np.diag([0.3, 0.2, 0.2, 0.5**2, 1.0, 4e-6, 4e-6][:n_x])
+    Q = np.eye(n_x) * 1e-9
+    R = np.array([[1e-3, 4e-4], [4e-4, 1e-3]])
+    scale = np.where(b.transformed, 1.0, longitudinal.SCALE[:n_x])
+    fx = b.wrap_fx(lambda x, dt, u: longitudinal.fx(x, dt, u, k))
+    hx = b.wrap_hx(lambda x, u: longitudinal.hx(x, u, k))
+    return UKF(x0, P0, Q, R, scale, fx, hx), kernels.LongitudinalUKF(x0, P0, Q, R, scale, fx, hx, b, k)
+
+
+def _sync(ref, fast):
+    """Start the compiled filter's next step from the numpy one's state: each step is compared
+    on its own (over many steps the weights' amplification of rounding compounds, see the drive)."""
+    fast._f.x, fast._f.P = ref._f.x.copy(), ref._f.P.copy()
+    if ref._sigmas is not None:
+        fast._sigmas = ref._sigmas.copy()
+
+
+def _same(ref, fast):
+    sd = np.sqrt(np.diagonal(ref._f.P))  # scaled coordinates, where the filter works
+    tol = STEP_TOL * sd + MEAN_ROUNDING * np.abs(ref._f.x)
+    assert np.all(np.abs(fast._f.x - ref._f.x) <= tol), (fast._f.x - ref._f.x) / tol
+    assert np.all(np.abs(fast._f.P - ref._f.P) <= STEP_TOL * np.outer(sd, sd))
+    _sync(ref, fast)
+
+
+@pytest.mark.parametrize("per_axle", [False, True])
+def test_stage2_steps_are_the_numpy_steps(per_axle):
+    ref, fast = _lat_pair(per_axle)
+    rng = np.random.default_rng(3)
+    for i in range(40):
+        # inputs sampled over the step (steering ramp, speed, front wheel speed, a_x), as Stage2 passes them
+        us = np.column_stack(
+            [
+                0.05 * np.sin(0.3 * i + np.arange(3) * 0.1),
+                np.full(3, 18.0 + 0.1 * i),
+                np.full(3, 18.0 / 0.31 * 1.002),
+                rng.normal(0.0, 0.2, 3),
+            ]
+        )
+        dt = 0.04 if i % 7 else 0.02  # one and several sub-steps
+        _sync(ref, fast)
+        ref.predict(dt, us)
+        fast.predict(dt, us)
+        _same(ref, fast)
+        z = np.array([0.15 + 0.01 * rng.normal(), 0.01 * rng.normal(), 2.5 + 0.1 * rng.normal()])
+        mask = np.array([True, i % 5 != 0, True])  # a row missing now and then
+        ref.update(z, mask, us[-1])
+        fast.update(z, mask, us[-1])
+        _same(ref, fast)
+        (y, S), (y2, S2) = ref.innovation(), fast.innovation()
+        sd = np.sqrt(np.diagonal(S))
+        assert np.all(np.abs(y2 - y) <= STEP_TOL * sd + MEAN_ROUNDING * np.abs(z[mask]))
+        assert np.all(np.abs(S2 - S) <= STEP_TOL * np.outer(sd, sd))
+    # the considered l_f never moves, on either path
+    assert fast.x[lateral.L_F] == ref.x[lateral.L_F]
+
+
+def test_stage2_held_input_row():
+    ref, fast = _lat_pair(False)
+    u = np.array([0.03, 20.0, 20.0 / 0.31, 0.1])
+    ref.predict(0.04, u)
+    fast.predict(0.04, u)
+    _same(ref, fast)
+
+
+@pytest.mark.parametrize("n_x", [3, longitudinal.N_X])
+def test_stage1_steps_are_the_numpy_steps(n_x):
+    ref, fast = _lon_pair(n_x)
+    rng = np.random.default_rng(5)
+    for i in range(40):
+        u = np.array([400.0 * np.sin(0.2 * i), 150.0, rng.normal(0.5, 0.3), 15.0 + 0.2 * i, 0.05, 1.0, 1.1])
+        _sync(ref, fast)
+        ref.predict(0.1, u)
+        fast.predict(0.1, u)
+        _same(ref, fast)
+        z = u[3] / 0.31 * (1.0 + rng.normal(0.0, 0.003, 2))
+        ref.update(z, np.ones(2, dtype=bool), u)
+        fast.update(z, np.ones(2, dtype=bool), u)
+        _same(ref, fast)
+
+
+def test_a_broken_covariance_fails_as_the_numpy_step_does():
+    ref, fast = _lat_pair(False)
+    bad = -np.eye(lateral.N_X)
+    for f in (ref, fast):
+        f.set_state(f.x, bad)
+    u = np.array([0.03, 20.0, 20.0 / 0.31, 0.1])
+    msgs = []
+    for f in (ref, fast):
+        with pytest.raises(FilterError) as e:
+            f.predict(0.04, u)
+        msgs.append(str(e.value))
+    assert msgs[0] == msgs[1] == "ukf predict: Matrix is not positive definite"
+
+
+@pytest.fixture(scope="module")
+def drive(repo_root):
+    prof = load_profile(repo_root / "profiles" / "paper.toml")
+    frames, _ = simulate(prof, "paper", seed=7, noise="realistic")
+    return prof, list(frames)
+
+
+def _estimates(prof, frames, compiled: bool):
+    pipe = Pipeline(prof, EstimatorConfig(baseline=False, learner=LearnerConfig(compiled=compiled)))
+    for m in frames:
+        pipe.feed(m)
+    l1, l2 = pipe.estimator.s1["ukf"], pipe.estimator.s2["ukf"]
+    return pipe.result(), l1, l2
+
+
+def test_a_drive_gives_the_same_estimates_compiled_or_not(drive):
+    prof, frames = drive
+    ref, r1, r2 = _estimates(prof, frames, compiled=False)
+    fast, f1, f2 = _estimates(prof, frames, compiled=True)
+    assert type(f1.filter).__name__ == "LongitudinalUKF" and type(r1.filter).__name__ == "UKF"
+    assert f2.updates > 1000 and f2.updates == r2.updates  # stage 2 ran, step for step
+    assert f1.reseeds == r1.reseeds and f1.gated == r1.gated and len(f1._blocks) == len(r1._blocks)
+    for name, e in ref.parameters.items():
+        c = fast.parameters[name]
+        assert (c.status, c.valid, c.samples, c.reason) == (e.status, e.valid, e.samples, e.reason), name
+        assert c.value == pytest.approx(e.value, rel=DRIVE_RTOL), name
+        assert c.std == pytest.approx(e.std, rel=DRIVE_RTOL), name
