@@ -108,6 +108,94 @@ def test_mb_settles_on_its_static_axle_loads():
     assert m.wheelbase * zr / (zf + zr) == pytest.approx(m.static_truth()["l_f"], rel=5e-3)
 
 
+def _turning(m, T: float = 0.05, delta: float = math.radians(3.0)):
+    """A state 50 ms into a step steer at 10 m/s (the yaw rate still rising), and the steer."""
+    x = m.initial(10.0)
+    for _ in range(500):
+        x = m.step(x, 40.0, 0.0, 0.0, 1e-3)[0]
+    for _ in range(int(T / 1e-3)):
+        x = m.step(x, 40.0, 0.0, delta, 1e-3)[0]
+    return x, delta
+
+
+def _tap(monkeypatch, module, name, calls):
+    f = getattr(module, name)
+
+    def tapped(*args):
+        out = f(*args)
+        calls.append((args, out))
+        return out
+
+    monkeypatch.setattr(module, name, tapped)
+
+
+@pytest.mark.parametrize("car", ["saloon", "small"])
+def test_brush_truth_i_z_is_the_whole_cars_about_its_cg_and_the_roll_swing_is_in_a_y(car, monkeypatch):
+    """DEFINITIONS' I_z on brush: I_z r' is the moment of the tyre forces about the whole car's CG (l_f).
+
+    Also pins what the single track leaves out of the lateral balance here (stage2_mismatch.py
+    terms, 'roll'): m a_y = sum F_y + m_s d phi'', the sprung CG swinging d above the roll axis.
+    """
+    import vdp.sim.independent.brush as brush
+
+    m = get_model("brush", car)
+    x, delta = _turning(m)
+    calls = []
+    _tap(monkeypatch, brush, "brush_force", calls)
+    dx, (_, ay, _, _) = m.deriv(x, 40.0, 0.0, delta)
+    c, lf = m.c, m.static_truth()["l_f"]
+    assert lf == pytest.approx(m.lf)
+    pos = ((lf, c.t_f / 2), (lf, -c.t_f / 2), (lf - c.L, c.t_r / 2), (lf - c.L, -c.t_r / 2))
+    sd, cd = math.sin(delta), math.cos(delta)
+    mz = sfy = 0.0
+    for i, ((px, py), (_, (fxw, fyw))) in enumerate(zip(pos, calls)):
+        fx, fy = (fxw * cd - fyw * sd, fxw * sd + fyw * cd) if i < 2 else (fxw, fyw)
+        mz += px * fy - py * fx
+        sfy += fy
+    assert abs(dx[2]) > 0.1  # a yaw transient: the inertia matters
+    assert m.static_truth()["I_z"] * dx[2] == pytest.approx(mz, rel=1e-9)
+    assert m.mass * ay - sfy == pytest.approx(c.m_s * m.d * dx[4], rel=1e-9)
+    assert abs(c.m_s * m.d * dx[4]) > 0.02 * abs(sfy)  # and it is not small in a transient
+
+
+@need_mb
+def test_mb_truth_i_z_is_the_librarys_only_yaw_inertia_about_the_sprung_cg(monkeypatch):
+    """DEFINITIONS' I_z on mb: the library's I_z r' is the tyre forces' moment about the sprung CG.
+
+    No unsprung-mass term and no roll coupling (I_xz_s = 0): I_z is its only yaw inertia.  About
+    the whole car's CG (the truth's l_f, from the static loads) the same balance keeps
+    (m_ur b - m_uf a) a_y-sized moments, which is why no I_z makes a single track about it exact.
+    """
+    import vehiclemodels.utils.tire_model as tm
+
+    m = get_model("mb", "bmw_320i")
+    p = m.p
+    x, delta = _turning(m)
+    lat, lon = [], []
+    _tap(monkeypatch, tm, "formula_lateral_comb", lat)
+    _tap(monkeypatch, tm, "formula_longitudinal_comb", lon)
+    f = m.deriv(x, 40.0, 0.0, delta)
+    fy = [o for _, o in lat]
+    fx = [o for _, o in lon]
+    sd, cd = math.sin(x[2]), math.cos(x[2])
+    # the library's wheel order LF, RF, LR, RR, its L wheels at y = -T/2 (mb.py)
+    ys = (-p.T_f / 2, p.T_f / 2, -p.T_r / 2, p.T_r / 2)
+    body = [(fx[i] * cd - fy[i] * sd, fx[i] * sd + fy[i] * cd) if i < 2 else (fx[i], fy[i]) for i in range(4)]
+
+    def moment(lever):
+        xs = (lever, lever, lever - (p.a + p.b), lever - (p.a + p.b))
+        return sum(xs[i] * body[i][1] - ys[i] * body[i][0] for i in range(4))
+
+    assert p.I_xz_s == 0.0
+    assert abs(f[5]) > 0.1
+    assert m.static_truth()["I_z"] == p.I_z
+    assert p.I_z * f[5] == pytest.approx(moment(p.a), rel=1e-9)
+    lf = m.static_truth()["l_f"]
+    assert lf - p.a == pytest.approx((p.m_ur * p.b - p.m_uf * p.a) / p.m, rel=1e-6)  # p.m is rounded
+    sfy = sum(b[1] for b in body)
+    assert moment(lf) - p.I_z * f[5] == pytest.approx((lf - p.a) * sfy, rel=1e-9)
+
+
 def test_brush_load_transfer_height_is_cg_height_plus_pitch_shift():
     m = get_model("brush", "saloon")
     tr = drive(m, "stage1", duration=25.0)
