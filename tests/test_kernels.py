@@ -131,6 +131,28 @@ def test_stage1_steps_are_the_numpy_steps(n_x):
         _same(ref, fast)
 
 
+@pytest.mark.parametrize("n_x", [3, longitudinal.N_X])
+def test_stage1_batch_model_is_numpys_to_the_bit(n_x):
+    """Stage 1's batch check evaluates longitudinal.hx on every kept block, compiled: the
+    same operations elementwise, so the same floats."""
+    k = longitudinal.Known(m=1600.0, L=2.7, r=0.31, J=1.2)
+    rng = np.random.default_rng(9)
+    U = np.column_stack(
+        [
+            rng.normal(0, 600, 3000),
+            rng.normal(0, 400, 3000),
+            rng.normal(0, 2, 3000),
+            rng.uniform(3, 40, 3000),
+            np.full(3000, 0.05),
+            rng.normal(0, 3, 3000),
+            rng.normal(0, 3, 3000),
+        ]
+    )
+    x = np.array([1.3, 0.6, 9.0, 0.2, 0.1, 1e-3, -5e-4][:n_x])
+    got = kernels.lon_hx_rows(x, U, kernels.lon_known(k))
+    assert np.array_equal(got, longitudinal.hx(x, U, k))
+
+
 def test_a_broken_covariance_fails_as_the_numpy_step_does():
     ref, fast = _lat_pair(False)
     bad = -np.eye(lateral.N_X)

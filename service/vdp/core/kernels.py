@@ -410,6 +410,15 @@ def _lon_hx(x, u, k, out):
 
 
 @_jit
+def lon_hx_rows(x, U, k):
+    """longitudinal.hx of one SI state on many blocks' inputs (stage 1's batch check)."""
+    out = np.empty((U.shape[0], 2))
+    for i in range(U.shape[0]):
+        _lon_hx(x, U[i], k, out[i])
+    return out
+
+
+@_jit
 def lon_predict(x, P, lam_n, Wm, Wc, Q, scale, dt):
     """core.filters.UKF.predict on longitudinal.fx (a random walk): (x, P, sigmas, status)."""
     m, nx = 2 * x.shape[0] + 1, x.shape[0]

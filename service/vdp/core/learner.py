@@ -658,7 +658,7 @@ class Stage1(StageLearner):
 
     def _test_shape(self, U, Z, R, prior, fit):
         """Free the tyre's shape if the data demand it (SHAPE_LR): (fit, t0, P0) with it free, or None."""
-        b, k = self.bounds, self.known
+        b = self.bounds
         mean, P = _shape_prior(True)
         x0 = np.concatenate([prior[:3], mean])
         cov = np.zeros((longitudinal.N_X, longitudinal.N_X))
@@ -667,7 +667,7 @@ class Stage1(StageLearner):
         t0 = b.from_si(x0)
         d = b.grad(t0)
         P0 = cov / np.outer(d, d)
-        free = batch.solve(lambda t, u: longitudinal.hx(b.to_si(t), u, k), U, Z, R, t0, P0, [fit.t], iters=20)
+        free = batch.solve(self._batch_h(), U, Z, R, t0, P0, [fit.t], iters=20)
         if free is None:
             return None
         rho = min(max(free.rho, 0.0), 0.95)
@@ -706,12 +706,12 @@ class Stage1(StageLearner):
     def _split(self, U, Z, R, t0, P0, fit, lo) -> np.ndarray | None:
         """How far the parameters of the blocks in ``lo`` and of the others differ beyond their
         noise (SI), or None: sqrt(max(0, d^2 - var_1 - var_2)) per parameter."""
-        b, k = self.bounds, self.known
+        b = self.bounds
         halves, var = [], 0.0
         for m in (lo, ~lo):
             if m.sum() < BATCH_EVERY:
                 return None
-            h = batch.solve(lambda t, u: longitudinal.hx(b.to_si(t), u, k), U[m], Z[m], R[m], t0, P0, [fit.t], iters=15)
+            h = batch.solve(self._batch_h(), U[m], Z[m], R[m], t0, P0, [fit.t], iters=15)
             if h is None:
                 return None
             halves.append(b.to_si(h.t))
@@ -734,6 +734,16 @@ class Stage1(StageLearner):
 
     def _jac_h(self, x, u):
         return longitudinal.jac_h(x, u, self.known)
+
+    def _batch_h(self):
+        """h(t, U) of the batch check (core.batch): longitudinal.hx of the transformed
+        parameters t on every block's inputs; compiled (core.kernels, the same floats) when
+        the filter steps are."""
+        b, k = self.bounds, self.known
+        if self.cfg.compiled and _compiled("lon_hx_rows") is not None:
+            rows, kk = _compiled("lon_hx_rows"), _compiled("lon_known")(k)
+            return lambda t, u: rows(b.to_si(t), u, kk)
+        return lambda t, u: longitudinal.hx(b.to_si(t), u, k)
 
     def _q_rate(self):
         return np.diag(self.cfg.param_walk**2 * np.diagonal(self.prior()[1]))
@@ -860,7 +870,7 @@ class Stage1(StageLearner):
         lin = batch.linear_start(U, Z, k)
         if lin is not None:
             starts.append(b.from_si(np.concatenate([lin, prior[3:]])))
-        fit = batch.solve(lambda t, u: longitudinal.hx(b.to_si(t), u, k), U, Z, R, t0, P0, starts)
+        fit = batch.solve(self._batch_h(), U, Z, R, t0, P0, starts)
         if fit is None:
             return None
         if not self.shaped and self._checks % BATCH_FAR_EVERY == 1:
