@@ -39,8 +39,13 @@ from .filters import UKF
 log = logging.getLogger(__name__)
 
 # status codes of a step (the learner's FilterError messages, as the numpy path words them)
-OK, NOT_PD, SINGULAR = 0, 1, 2
-MESSAGES = {NOT_PD: "Matrix is not positive definite", SINGULAR: "Singular matrix"}
+OK, NOT_PD, SINGULAR, NON_FINITE, LOST_PD = 0, 1, 2, 3, 4
+MESSAGES = {
+    NOT_PD: "Matrix is not positive definite",
+    SINGULAR: "Singular matrix",
+    NON_FINITE: "non-finite state or covariance",
+    LOST_PD: "covariance lost positive definiteness",
+}
 
 # a model's constants as numba takes them (attribute access on a named tuple)
 Lat = collections.namedtuple("Lat", "m L r k_phi c_phi l_f h C_K g per_axle ck_slope")
@@ -195,6 +200,18 @@ def _inv(S):
 
 
 @_jit
+def _checked(x, P):
+    """core.filters.JointFilter._check for the UKF: (P symmetrised, status)."""
+    P = 0.5 * (P + P.T)
+    if not math.isfinite(x.sum() + P.sum()):
+        return P, NON_FINITE
+    for i in range(P.shape[0]):
+        if P[i, i] <= 0.0:
+            return P, LOST_PD
+    return P, OK
+
+
+@_jit
 def _mm(A, B):
     """A @ B (small: loops, no BLAS)."""
     out = np.zeros((A.shape[0], B.shape[1]))
@@ -259,7 +276,8 @@ def _gain_step(x, P, sig, hz, z, R, Wm, Wc, consider):
     else:
         KPxz = _mmt(K, Pxz)
         P = P - KPxz - KPxz.T + KSK
-    return x, P, y, S, OK
+    P, status = _checked(x, P)
+    return x, P, y, S, status
 
 
 # -- stage 2: core.lateral on scaled, bounded sigma points ---------------------
@@ -352,7 +370,8 @@ def lat_predict(x, P, lam_n, Wm, Wc, Q, scale, kind, lo, span, dt, us, j, w, n, 
         return x, P, out, NOT_PD
     if consider >= 0:
         x[consider] = held
-    return x, P, out, OK
+    P, status = _checked(x, P)
+    return x, P, out, status
 
 
 @_jit
@@ -432,7 +451,8 @@ def lon_predict(x, P, lam_n, Wm, Wc, Q, scale, dt):
     out = np.empty((m, nx))
     if not _points(x, P, lam_n, out):
         return x, P, out, NOT_PD
-    return x, P, out, OK
+    P, status = _checked(x, P)
+    return x, P, out, status
 
 
 @_jit
@@ -454,7 +474,8 @@ def lon_update(x, P, sig, Wm, Wc, R, scale, kind, lo, span, z, u, k):
 
 
 def _raise(step: str, status: int) -> None:
-    raise FilterError(f"ukf {step}: {MESSAGES[status]}")
+    """The numpy steps' FilterError: a linear-algebra failure names its step, the check does not."""
+    raise FilterError(f"ukf {step}: {MESSAGES[status]}" if status < NON_FINITE else f"ukf: {MESSAGES[status]}")
 
 
 class _CompiledUKF(UKF):
@@ -468,6 +489,9 @@ class _CompiledUKF(UKF):
         self._Wm = np.ascontiguousarray(self._Wm)
         self._Wc = np.ascontiguousarray(self._Wc)
         self._known = known
+
+    def _check(self) -> None:
+        """(the compiled steps check their result themselves, as the numpy steps' _check does)"""
 
 
 class LateralUKF(_CompiledUKF):
@@ -504,7 +528,6 @@ class LateralUKF(_CompiledUKF):
         if status != OK:
             _raise("predict", status)
         f.x, f.P, self._sigmas = x, P, sig
-        self._check()
 
     def _update(self, z, R, mask, u) -> None:
         f = self._f
@@ -531,7 +554,6 @@ class LongitudinalUKF(_CompiledUKF):
         if status != OK:
             _raise("predict", status)
         f.x, f.P, self._sigmas = x, P, sig
-        self._check()
 
     def _update(self, z, R, mask, u) -> None:
         f = self._f
