@@ -67,7 +67,11 @@ class Service:
         self.fingerprint = profile_fingerprint(self.profile)
         self.ingest = Ingest(settings, self.profile, opener)
         # The live trace only backs plots of recent data; history lives in the store.
-        cfg = EstimatorConfig(trace_len=600, learner=LearnerConfig(per_axle=settings.service.per_axle))
+        # numpy's filter steps, not the compiled ones (core.kernels): a live bus brings 50 samples/s,
+        # which they keep up with at a few per cent of a core, and numba's LLVM would add ~135 MB
+        # to the service's RSS (BENCHMARKS.md, "Compiled estimator").
+        learner = LearnerConfig(per_axle=settings.service.per_axle, compiled=False)
+        cfg = EstimatorConfig(trace_len=600, learner=learner)
         pipe = pipeline if pipeline is not None else Pipeline(self.profile, cfg)
         self.estimation = Estimation(pipe, self.ingest.queue, settings.service.publish_interval)
         self.writer = StoreWriter(settings.store, self.fingerprint, self.profile.vehicle.name)
