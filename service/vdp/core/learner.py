@@ -26,7 +26,7 @@ import numpy as np
 
 from .. import channels as ch
 from ..errors import FilterError
-from . import batch, lateral, longitudinal
+from . import batch, lateral, longitudinal, output_error
 from .bounds import Bounds
 from .filters import EKF, UKF
 from .params import BY_NAME, STAGE1, STAGE2
@@ -1017,6 +1017,7 @@ class Stage2(StageLearner):
         self._info_window = 0.0
         self._excite: RollExcitation | None = None
         self.roll_updates = 0  # of them, those that had a roll-rate measurement
+        self.check = output_error.Check()  # the batch check: windows' samples and their output-error fit
         super().reset()
         P = self.theta_P
         self.prior_diff_std = math.sqrt(P[0, 0] + P[1, 1] - 2.0 * P[0, 1])  # of C_alpha_f - C_alpha_r
@@ -1126,6 +1127,9 @@ class Stage2(StageLearner):
           (their size or colour), the std widens by the roll row's own factor and takes
           ROLL_MODEL_ERROR of I_x as model error, and I_x is not valid, with the reason.
         """
+        if name in output_error.CHECKED and self.known is not None:
+            fit = self.batch_fit()
+            return (std, None) if fit is None else output_error.compare(name, value, std, fit, output_error.Z_MAX)
         if name != "I_x" or self.known is None or not (math.isfinite(value) and math.isfinite(std)):
             return std, None
         h_rel = (self.h_std or 0.0) / self.known.h if self.known.h > 0 else 0.0
@@ -1143,6 +1147,23 @@ class Stage2(StageLearner):
                 f"(its prior: {100 * self._ix_prior_rel():.0f} %); quick steering reversals at speed excite the roll"
             )
         return std, why
+
+    def batch_fit(self) -> output_error.Fit | None:
+        """The output-error fit of the windows kept (core.output_error), solved again when stale:
+        per axle, from the filter's values, with the profile's priors (the mean's, and the
+        axles' half-difference AXLE_SPLIT of it, as _prior)."""
+        c = self.check
+        if not c.stale(self.filter is not None):
+            return c.fit
+        p, theta = self.priors, self.params()[0]
+        rel = np.array([p["C_alpha"].std / p["C_alpha"].value, p["I_z"].std / p["I_z"].value])
+        m, d = rel[0] ** 2, (AXLE_SPLIT * rel[0]) ** 2
+        P0 = np.array([[m + d, m - d, 0.0], [m - d, m + d, 0.0], [0.0, 0.0, rel[1] ** 2]])
+        t0 = np.log([p["C_alpha"].value, p["C_alpha"].value, p["I_z"].value])
+        c_r = theta[1] if self.cfg.per_axle else theta[0]
+        n = self.cfg.noise
+        sigma = (n.gyro * n.inflate, n.accel * n.inflate)
+        return c.solve(self.known, sigma, t0, P0, [np.array([theta[0], c_r, theta[2]])])
 
     def _ix_prior_rel(self) -> float:
         p = self.priors["I_x"]
@@ -1332,6 +1353,7 @@ class Stage2(StageLearner):
             self.roll_window = Consistency()
             x0, P0 = self._start(z, mask, u)
             self.filter = self._new_filter(x0, P0, self._R())
+            self.check.record.open()
             self._info_window = 0.0
             ix = self.theta[self.keys.index("I_x")]
             self._excite = RollExcitation(self.known, ix, x0[lateral.PHI], x0[lateral.PHI_D], t)
@@ -1354,6 +1376,7 @@ class Stage2(StageLearner):
         self.filter.update(z, mask, us[-1])
         self.updates += 1
         self.roll_updates += bool(mask[lateral.Z_ROLL])
+        self.check.record.add(t, us[-1], z[lateral.Z_YAW], z[lateral.Z_AY])
         if mask[lateral.Z_ROLL] and self._excite is not None:
             n = self.cfg.noise
             j = self._excite.chi_d**2 / (n.gyro * n.inflate) ** 2  # the roll row's R

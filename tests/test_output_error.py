@@ -1,0 +1,171 @@
+"""Stage 2's batch check (core.output_error): the output-error fit of the single track."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from vdp.core import lateral
+from vdp.core import output_error as oe
+
+K = lateral.Known(m=1500.0, L=2.6, r=0.3, k_phi=60000.0, c_phi=4000.0, l_f=1.2, h=0.5, C_K=10.0, per_axle=True)
+TRUTH = np.array([70000.0, 91000.0, 2500.0])  # C_alpha_f, C_alpha_r, I_z
+SIGMA = (math.radians(0.1) * 1.5, 0.05 * 1.5)  # the learner's R: the sensors' noise times Noise.inflate
+PRIOR_T = np.log([80000.0, 80000.0, 2200.0])
+PRIOR_P = np.diag([0.5**2, 0.5**2, 0.5**2])
+TICK = 0.02
+K0 = dataclasses.replace(K, C_K=0.0)  # stage 1 not run: no front drive force (Stage2.set_stage1)
+
+
+def drive(duration, t0=0.0, seed=0, noise=True, offset=0.0, tyre=None):
+    """(t, U, Z) of a sine-steer drive at the learner's tick.  ``tyre``: None, the model itself
+    (lateral.fx); else a function alpha -> F_y / C_alpha that bends (a tyre the model lacks)."""
+    rng = np.random.default_rng(seed)
+    n = int(duration / TICK)
+    t = t0 + np.arange(n) * TICK
+    d = math.radians(3.0) * np.sin(2 * math.pi * 0.1 * t) + math.radians(1.0) * np.sin(2 * math.pi * 0.7 * t)
+    v = 10.0 + 0.5 * np.sin(2 * math.pi * 0.05 * t)
+    U = np.stack([d, v, v / K.r * 1.002, np.zeros(n)], axis=1)
+    if tyre is None:
+        x = np.array([0.0, 0.0, 0.0, 0.0, TRUTH[0], TRUTH[1], TRUTH[2], 500.0, K.l_f])
+        Z = []
+        for i in range(n):
+            Z.append(lateral.hx(x, U[i], K)[[lateral.Z_YAW, lateral.Z_AY]])
+            if i + 1 < n:
+                x = lateral.fx(x, TICK, U[i : i + 2], K)
+        Z = np.array(Z)
+    else:  # a plain single track with the bending tyre, fine Euler steps
+        l_f, l_r = K.l_f, K.L - K.l_f
+        v_y = r = 0.0
+        Z = np.empty((n, 2))
+        sub = 20
+        for i in range(n):
+            for j in range(sub):
+                s = t[i] + j * TICK / sub  # the inputs at the step's time: a held input lags, and I_z absorbs a lag
+                dj, vj = (
+                    math.radians(3.0) * math.sin(0.2 * math.pi * s) + math.radians(1.0) * math.sin(1.4 * math.pi * s),
+                    10.0 + 0.5 * math.sin(0.1 * math.pi * s),
+                )
+                f_yf = TRUTH[0] * tyre(dj - (v_y + l_f * r) / vj)
+                f_yr = TRUTH[1] * tyre((l_r * r - v_y) / vj)
+                a_y = (f_yf * math.cos(dj) + f_yr) / K.m
+                if j == 0:
+                    Z[i] = r, a_y
+                v_y += TICK / sub * (a_y - vj * r)
+                r += TICK / sub * (l_f * f_yf * math.cos(dj) - l_r * f_yr) / TRUTH[2]
+        U[:, lateral.U_WF] = 0.0  # no front drive force in this car (K0: the learner's inputs then)
+    Z[:, 1] += offset
+    if noise:
+        Z += rng.normal(0.0, 1.0, Z.shape) * [math.radians(0.1), 0.05]
+    return t, U, Z
+
+
+def record(windows, every=2):
+    """The windows as the learner records them: every filter step (every ``every`` samples)."""
+    rec = oe.Record()
+    for t, U, Z in windows:
+        rec.open()
+        for i in range(0, len(t), every):
+            rec.add(t[i], U[i].tolist(), Z[i, 0], Z[i, 1])
+    return rec
+
+
+def fit_of(rec, k=K):
+    t, U, Z, bounds = rec.arrays()
+    return oe.solve(oe.Problem(t, U, Z, bounds, k, SIGMA), PRIOR_T, PRIOR_P, [np.array([80000.0, 80000.0, 2200.0])])
+
+
+def test_the_fits_model_is_stage_2s_lateral_model():
+    """At the truth and the true initial state the fit's outputs are lateral.fx's (noise-free)."""
+    t, U, Z = drive(20.0, noise=False)
+    rec = record([(t, U, Z)], every=1)
+    tt, UU, ZZ, bounds = rec.arrays()
+    prob = oe.Problem(tt, UU, ZZ, bounds, K, SIGMA)
+    p = np.zeros(oe.N_GLOBAL + 2)
+    p[: oe.N_THETA] = np.log(TRUTH)
+    y = prob.outputs(p)[0][0]
+    np.testing.assert_allclose(y[:, 0], Z[:, 0], atol=2e-5)  # rad/s; the yaw rate reaches 0.1
+    np.testing.assert_allclose(y[:, 1], Z[:, 1], atol=2e-3)  # m/s^2; a_y reaches 1.5 (the F_xf linearised)
+
+
+def test_fit_recovers_the_models_own_parameters_from_noisy_windows():
+    windows = [drive(40.0, seed=1, offset=0.05), drive(20.0, t0=100.0, seed=2, offset=0.05)]
+    f = fit_of(record(windows))
+    assert f is not None
+    sd = np.sqrt(np.diagonal(f.cov))
+    err = np.log(f.theta / TRUTH)
+    assert np.all(np.abs(err) < 0.03), err
+    assert np.all(np.abs(err) < 3 * sd), (err, sd)
+    assert f.offset == pytest.approx(0.05, abs=0.01)  # the accelerometer's bias is a parameter
+    assert f.chi2 == pytest.approx(1 / 1.5**2, rel=0.2)  # white residuals at the sensors' noise
+    assert abs(f.rho) < 0.1
+    assert f.c_alpha == pytest.approx(TRUTH[:2].mean(), rel=0.02)
+
+
+def test_fit_is_exact_on_noise_free_model_data():
+    f = fit_of(record([drive(40.0, noise=False)]))
+    np.testing.assert_allclose(f.theta, TRUTH, rtol=0.006)
+
+
+def test_a_filter_value_the_fit_supports_is_left_alone():
+    f = fit_of(record([drive(40.0, seed=3)]))
+    value = f.c_alpha * 1.005
+    std, why = oe.compare("C_alpha", value, 0.01 * value, f, oe.Z_MAX)
+    assert why is None and std == 0.01 * value
+
+
+def test_a_mismatched_drive_is_flagged_and_the_std_covers_the_fit():
+    """A tyre that bends (F_y = C alpha / (1 + |alpha| / 0.05)): the filter's one-step rows may
+    settle far from what yaw rate and a_y say over the drive; the verdict widens and flags."""
+    t, U, Z = drive(60.0, seed=4, tyre=lambda a: a / (1.0 + abs(a) / 0.05))
+    f = fit_of(record([(t, U, Z)]), K0)
+    assert f.chi2 > 1 / 1.5**2  # the model leaves more than the noise ...
+    assert f.rho > 0.3  # ... and it follows the manoeuvre
+    value, std = 0.7 * f.c_alpha, 0.7 * f.c_alpha * 0.02  # a filter 30 % low with a tight std
+    wide, why = oe.compare("C_alpha", value, std, f, oe.Z_MAX)
+    assert why is not None and why.startswith("model mismatch: filter and output-error fit of stage 2 differ by -30 %")
+    assert abs(value - f.c_alpha) <= wide  # the fit's value lies within 1 sigma of the filter's now
+    assert wide > std
+    # I_z the same way
+    value = 1.25 * f.value("I_z")
+    wide, why = oe.compare("I_z", value, 0.03 * value, f, oe.Z_MAX)
+    assert why is not None and "+25 %" in why and abs(value - f.value("I_z")) <= wide
+
+
+def test_fit_of_a_car_whose_axles_differ_finds_both():
+    """Per axle always: a one-C_alpha filter on such a car lands off (vdp/axles: +20 %), the fit does not."""
+    f = fit_of(record([drive(60.0, seed=5)]))
+    np.testing.assert_allclose(f.theta[:2] / TRUTH[:2], 1.0, atol=0.03)
+
+
+def test_record_is_bounded_and_drops_short_windows():
+    rec = oe.Record(cap=300, min_rows=50)
+    u = [0.01, 10.0, 33.0, 0.0]
+    rec.open()
+    for i in range(20):  # too short to keep
+        rec.add(i * 0.04, u, 0.0, 0.0)
+    for w in range(5):
+        rec.open()
+        for i in range(200):
+            rec.add(100.0 * (w + 1) + i * 0.04, u, 0.0, 0.0)
+    assert rec.rows <= 300 and rec.added == 1020
+    t, U, Z, bounds = rec.arrays()
+    assert len(t) == rec.rows
+    assert all(b - a >= 50 for a, b in bounds)
+    assert t[-1] == pytest.approx(500.0 + 199 * 0.04)  # the newest rows are the ones kept
+    assert np.all(np.diff(t[bounds[-1][0] : bounds[-1][1]]) > 0)
+
+
+def test_check_solves_again_only_when_stale():
+    c = oe.Check()
+    t, U, Z = drive(20.0, seed=6)
+    c.record.open()
+    for i in range(0, len(t), 2):
+        c.record.add(t[i], U[i].tolist(), Z[i, 0], Z[i, 1])
+    assert c.stale(window_open=True)
+    f = c.solve(K, SIGMA, PRIOR_T, PRIOR_P, [np.array([80000.0, 80000.0, 2200.0])])
+    assert f is not None and not c.stale(window_open=True) and not c.stale(window_open=False)
+    c.record.add(t[-1] + 0.04, U[-1].tolist(), Z[-1, 0], Z[-1, 1])
+    assert not c.stale(window_open=True)  # one new row in an open window: the fit stands
+    assert c.stale(window_open=False)  # the window closed: solve again
