@@ -133,6 +133,28 @@ def test_a_mismatched_drive_is_flagged_and_the_std_covers_the_fit():
     assert why is not None and "+25 %" in why and abs(value - f.value("I_z")) <= wide
 
 
+def test_the_gentle_and_the_brisk_half_tell_a_bending_tyre():
+    """The halves' spread (the model's own error) is large for a bending tyre, nil for the model's own data;
+    a filter value the fit supports then still takes it into its std."""
+    t, U, Z = drive(60.0, seed=4, tyre=lambda a: a / (1.0 + abs(a) / 0.05))
+    tt, UU, ZZ, bounds = record([(t, U, Z)]).arrays()
+    prob = oe.Problem(tt, UU, ZZ, bounds, K0, SIGMA)
+    f = oe.solve(prob, PRIOR_T, PRIOR_P, [np.array([80000.0, 80000.0, 2200.0])])
+    assert oe.mismatched(f)
+    bent = oe.spread(prob, f, PRIOR_T, PRIOR_P)
+    assert bent[0] > 0.1 and bent[1] > 0.1  # the gentle half's stiffness well above the brisk half's
+    f = dataclasses.replace(f, spread=bent)
+    value = f.c_alpha
+    wide, why = oe.compare("C_alpha", value, 0.02 * value, f, oe.Z_MAX)
+    assert why is not None and "between the gentle and the brisk half" in why
+    assert wide >= value * f.rel_spread("C_alpha")
+    tt, UU, ZZ, bounds = record([drive(60.0, seed=7)]).arrays()
+    prob = oe.Problem(tt, UU, ZZ, bounds, K, SIGMA)
+    f = oe.solve(prob, PRIOR_T, PRIOR_P, [np.array([80000.0, 80000.0, 2200.0])])
+    assert not oe.mismatched(f)  # white residuals at the noise: no halves solved in the learner
+    np.testing.assert_array_less(oe.spread(prob, f, PRIOR_T, PRIOR_P), 0.02)
+
+
 def test_fit_of_a_car_whose_axles_differ_finds_both():
     """Per axle always: a one-C_alpha filter on such a car lands off (vdp/axles: +20 %), the fit does not."""
     f = fit_of(record([drive(60.0, seed=5)]))

@@ -30,7 +30,6 @@ std widens to cover the difference (not valid, with the reason).
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 from collections import deque
@@ -307,6 +306,13 @@ class Problem:
             J[rows, 1, cols + j] = -(c1 * dv + c2 * dr) * self.w[:, 1]
         return J.reshape(self.n * 2, len(p))
 
+    def only(self, keep: np.ndarray) -> Problem:
+        """The same problem with the residuals of the rows not in ``keep`` weighted out."""
+        out = object.__new__(Problem)
+        out.__dict__.update(self.__dict__)
+        out.w = self.w * keep[:, None]
+        return out
+
     # -- starts -----------------------------------------------------------------
     def start(self, theta) -> np.ndarray:
         """Parameters at ``theta`` (SI), no offset, each window at its steady state (Stage2._start)."""
@@ -476,9 +482,7 @@ def spread(prob: Problem, fit: Fit, prior_t, prior_P) -> np.ndarray | None:
     brisk = a > np.median(a[used])
     halves, var = [], 0.0
     for m in (~brisk, brisk):
-        half = copy.copy(prob)
-        half.w = prob.w * m[:, None]
-        f = solve(half, prior_t, prior_P, [fit.p], iters=8)
+        f = solve(prob.only(m), prior_t, prior_P, [fit.p], iters=8)
         if f is None:
             return None
         halves.append(np.log(f.theta))
