@@ -153,6 +153,46 @@ def test_stage1_batch_model_is_numpys_to_the_bit(n_x):
     assert np.array_equal(got, longitudinal.hx(x, U, k))
 
 
+@pytest.mark.parametrize("n_x", [3, longitudinal.N_X])
+def test_stage1_batch_check_is_numpys(n_x):
+    """Stage 1's batch least squares (core.batch.solve) compiled: the same iterations to the
+    same optimum, covariance, cost and residual whiteness."""
+    from vdp.core import batch
+
+    k = longitudinal.Known(m=1600.0, L=2.7, r=0.31, J=1.2)
+    b = Bounds(n_x, log=(longitudinal.H, longitudinal.C_K), logit={longitudinal.L_F: (0.0, 2.7)})
+    rng = np.random.default_rng(11)
+    N = 1500
+    U = np.column_stack(
+        [
+            rng.normal(0, 500, N),
+            rng.normal(0, 300, N),
+            rng.normal(0, 1.5, N),
+            rng.uniform(5, 35, N),
+            np.full(N, 0.05),
+            rng.normal(0, 2, N),
+            rng.normal(0, 2, N),
+        ]
+    )
+    truth = np.array([1.25, 0.55, 10.5, 0.3, 0.2, 1e-3, 8e-4][:n_x])
+    Z = longitudinal.hx(truth, U, k) + rng.normal(0, 0.01, (N, 2))
+    R = np.tile(np.array([[1e-4, 2e-5], [2e-5, 1e-4]]), (N, 1, 1))
+    prior = np.array([1.4, 0.6, 9.0, 0.0, 0.0, 0.0, 0.0][:n_x])
+    t0 = b.from_si(prior)
+    P0 = np.diag([0.3, 0.3, 0.3, 0.25, 1.0, 4e-6, 4e-6][:n_x])
+    starts = [t0, b.from_si(truth * 1.05)]
+    ref = batch.solve(lambda t, u: longitudinal.hx(b.to_si(t), u, k), U, Z, R, t0, P0, starts)
+    got = kernels.lon_solve(b, k, U, Z, R, t0, P0, starts)
+    assert abs(b.to_si(ref.t)[0] - truth[0]) < 0.02  # the fit found the car (the test is not vacuous)
+    # the sums run in another order, and the shape's parameters (b, c) are poorly conditioned,
+    # which amplifies that into the iterates: compared in units of the fit's own std
+    sd = np.sqrt(np.diagonal(ref.cov))
+    assert np.all(np.abs(got.t - ref.t) <= 1e-6 * sd), (got.t - ref.t) / sd
+    np.testing.assert_allclose(got.cov, ref.cov, rtol=1e-6, atol=1e-9 * np.abs(ref.cov).max())
+    assert got.cost == pytest.approx(ref.cost, rel=1e-9) and got.dof == ref.dof
+    assert got.rho == pytest.approx(ref.rho, rel=1e-6, abs=1e-12)
+
+
 def test_a_broken_covariance_fails_as_the_numpy_step_does():
     ref, fast = _lat_pair(False)
     bad = -np.eye(lateral.N_X)
@@ -194,3 +234,20 @@ def test_a_drive_gives_the_same_estimates_compiled_or_not(drive):
         assert (c.status, c.valid, c.samples, c.reason) == (e.status, e.valid, e.samples, e.reason), name
         assert c.value == pytest.approx(e.value, rel=DRIVE_RTOL), name
         assert c.std == pytest.approx(e.std, rel=DRIVE_RTOL), name
+
+
+def test_stage1_keeps_its_blocks_oldest_first_and_the_newest_only():
+    """Stage 1's ring of blocks for the batch check gives what a deque of the newest ``cap`` did."""
+    from collections import deque
+
+    from vdp.core.learner import _Blocks
+
+    rng = np.random.default_rng(0)
+    ring, ref = _Blocks(50), deque(maxlen=50)
+    for _ in range(137):
+        block = (rng.normal(size=7), rng.normal(size=2), rng.normal(size=(2, 2)))
+        ring.append(*block)
+        ref.append(block)
+        for got, i in zip(ring.arrays(), range(3)):
+            assert np.array_equal(got, np.array([b[i] for b in ref]))
+    assert len(ring) == len(ref) == 50

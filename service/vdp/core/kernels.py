@@ -438,6 +438,154 @@ def lon_hx_rows(x, U, k):
 
 
 @_jit
+def _lon_h(t, U, kind, lo, span, k, out):
+    """longitudinal.hx of transformed parameters t on every block (the batch check's h)."""
+    x = np.empty(t.shape[0])
+    _to_si(t, kind, lo, span, x)
+    for i in range(U.shape[0]):
+        _lon_hx(x, U[i], k, out[i])
+
+
+@_jit
+def _lon_cost(t, U, Z, W, prior_t, P0i, kind, lo, span, k):
+    """core.batch.solve's cost: (data + prior term, data, residuals r = Z - h(t))."""
+    r = np.empty(Z.shape)
+    _lon_h(t, U, kind, lo, span, k, r)
+    data = 0.0
+    for i in range(Z.shape[0]):
+        r0, r1 = Z[i, 0] - r[i, 0], Z[i, 1] - r[i, 1]
+        r[i, 0], r[i, 1] = r0, r1
+        data += r0 * (W[i, 0, 0] * r0 + W[i, 0, 1] * r1) + r1 * (W[i, 1, 0] * r0 + W[i, 1, 1] * r1)
+    d = t - prior_t
+    return data + d @ _mv(P0i, d), data, r
+
+
+@_jit
+def _lon_normal(t, base, r, U, W, P0i, prior_t, kind, lo, span, k, J, want_g):
+    """H = J'WJ + P0^-1 and g = J'Wr - P0^-1 (t - t0), J by core.batch.solve's forward differences
+    from ``base`` (its Z - r)."""
+    n = t.shape[0]
+    N = U.shape[0]
+    hp = np.empty((N, 2))
+    tp = np.empty(n)
+    for i in range(n):
+        e = 1e-6 * max(1.0, abs(t[i]))
+        tp[:] = t
+        tp[i] += e
+        _lon_h(tp, U, kind, lo, span, k, hp)
+        for m in range(N):
+            J[m, 0, i] = (hp[m, 0] - base[m, 0]) / e
+            J[m, 1, i] = (hp[m, 1] - base[m, 1]) / e
+    H = P0i.copy()
+    g = np.zeros(n)
+    if want_g:
+        g = -_mv(P0i, t - prior_t)
+    for m in range(N):
+        w00, w01, w10, w11 = W[m, 0, 0], W[m, 0, 1], W[m, 1, 0], W[m, 1, 1]
+        for a in range(n):
+            wa0 = J[m, 0, a] * w00 + J[m, 1, a] * w10  # (J' W)[a, 0]
+            wa1 = J[m, 0, a] * w01 + J[m, 1, a] * w11
+            for b in range(n):
+                H[a, b] += wa0 * J[m, 0, b] + wa1 * J[m, 1, b]
+            if want_g:
+                g[a] += wa0 * r[m, 0] + wa1 * r[m, 1]
+    return H, g
+
+
+@_jit
+def _solve(A, b):
+    """A x = b by Gaussian elimination with partial pivoting; (x, False) when A is singular."""
+    n = A.shape[0]
+    M = A.copy()
+    x = b.copy()
+    for c in range(n):
+        p = c
+        for q in range(c + 1, n):
+            if abs(M[q, c]) > abs(M[p, c]):
+                p = q
+        if M[p, c] == 0.0:
+            return x, False
+        if p != c:
+            for j in range(n):
+                M[c, j], M[p, j] = M[p, j], M[c, j]
+            x[c], x[p] = x[p], x[c]
+        for q in range(c + 1, n):
+            f = M[q, c] / M[c, c]
+            if f != 0.0:
+                for j in range(c, n):
+                    M[q, j] -= f * M[c, j]
+                x[q] -= f * x[c]
+    for c in range(n - 1, -1, -1):
+        s = x[c]
+        for j in range(c + 1, n):
+            s -= M[c, j] * x[j]
+        x[c] = s / M[c, c]
+    return x, True
+
+
+@_jit
+def lon_lm(t, U, Z, W, prior_t, P0i, iters, kind, lo, span, k):
+    """core.batch.solve's Levenberg-Marquardt from one start on stage 1's model, step for step:
+    (finite start, t, cost, data, r, H at the end)."""
+    n = t.shape[0]
+    J = np.empty((U.shape[0], 2, n))
+    c, data, r = _lon_cost(t, U, Z, W, prior_t, P0i, kind, lo, span, k)
+    if not math.isfinite(c):
+        return False, t, c, data, r, P0i
+    lam = 1e-3
+    for _ in range(iters):
+        H, g = _lon_normal(t, Z - r, r, U, W, P0i, prior_t, kind, lo, span, k, J, True)
+        step_ok = False
+        dt = np.zeros(n)
+        while lam < 1e8:
+            A = H.copy()
+            for i in range(n):
+                A[i, i] += lam * H[i, i]
+            dt, ok = _solve(A, g)
+            if not ok:
+                lam *= 10.0
+                continue
+            c2, data2, r2 = _lon_cost(t + dt, U, Z, W, prior_t, P0i, kind, lo, span, k)
+            if math.isfinite(c2) and c2 <= c:
+                t, c, data, r = t + dt, c2, data2, r2
+                lam = max(lam / 10.0, 1e-9)
+                step_ok = True
+                break
+            lam *= 10.0
+        if not step_ok or np.max(np.abs(dt)) < 1e-7:
+            break
+    H, _ = _lon_normal(t, Z - r, r, U, W, P0i, prior_t, kind, lo, span, k, J, False)
+    return True, t, c, data, r, H
+
+
+def lon_solve(bounds, known: longitudinal.Known, U, Z, R, prior_t, prior_P, starts, iters: int = 30):
+    """core.batch.solve on stage 1's own model (longitudinal.hx of bounds.to_si(t)), compiled:
+    the same iterations, the same Fit."""
+    from . import batch
+
+    kind, lo, span = transforms(bounds)
+    k = lon_known(known)
+    W = batch._inv2(R)
+    P0i = np.linalg.inv(prior_P)
+    U, Z = np.ascontiguousarray(U, dtype=float), np.ascontiguousarray(Z, dtype=float)
+    n = len(prior_t)
+    best = None
+    for t in starts:
+        ok, t, c, data, r, H = lon_lm(
+            np.array(t, dtype=float), U, Z, W, np.asarray(prior_t, dtype=float), P0i, iters, kind, lo, span, k
+        )
+        if not ok:
+            continue
+        try:
+            cov = np.linalg.inv(H)
+        except np.linalg.LinAlgError:
+            continue
+        if best is None or c < best[0]:
+            best = (c, batch.Fit(t, 0.5 * (cov + cov.T), data, Z.size - n, batch.whiteness(r, W)))
+    return None if best is None else best[1]
+
+
+@_jit
 def lon_predict(x, P, lam_n, Wm, Wc, Q, scale, dt):
     """core.filters.UKF.predict on longitudinal.fx (a random walk): (x, P, sigmas, status)."""
     m, nx = 2 * x.shape[0] + 1, x.shape[0]
