@@ -27,6 +27,8 @@ single track, one set per ``--terms`` group (``+`` joins terms, ``,`` separates 
 * ``curve``: each axle's lateral force is the model's own tyre curve at the stage-2 mean
   axle loads (brush: the brush law; mb: the Magic Formula at zero camber), times the
   fitted factor, instead of C alpha: what tyre curvature does;
+* ``fiala``: what an estimator could use instead: Fiala's law (the isotropic brush) per axle
+  with the fitted C as its initial slope, mu = 1 and the stage-2 mean axle load;
 * ``load``: each wheel's own curve at its recorded load (lateral and longitudinal load
   transfer; brush's stiffness is degressive in load, the Magic Formula's is
   proportional, so on mb this equals ``curve`` with the axle's momentary load);
@@ -34,13 +36,16 @@ single track, one set per ``--terms`` group (``+`` joins terms, ``,`` separates 
   (the IMU and the axles sit on the roll axis, the sprung CG d above it); mb: the IMU
   and the tyres' kinematics sit on the sprung CG, and the unsprung masses swing
   relative to it, -(m_uf y_f'' + m_ur y_r'') (the library's compliant-joint states);
+* ``mh``: what an estimator could add with what it knows: m h phi'' in the lateral balance
+  (eq 9's whole mass, stage 1's h as the truth has it, phi'' from the roll-rate channel);
 * ``camber``: mb: each axle's camber thrust, F_y(gamma) - F_y(0) at the recorded
   slip and load (the library's Magic Formula shifts by sign(gamma) (p_hy1, p_vy1):
   a step of about 4 % of F_z per wheel when the camber changes sign);
 * ``fx``: the longitudinal tyre forces: the front's F_x sin(delta) and the left-right
   F_x moment (rolling resistance and drive under load transfer);
-* ``kin``: each axle's mean recorded slip angle minus the single track's from the
-  recorded states (track width, atan, and mb's unsprung roll-rate term);
+* ``kin``: each wheel's recorded slip angle minus the single track's from the recorded
+  states (track width, atan, and mb's unsprung roll-rate term); with ``load`` each wheel
+  takes its own, otherwise the axle the mean of its two;
 * ``arm``: mb: lever arms about the sprung CG (the library's yaw equation takes moments
   there, with I_z and no unsprung masses) instead of the static l_f, and the lateral
   balance's (m_ur b - m_uf a) r' that goes with that reference point;
@@ -142,7 +147,7 @@ def fit(case: str, cache: Path) -> str:
 
 
 # -- terms: the single track with the models' left-out physics added back, term by term --
-TERMS = ("curve", "load", "roll", "camber", "fx", "kin", "arm")
+TERMS = ("curve", "load", "fiala", "roll", "mh", "camber", "fx", "kin", "arm")
 DEFAULT_GROUPS = (
     "base,curve,roll,curve+roll,load+roll,load+roll+fx,load+roll+fx+kin,"
     "camber,curve+camber,load+camber+roll+fx+kin,load+camber+roll+fx+kin+arm,base+ay<1.5,curve+roll+ay<1.5"
@@ -245,7 +250,7 @@ def _wheels(model, calls, x) -> list[list[float]]:
     return [out[1], out[0], out[3], out[2]]
 
 
-def _known(case: str, rec: dict, terms: set, lever: float):
+def _known(case: str, rec: dict, terms: set, lever: float, truth_h: float = 0.0):
     """Per-sample known inputs of the single track: extra lateral force, yaw moment, slip offsets, axle loads."""
     from vdp import channels as ch
     from vdp.sim.independent import get_model
@@ -274,6 +279,9 @@ def _known(case: str, rec: dict, terms: set, lever: float):
             e_y += p.m_ur * np.gradient(np.gradient(X[:, 28], dt), dt)
         if "arm" in terms:
             e_y -= (p.m_uf * p.a - p.m_ur * p.b) * np.gradient(yaw, dt)
+    if "mh" in terms:
+        # what the estimator could add with what it has: eq 9's whole mass and stage 1's h as the arm
+        e_y += model.mass * truth_h * np.gradient(rows[:, ch.ROLL], dt)
     if "camber" in terms:
         cf, cr = (W[:, 0:2, 5] - W[:, 0:2, 6]).sum(1), (W[:, 2:4, 5] - W[:, 2:4, 6]).sum(1)
         e_y += cf * cd + cr
@@ -285,16 +293,21 @@ def _known(case: str, rec: dict, terms: set, lever: float):
         for i in range(4):
             fx_body = W[:, i, 4] * cd - W[:, i, 5] * sd if i < 2 else W[:, i, 4]
             e_z -= ys[i] * fx_body
-    da = np.zeros((n, 2))
+    da = np.zeros((n, 4))  # each wheel's recorded slip angle minus its axle's single-track one
     if "kin" in terms:
         v = np.maximum(v_x, 1.0)
-        da[:, 0] = W[:, 0:2, 1].mean(1) - (d - (v_y + lever * yaw) / v)
-        da[:, 1] = W[:, 2:4, 1].mean(1) - (l_r * yaw - v_y) / v
+        da[:, 0:2] = W[:, 0:2, 1] - (d - (v_y + lever * yaw) / v)[:, None]
+        da[:, 2:4] = W[:, 2:4, 1] - ((l_r * yaw - v_y) / v)[:, None]
     return model, e_y, e_z, da, W[:, :, 0]
 
 
-def _law(model, case, terms, truth, loads):
-    """The axles' lateral laws (alpha, sample) -> force / truth's C, or None for the linear law."""
+def _law(model, case, terms, truth, loads, da):
+    """The axles' lateral laws (alpha, sample) -> force / truth's C, or None for the linear law.
+
+    With ``load`` each wheel takes its own load and its own slip angle (the axle's single-track
+    alpha plus the wheel's recorded offset ``da``, zero without ``kin``): the outer wheel of a
+    turn carries more load at a slightly different slip angle (track width).
+    """
     if not ({"curve", "load"} & terms):
         return None
     pa = truth["per_axle"]
@@ -304,22 +317,35 @@ def _law(model, case, terms, truth, loads):
     if "load" in terms and model.name == "brush":
 
         def law(j, a, i):
-            w = loads[i, 2 * j : 2 * j + 2]
-            return (model.fy(a, max(w[0], 0.0), axles[j]) + model.fy(a, max(w[1], 0.0), axles[j])) / c0[j]
+            w, o = loads[i, 2 * j : 2 * j + 2], da[i, 2 * j : 2 * j + 2]
+            f = model.fy(a + o[0], max(w[0], 0.0), axles[j]) + model.fy(a + o[1], max(w[1], 0.0), axles[j])
+            return f / c0[j]
 
         return law
     grid = np.linspace(-0.25, 0.25, 5001)
     tab = [np.array([2.0 * model.fy(a, mean[j] / 2.0, axles[j]) for a in grid]) / c0[j] for j in range(2)]
-    # the Magic Formula's force is proportional to the load (K_y = p_ky1 F_z, D = mu F_z): its axle
-    # scales with the axle's momentary load, which is all that lateral transfer changes on mb
-    scale = loads[:, 0:2].sum(1) / mean[0], loads[:, 2:4].sum(1) / mean[1]
-    use_load = "load" in terms
+    if "load" not in terms:
 
+        def law(j, a, i):
+            return float(np.interp(a, grid, tab[j]))
+
+        return law
+
+    # the Magic Formula's force is proportional to the load (K_y = p_ky1 F_z, D = mu F_z): a wheel at
+    # load F_z gives F_z / (axle's mean load) of the axle's curve at its own slip angle
     def law(j, a, i):
-        f = float(np.interp(a, grid, tab[j]))
-        return f * scale[j][i] if use_load else f
+        w, o = loads[i, 2 * j : 2 * j + 2], da[i, 2 * j : 2 * j + 2]
+        f = w[0] * float(np.interp(a + o[0], grid, tab[j])) + w[1] * float(np.interp(a + o[1], grid, tab[j]))
+        return f / mean[j]
 
     return law
+
+
+def _fiala(c: float, alpha: float, fz: float, mu: float = 1.0) -> float:
+    """Fiala's (the isotropic brush's) lateral law of one axle: initial slope c, friction mu F_z."""
+    t = c * abs(math.tan(alpha)) / (3.0 * mu * fz)
+    f = mu * fz * (3.0 * t - 3.0 * t * t + t**3) if t < 1.0 else mu * fz
+    return math.copysign(f, alpha)
 
 
 def terms_fit(case: str, cache: Path, group: str) -> str:
@@ -344,8 +370,11 @@ def terms_fit(case: str, cache: Path, group: str) -> str:
         from vdp.sim.independent import get_model
 
         lever = get_model(*case.split("/")).p.a
-    model, e_y, e_z, da, loads = _known(case, rec, terms, lever)
-    law = _law(model, case, terms, truth, loads)
+    model, e_y, e_z, da, loads = _known(case, rec, terms, lever, truth["parameters"]["h"])
+    law = _law(model, case, terms, truth, loads, da)
+    per_wheel = law is not None and "load" in terms  # the law takes each wheel's own slip angle
+    fiala = "fiala" in terms
+    fz_f, fz_r = truth["per_axle"]["F_z_front_stage2"], truth["per_axle"]["F_z_rear_stage2"]
     rows = rec["rows"]
     d, v_x = rows[:, ch.DELTA], rows[:, 14]
     yaw_m, ay_m = rows[:, ch.YAW], rows[:, ch.AY]
@@ -364,9 +393,14 @@ def terms_fit(case: str, cache: Path, group: str) -> str:
 
         def rates(v_y, r, i):
             v, cdi = v_x[i], math.cos(d[i])
-            a_f = d[i] - (v_y + l_f * r) / v + da[i, 0]
-            a_r = (l_r * r - v_y) / v + da[i, 1]
-            if law is None:
+            a_f = d[i] - (v_y + l_f * r) / v
+            a_r = (l_r * r - v_y) / v
+            if not per_wheel:
+                a_f += 0.5 * (da[i, 0] + da[i, 1])
+                a_r += 0.5 * (da[i, 2] + da[i, 3])
+            if fiala:
+                f_yf, f_yr = _fiala(c_f, a_f, fz_f), _fiala(c_r, a_r, fz_r)
+            elif law is None:
                 f_yf, f_yr = c_f * a_f, c_r * a_r
             else:
                 f_yf, f_yr = c_f * law(0, a_f, i), c_r * law(1, a_r, i)
