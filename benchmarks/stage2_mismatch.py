@@ -36,6 +36,14 @@ single track, one set per ``--terms`` group (``+`` joins terms, ``,`` separates 
   (the IMU and the axles sit on the roll axis, the sprung CG d above it); mb: the IMU
   and the tyres' kinematics sit on the sprung CG, and the unsprung masses swing
   relative to it, -(m_uf y_f'' + m_ur y_r'') (the library's compliant-joint states);
+* ``mu``: Fiala's law with its friction coefficient fitted too (a fourth unknown: the
+  curvature from the data, not assumed);
+* ``swing``: a roll-sideslip coupling a_y += s phi'' with the length s fitted (brush's
+  truth is m_s d / m; mb's, with the IMU and the tyres' kinematics on the sprung mass,
+  near 0);
+* ``rollcam``: a lateral force k m g phi with k fitted (camber thrust from roll, shared
+  by the axles in proportion to their loads, so it adds no yaw moment; phi integrated
+  from the roll-rate channel);
 * ``mh``: what an estimator could add with what it knows: m h phi'' in the lateral balance
   (eq 9's whole mass, stage 1's h as the truth has it, phi'' from the roll-rate channel);
 * ``camber``: mb: each axle's camber thrust, F_y(gamma) - F_y(0) at the recorded
@@ -147,10 +155,10 @@ def fit(case: str, cache: Path) -> str:
 
 
 # -- terms: the single track with the models' left-out physics added back, term by term --
-TERMS = ("curve", "load", "fiala", "roll", "mh", "camber", "fx", "kin", "arm")
+TERMS = ("curve", "load", "fiala", "mu", "roll", "mh", "swing", "rollcam", "camber", "fx", "kin", "arm")
 DEFAULT_GROUPS = (
-    "base,curve,roll,curve+roll,load+roll,load+roll+fx,load+roll+fx+kin,"
-    "camber,curve+camber,load+camber+roll+fx+kin,load+camber+roll+fx+kin+arm,base+ay<1.5,curve+roll+ay<1.5"
+    "base,curve,roll,curve+roll,load+roll,load+roll+fx,load+roll+fx+kin,camber,camber+kin,"
+    "load+camber+roll+fx+kin,load+camber+roll+fx+kin+arm,base+ay<1.5"
 )
 
 
@@ -373,7 +381,11 @@ def terms_fit(case: str, cache: Path, group: str) -> str:
     model, e_y, e_z, da, loads = _known(case, rec, terms, lever, truth["parameters"]["h"])
     law = _law(model, case, terms, truth, loads, da)
     per_wheel = law is not None and "load" in terms  # the law takes each wheel's own slip angle
-    fiala = "fiala" in terms
+    fiala = "fiala" in terms or "mu" in terms
+    extras = [n for n in ("mu", "rollcam", "swing") if n in terms]  # fitted beside C_f, C_r, I_z
+    x0 = np.array([1.0, 1.0, 1.0] + [{"mu": 1.0, "rollcam": 0.0, "swing": 0.0}[n] for n in extras])
+    phi_dd = np.gradient(rec["rows"][:, ch.ROLL], STEP / 1000.0)
+    phi = np.cumsum(rec["rows"][:, ch.ROLL]) * (STEP / 1000.0)
     fz_f, fz_r = truth["per_axle"]["F_z_front_stage2"], truth["per_axle"]["F_z_rear_stage2"]
     rows = rec["rows"]
     d, v_x = rows[:, ch.DELTA], rows[:, 14]
@@ -388,7 +400,10 @@ def terms_fit(case: str, cache: Path, group: str) -> str:
     def simulate(k):
         # Heun's method over the 5 ms samples, each rate evaluated with its own sample's inputs (the
         # original fit's explicit Euler step puts about 2 % into C and I_z by itself on brush/saloon)
-        c_f, c_r, i_z = k * t0
+        c_f, c_r, i_z = k[:3] * t0
+        mu = k[3] if "mu" in extras else 1.0
+        arm = k[-1] if "swing" in extras else 0.0
+        cam = k[3 + extras.index("rollcam")] * 9.81 if "rollcam" in extras else 0.0
         l_f, l_r = lever, L - lever
 
         def rates(v_y, r, i):
@@ -399,12 +414,12 @@ def terms_fit(case: str, cache: Path, group: str) -> str:
                 a_f += 0.5 * (da[i, 0] + da[i, 1])
                 a_r += 0.5 * (da[i, 2] + da[i, 3])
             if fiala:
-                f_yf, f_yr = _fiala(c_f, a_f, fz_f), _fiala(c_r, a_r, fz_r)
+                f_yf, f_yr = _fiala(c_f, a_f, fz_f, mu), _fiala(c_r, a_r, fz_r, mu)
             elif law is None:
                 f_yf, f_yr = c_f * a_f, c_r * a_r
             else:
                 f_yf, f_yr = c_f * law(0, a_f, i), c_r * law(1, a_r, i)
-            ay = (f_yf * cdi + f_yr + e_y[i]) / m
+            ay = (f_yf * cdi + f_yr + e_y[i]) / m + arm * phi_dd[i] + cam * phi[i]
             return ay - v * r, (l_f * f_yf * cdi - l_r * f_yr + e_z[i]) / i_z, ay
 
         n = len(d)
@@ -427,9 +442,13 @@ def terms_fit(case: str, cache: Path, group: str) -> str:
         h = len(e) // 2
         return math.sqrt(np.mean((e[:h] * 0.01) ** 2)), math.sqrt(np.mean((e[h:] * 0.1) ** 2))
 
-    at_truth = rms(res(np.ones(3)))
-    best = least_squares(res, np.ones(3), diff_step=1e-3)
+    at_truth = rms(res(x0))
+    lo = [0.05, 0.05, 0.05] + [{"mu": 0.2, "rollcam": -5.0, "swing": -2.0}[n] for n in extras]
+    hi = [20.0, 20.0, 20.0] + [{"mu": 5.0, "rollcam": 5.0, "swing": 2.0}[n] for n in extras]
+    best = least_squares(res, x0, bounds=(lo, hi), diff_step=1e-3)
     k, r = best.x, rms(best.fun)
+    for j, n in enumerate(extras):
+        group += f" ({n} {k[3 + j]:.3g}{' m' if n == 'swing' else ''})"
     return (
         f"| `{case}` | {group} | {at_truth[0]:.4f} / {at_truth[1]:.3f} | {k[0]:.3f} | {k[1]:.3f} | {k[2]:.3f} "
         f"| {r[0]:.4f} / {r[1]:.3f} |"

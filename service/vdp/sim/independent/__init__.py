@@ -43,8 +43,20 @@ DEFINITIONS = {
     "the single value is the mean of front and rear (kappa = (omega r - v_wheel) / v_wheel)",
     "C_alpha": "small-slip cornering stiffness per axle (both wheels), dF_y/dalpha at alpha = 0, kappa = 0, zero "
     "camber, at the mean axle loads of the steering (stage 2) part of the drive; the single value is the mean of "
-    "front and rear [N/rad]",
-    "I_z": "yaw inertia of the whole car about the vertical axis through its reference point [kg m^2]",
+    "front and rear [N/rad]. The drive's forces are not C_alpha alpha: in a steady turn at a_y = 2 (3) m/s^2 a "
+    "brush axle gives 0.93 (0.89) of it from the tyre's curvature and 0.92 (0.88) with the turn's lateral load "
+    "transfer, a Magic-Formula axle 0.99 (0.97) (its force is proportional to the load, so transfer costs nothing); "
+    "mb's tyres add camber thrust as the body rolls (the library's Magic Formula shifts by sign(camber): about "
+    "2 % of F_z per wheel at zero camber, in phase with the cornering force), which is not part of C_alpha "
+    "(benchmarks/stage2_mismatch.py secant, terms)",
+    "I_z": "yaw inertia of everything that yaws with the car, as the model's yaw equation has it [kg m^2]. brush: "
+    "the parameter I_z of I_z r' = M_z with moments about the whole car's CG, unsprung masses and wheels included "
+    "(the model has no other yaw inertia). mb: the library's I_z (IZZ), its only yaw inertia; the library takes "
+    "moments about the sprung mass's CG and gives the unsprung masses neither yaw inertia nor a moment of their "
+    "lateral inertia force there, so they are not in it (m_uf a^2 + m_ur b^2 would add 12 % on bmw_320i, 10 % on "
+    "vw_vanagon, to a car the library does not simulate). The whole car's CG (l_f) is 1.6 cm (bmw_320i), 0.9 cm "
+    "(vw_vanagon) behind the sprung CG: a parallel-axis shift below 0.3 kg m^2, but about it the library's yaw "
+    "balance keeps a moment (m_ur b - m_uf a) a_y (17 and 14 kg m times a_y) that no inertia describes",
     "I_x": "roll inertia of the sprung mass as eq 9 sees it from where the IMU sits: I_xx,s + m_s d (d - e), "
     "d = height of the sprung CG above the roll axis, e = height of the IMU above it (brush: IMU on the roll axis, "
     "so I_xx,s + m_s d^2; mb: IMU at the sprung CG, so I_xx,s); roll rate is the sprung body's [kg m^2]",
