@@ -1,14 +1,14 @@
 """Accuracy of the estimator on vehicle models vdp did not write, beside vdp's own simulator.
 
     python benchmarks/independent.py --seeds 5 --jobs 2 [--cases brush/small,mb/bmw_320i] [--json runs.json]
-        [--per-axle]
+        [--one-c]
 
 Cases: ``brush/saloon``, ``brush/small`` (vdp.sim.independent.brush, first principles),
 ``mb/bmw_320i``, ``mb/vw_vanagon`` (CommonRoad's multi-body car, the ``bench`` extra),
 and vdp's own simulator ``vdp/paper`` (Table 6), ``vdp/small`` (the small car's
 known constants with vdp's own physics) and ``vdp/axles`` (Table 6 with the rear axle's
-cornering stiffness 1.3x the front's).  With ``--per-axle`` stage 2 estimates each axle
-(LearnerConfig.per_axle) and ``C_alpha_front``/``C_alpha_rear`` are the per-axle values in
+cornering stiffness 1.3x the front's).  Stage 2 estimates each axle (LearnerConfig.per_axle,
+the default; ``--one-c``: one C_alpha for both) and ``C_alpha_front``/``C_alpha_rear`` are the per-axle values in
 the estimate's ``extra`` (C_alpha is their mean).  Each case drives the paper's manoeuvre
 once noise-free and with realistic noise for ``--seeds`` seeds; every drive goes
 DBC -> candump log -> the replay pipeline (UKF and the EKF baseline at once), and only
@@ -366,10 +366,14 @@ def main() -> int:
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "vdp-independent-traces")
     ap.add_argument("--json", type=Path, help="write every run's figures here")
     ap.add_argument(
-        "--per-axle", action="store_true", help="stage 2 estimates each axle's C_alpha (LearnerConfig.per_axle)"
+        "--per-axle",
+        action="store_true",
+        help="stage 2 estimates each axle's C_alpha (the default; kept for old commands)",
     )
+    ap.add_argument("--one-c", action="store_true", help="one C_alpha for both axles (LearnerConfig.per_axle off)")
     ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
     a = ap.parse_args()
+    a.per_axle = not a.one_c
     cases = [c.strip() for c in a.cases.split(",") if c.strip()]
     for c in cases:
         if c not in CASES:

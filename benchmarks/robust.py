@@ -1,7 +1,7 @@
 """Robustness of the estimator on vdp's own simulator: car sets x prior scales x seeds.
 
     python benchmarks/robust.py --cars paper,small,suv --scales 0.6,1,1.6 --seeds 3 --jobs 2 [-v]
-        [--per-axle] [--axle-ratio 1.3] [--axle-split 0.5]
+        [--one-c] [--axle-ratio 1.3] [--axle-split 0.5]
 
 Each car set is the paper profile's bus layout (dbc/vdp.dbc) with the car's known
 constants, truth and priors replaced.  ``--scales`` multiplies the priors' *means*
@@ -12,8 +12,8 @@ Per parameter and filter it prints the share within the issue's tolerance, the
 reported *valid* with the truth outside 3 std: the count that must be 0.  Where a
 parameter is not valid, its reason is tallied.
 
-``--per-axle`` runs stage 2 with each axle's cornering stiffness (LearnerConfig.per_axle)
-and adds rows for them (from C_alpha's extra, "valid" = its per_axle_valid);
+Stage 2 estimates each axle's cornering stiffness (LearnerConfig.per_axle, the default;
+``--one-c``: one C_alpha for both axles) and adds rows for them (from C_alpha's extra, "valid" = its per_axle_valid);
 ``--axle-ratio R`` makes the simulated rear axle R times as stiff as the front, their
 mean kept at the car's C_alpha.
 """
@@ -174,12 +174,14 @@ def main() -> int:
     ap.add_argument("--noise", default="realistic")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
-    ap.add_argument("--per-axle", action="store_true", help="stage 2 estimates each axle's C_alpha")
+    ap.add_argument("--per-axle", action="store_true", help="stage 2 estimates each axle's C_alpha (the default)")
+    ap.add_argument("--one-c", action="store_true", help="one C_alpha for both axles (LearnerConfig.per_axle off)")
     ap.add_argument("--axle-ratio", type=float, default=1.0, help="simulated rear/front cornering stiffness")
     ap.add_argument(
         "--axle-split", type=float, help="prior std of the axles' half-difference / C_alpha's (learner.AXLE_SPLIT)"
     )
     a = ap.parse_args()
+    a.per_axle = not a.one_c
     cars = a.cars.split(",")
     for c in cars:
         if c not in CARS:
@@ -203,7 +205,7 @@ def main() -> int:
                 print(f"{r['car']} x{r['scale']:g} seed {r['seed']} {kind}: " + " ".join(cells))
     print(
         f"### vdp simulator, `paper` drive, noise `{a.noise}`: cars {cars}, prior scales {scales}, {a.seeds} seeds"
-        + (", per-axle C_alpha" if a.per_axle else "")
+        + (", per-axle C_alpha" if a.per_axle else ", one C_alpha")
         + (f", rear/front cornering stiffness {a.axle_ratio:g}" if a.axle_ratio != 1.0 else "")
         + (f", AXLE_SPLIT {a.axle_split:g}" if a.axle_split is not None else "")
     )

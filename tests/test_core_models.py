@@ -122,6 +122,56 @@ def test_stage2_jacobians(vy, yaw, phi, phid, ca, split, iz, ix, l_f, d, vx, wf_
     H = lateral.jac_h(x, u, tied)
     np.testing.assert_allclose(H, numjac(lambda xx: lateral.hx(xx, u, tied), x, eps), rtol=1e-4, atol=1e-8)
     assert not A[:, lateral.C_R].any() and not H[:, lateral.C_R].any()
+    # eq (9) driven by the measured a_y (a fifth input column): the roll-rate row no longer
+    # depends on the lateral states and the stiffnesses, only on the roll states and I_x
+    by_ay = dataclasses.replace(K2, roll_by_ay=True)
+    u5 = np.append(u, 2.0 * d * vx)
+    A = lateral.jac_f(x, u5, by_ay)
+    NA = numjac(lambda xx: lateral.deriv(xx, u5, by_ay), x, eps)
+    np.testing.assert_allclose(A, NA, rtol=1e-4, atol=1e-6 * np.abs(NA).max())
+    assert not A[lateral.PHI_D, [lateral.V_Y, lateral.YAW, lateral.C_F, lateral.C_R, lateral.I_Z, lateral.L_F]].any()
+    np.testing.assert_allclose(lateral.jac_h(x, u5, by_ay), lateral.jac_h(x, u, K2))
+
+
+def test_roll_driven_by_measured_ay():
+    """Known.roll_by_ay: eq (9) takes the input's a_y where finite, the model's elsewhere (and
+    without the flag); the step agrees with a fine RK4 reference driven the same way."""
+    by_ay = dataclasses.replace(K2, roll_by_ay=True)
+    x = np.array([0.2, 0.3, 0.002, 0.01, 6.69e4, 5.5e4, 2000.0, 4175.0, 1.4])
+    u = np.array([0.06, 10.0, 10.0 / 0.3, 0.0, 1.7])
+    model_ay = lateral.hx(x, u, K2)[lateral.Z_AY]
+    assert abs(model_ay - 1.7) > 0.5  # the two differ here
+    d_meas, d_model = lateral.deriv(x, u, by_ay), lateral.deriv(x, u, K2)
+    k = K2
+    expect = (k.m * k.h * (1.7 + k.g * x[lateral.PHI]) - k.k_phi * x[lateral.PHI] - k.c_phi * x[lateral.PHI_D]) / x[
+        lateral.I_X
+    ]
+    assert d_meas[lateral.PHI_D] == pytest.approx(expect)
+    np.testing.assert_allclose(d_meas[:3], d_model[:3])
+    no_ay = u.copy()
+    no_ay[lateral.U_AY] = np.nan
+    np.testing.assert_allclose(lateral.deriv(x, no_ay, by_ay), d_model)
+    np.testing.assert_allclose(lateral.fx(x, 0.02, no_ay, by_ay), lateral.fx(x, 0.02, u, K2))
+    np.testing.assert_allclose(lateral.fx(x, 0.02, u[:4], by_ay), lateral.fx(x, 0.02, u, K2))
+    dt, n = 0.02, 400
+    coarse = lateral.fx(x, dt, u, by_ay)
+    ref, h = x.copy(), dt / n
+    for _ in range(n):
+        k1 = lateral.deriv(ref, u, by_ay)
+        k2 = lateral.deriv(ref + h / 2 * k1, u, by_ay)
+        k3 = lateral.deriv(ref + h / 2 * k2, u, by_ay)
+        k4 = lateral.deriv(ref + h * k3, u, by_ay)
+        ref = ref + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    np.testing.assert_allclose(coarse[:2], ref[:2], rtol=2e-3)
+    np.testing.assert_allclose(coarse[2:4], ref[2:4], atol=2e-4)
+    assert abs(coarse[3] - lateral.fx(x, dt, u, K2)[3]) > 1e-3  # and it is not the model-driven step
+    # sigma points: each row as on its own
+    X = np.tile(x, (5, 1))
+    X[:, lateral.C_F] *= np.linspace(0.8, 1.2, 5)
+    U = np.array([u, u + [0.002, 0.0, 0.0, 0.0, 0.1]])
+    out = lateral.fx(X, dt, U, by_ay)
+    for i in (0, 4):
+        np.testing.assert_allclose(out[i], lateral.fx(X[i], dt, U, by_ay))
 
 
 def test_models_broadcast_over_sigma_points():

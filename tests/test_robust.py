@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from vdp.core import batch, lateral, longitudinal
+from vdp.core import batch, lateral, learner, longitudinal
 from vdp.core.bounds import Bounds
 from vdp.core.estimator import EstimatorConfig
 from vdp.core.learner import LearnerConfig
@@ -275,15 +275,52 @@ def test_per_axle_prior_and_a_drive_that_does_not_separate_the_axles(profile):
     l2.theta_P[:2, :2] = np.diag([m * m, m * m])
     e = l2.snapshot()["C_alpha"]
     assert e.valid and e.extra["per_axle_valid"] is True and e.extra["per_axle_reason"] is None
-    # a restore from the published mean keeps the mean's std and the prior's difference
+    # a restore from the published mean keeps the mean's std; the difference is held (SPLIT_HELD of
+    # the prior's) until a window's data know the mean, then freed (test below)
     l2.set_params([c.value, 2000.0, 500.0], np.diag(np.square([m, 20.0, 100.0])), 100)
-    assert math.sqrt(l2.theta_P[0, 0] + l2.theta_P[1, 1] - 2 * l2.theta_P[0, 1]) == pytest.approx(l2.prior_diff_std)
+    diff = math.sqrt(l2.theta_P[0, 0] + l2.theta_P[1, 1] - 2 * l2.theta_P[0, 1])
+    assert diff == pytest.approx(learner.SPLIT_HELD / learner.AXLE_SPLIT * l2.prior_diff_std)
     assert l2.snapshot()["C_alpha"].std == pytest.approx(m)
-    # one C_alpha for both axles (the default): C_alpha is the front state, no per-axle extra
+    # one C_alpha for both axles (LearnerConfig(per_axle=False)): C_alpha is the front state, no per-axle extra
     one = _stage2(profile)
     one.theta_P[0, 0], one.samples = m * m, 5000
     e = one.snapshot()["C_alpha"]
     assert e.valid and e.std == pytest.approx(m) and not e.extra and one.known.per_axle is False
+
+
+def test_the_axles_split_is_freed_once_the_mean_is_known(profile):
+    """Per axle, the half-difference starts held (SPLIT_HELD of the C_alpha prior's std: one
+    C_alpha in effect) and gets the prior's AXLE_SPLIT once the open window knows the axles'
+    mean to SPLIT_FREE_REL; not before."""
+    l2 = _stage2(profile, per_axle=True)
+    c = profile.priors["C_alpha"]
+    assert l2.split_held
+    P = l2.theta_P
+    assert math.sqrt(P[0, 0] + P[1, 1] - 2 * P[0, 1]) == pytest.approx(2 * learner.SPLIT_HELD * c.std)
+    z, mask, u = np.array([0.1, 0.0, 1.5]), np.ones(3, dtype=bool), [0.02, 15.0, 50.0, 0.0, 1.5]
+
+    def window():
+        l2.filter = l2._new_filter(*l2._start(z, mask, u), l2._R())
+        return l2.filter_state()[1]
+
+    def diff_std(P):
+        return math.sqrt(P[lateral.C_F, lateral.C_F] + P[lateral.C_R, lateral.C_R] - 2 * P[lateral.C_F, lateral.C_R])
+
+    before = diff_std(window())
+    l2._free_split()  # the prior's mean (std 50 %): still held
+    assert l2.split_held and diff_std(l2.filter_state()[1]) == pytest.approx(before)
+    m = 0.01 * c.value  # the mean known to 1 %
+    l2.theta_P = P + np.outer([1, 1, 0, 0], [1, 1, 0, 0]) * (m * m - c.std**2)
+    before = diff_std(window())
+    l2._free_split()
+    assert not l2.split_held
+    Q = l2.filter_state()[1]
+    assert diff_std(Q) == pytest.approx(
+        math.hypot(before, 2 * c.std * math.sqrt(learner.AXLE_SPLIT**2 - learner.SPLIT_HELD**2)), rel=1e-6
+    )
+    assert np.linalg.eigvalsh(Q).min() > 0 and 0.5 * math.sqrt(Q[4, 4] + Q[5, 5] + 2 * Q[4, 5]) == pytest.approx(
+        m, rel=0.01
+    )
 
 
 def test_a_profile_may_give_per_axle_priors(profile, tmp_path):

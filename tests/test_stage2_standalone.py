@@ -11,6 +11,8 @@ import dataclasses
 
 import pytest
 
+from vdp.core.estimator import EstimatorConfig
+from vdp.core.learner import LearnerConfig
 from vdp.core.result import NOT_RUN
 from vdp.pipeline import Pipeline
 from vdp.profile import load_profile
@@ -31,9 +33,9 @@ def layout(repo_root, drop: tuple[str, ...], l_f: float | None) -> object:
     return dataclasses.replace(prof, channels=chans, checks=checks, vehicle=veh)
 
 
-def drive(prof, seed: int, duration: float = 30.0):
+def drive(prof, seed: int, duration: float = 30.0, cfg=None):
     frames, truth = simulate(prof, "stage2", seed=seed, noise="realistic", duration=duration)
-    pipe = Pipeline(prof)
+    pipe = Pipeline(prof, cfg)
     for m in frames:
         pipe.feed(m)
     return pipe, pipe.result(), truth["parameters"]
@@ -56,7 +58,12 @@ def test_without_roll_rate_i_x_is_not_run_and_c_alpha_i_z_are_estimated(repo_roo
     pipe = Pipeline(prof)
     cap = pipe.capabilities()
     assert "torque" in cap["1"] and cap["2"] is None and "roll_rate" in cap["I_x"]
-    pipe, res, truth = drive(prof, seed=4, duration=52.0)
+    # One C_alpha for both axles: per axle (the default) the mean's std with l_f known to 1 % is
+    # 1.96 % on this drive (truth inside 1 std), above C_alpha's convergence threshold (1.5 %), so
+    # it stays "uncertain" and the last assertion (I_x not_run does not hold back "done") could
+    # not be made; the per-axle accuracy on this layout is in BENCHMARKS.md ("Stage 2 standalone")
+    one = EstimatorConfig(learner=LearnerConfig(per_axle=False))
+    pipe, res, truth = drive(prof, seed=4, duration=52.0, cfg=one)
     assert {w.stage for w in res.windows} == {2}
     for kind, params in (("ukf", res.parameters), ("ekf", res.baseline_ekf)):
         ix = params["I_x"]

@@ -28,7 +28,12 @@ Errata applied (NOTES.md):
 - eq (12): alpha_f = d - (v_y + l_f r)/v_x, alpha_r = -(v_y - l_r r)/v_x, F_y = C_alpha alpha
   (per axle: F_yf = C_alpha_f alpha_f, F_yr = C_alpha_r alpha_r);
 - eq (9): phi is the roll angle; total mass and CG height as in the paper (strictly
-  sprung mass and height above the roll axis);
+  sprung mass and height above the roll axis), driven by the *measured* a_y (input U_AY)
+  where there is one (Known.roll_by_ay): the accelerometer measures a_y directly, so the
+  roll-rate row need not re-estimate it through C_alpha and I_z.  Driven by the model's
+  a_y, the roll row pulled C_alpha 20-50 % either way on cars whose roll eq (9) describes
+  only roughly (a sprung mass rolling about a roll axis; BENCHMARKS.md, "Stage 2 on the
+  independent models");
 - Table 6: k_phi, c_phi per radian.
 - NOTES 8: the front longitudinal force is C_sigma s_f with C_sigma = F_zf C_K from
   stage 1 and the current load; the slip uses the wheel-frame speed.
@@ -54,9 +59,9 @@ PARAM_SLICE = slice(4, 8)
 CONSIDER = L_F  # a state the filters never update (its prior uncertainty is considered)
 SCALE = np.array([0.5, 0.2, 0.005, 0.02, 5.0e4, 5.0e4, 2.0e3, 3.0e3, 0.01])
 
-# input columns
-U_DELTA, U_VX, U_WF, U_AX = range(4)
-N_U = 4
+# input columns; U_AY, the measured a_y, drives eq (9) (Known.roll_by_ay; a row may stop at U_AX)
+U_DELTA, U_VX, U_WF, U_AX, U_AY = range(5)
+N_U = 5
 
 # measurement rows
 Z_YAW, Z_ROLL, Z_AY = range(3)
@@ -89,6 +94,9 @@ class Known:
     g: float = 9.8
     # False: one cornering stiffness for both axles, C_alpha_f's (C_alpha_r is then inert)
     per_axle: bool = True
+    # True: eq (9) is driven by the measured a_y (input U_AY, where finite), so the roll-rate
+    # row informs the roll states and I_x only, not C_alpha and I_z through the model's a_y
+    roll_by_ay: bool = False
 
     @property
     def ck_slope(self) -> float:
@@ -103,7 +111,7 @@ def _inputs(u, k: Known):
     """
     base = k.C_K * k.m / k.L
     if np.ndim(u) == 1:
-        d, v_x, w_f, a_x = np.asarray(u, dtype=float).tolist()
+        d, v_x, w_f, a_x = np.asarray(u, dtype=float).tolist()[:4]
         return d, max(v_x, V_MIN), math.sin(d), math.cos(d), base * (k.g * k.L - a_x * k.h), w_f * k.r
     d = u[..., U_DELTA]
     v_x = np.maximum(u[..., U_VX], V_MIN)
@@ -184,10 +192,27 @@ def forces(x, u, k: Known):
     return y_f, f_yr, a_y
 
 
+def _measured_ay(u, k: Known):
+    """The measured a_y that drives eq (9) (Known.roll_by_ay), or None: the model's a_y does.
+
+    One row: a float, None when not finite.  Rows: an array, NaN where not finite (the
+    caller falls back to the model's a_y there)."""
+    u = np.asarray(u, dtype=float)
+    if not k.roll_by_ay or u.shape[-1] <= U_AY:
+        return None
+    m = u[..., U_AY]
+    if np.ndim(m) == 0:
+        return float(m) if math.isfinite(m) else None
+    return m
+
+
 def deriv(x, u, k: Known):
     """Continuous-time dynamics x_dot = f(x, u), eqs (5), (8)-(10) corrected."""
     v_y, yaw, phi, phi_d, c_f, c_r, i_z, i_x, l_f, clamp = _unpack(x, not k.per_axle)
     vy_d, yaw_d, a_y, _, _ = _rates(v_y, yaw, c_f, c_r, i_z, _inputs(u, k), _geometry(l_f, k), k, clamp)
+    m = _measured_ay(u, k)
+    if m is not None:
+        a_y = np.where(np.isfinite(m), m, a_y) if np.ndim(m) else m
     out = np.zeros(np.shape(x))
     out[..., V_Y] = vy_d
     out[..., YAW] = yaw_d
@@ -267,17 +292,23 @@ def fx(x, dt, u, k: Known, substeps: int | None = None):
     geo = _geometry(l_f, k)
     (t11, t12, t21, t22), (p1, p2), (q1, q2) = _roll_map(i_x, h, k)
     # per-step input constants at every start, mid and end point, as plain floats
-    pres = list(zip(*(a.tolist() for a in _inputs(_input_grid(u, substeps), k))))
+    grid = _input_grid(u, substeps)
+    pres = list(zip(*(a.tolist() for a in _inputs(grid, k))))
+    # eq (9)'s a_y at the sub-step ends: measured (Known.roll_by_ay) where finite, else the model's
+    ays = _measured_ay(grid, k)
+    ays = None if ays is None else [a if math.isfinite(a) else None for a in ays[0::2].tolist()]
     start = _rates(v_y, yaw, c_f, c_r, i_z, pres[0], geo, k, clamp)
     for i in range(substeps):
         vy_d, yaw_d, a0 = start[0], start[1], start[2]
+        if ays is not None and ays[i] is not None:
+            a0 = ays[i]
         vy_d1, yaw_d1, _, _, _ = _rates(
             v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_f, c_r, i_z, pres[2 * i + 1], geo, k, clamp
         )
         v_y = v_y + h * vy_d1
         yaw = yaw + h * yaw_d1
         start = _rates(v_y, yaw, c_f, c_r, i_z, pres[2 * i + 2], geo, k, clamp)
-        a1 = start[2]
+        a1 = start[2] if ays is None or ays[i + 1] is None else ays[i + 1]
         # the roll does not act back on v_y and yaw (a_y has no phi term), so it follows
         phi, phi_d = (t11 * phi + t12 * phi_d + p1 * a0 + q1 * a1, t21 * phi + t22 * phi_d + p2 * a0 + q2 * a1)
     x[..., V_Y], x[..., YAW], x[..., PHI], x[..., PHI_D] = v_y, yaw, phi, phi_d
@@ -336,7 +367,8 @@ def jac_f(x, u, k: Known):
     if x[I_Z] > PARAM_FLOOR[2]:
         A[YAW, I_Z] = -f[YAW] / i_z
     A[PHI, PHI_D] = 1.0
-    A[PHI_D] = k.m * k.h * day / i_x
+    if _measured_ay(u, k) is None:  # eq (9) driven by the model's a_y (else by the measured: no state moves it)
+        A[PHI_D] = k.m * k.h * day / i_x
     A[PHI_D, PHI] += (k.m * k.g * k.h - k.k_phi) / i_x
     A[PHI_D, PHI_D] += -k.c_phi / i_x
     if x[I_X] > PARAM_FLOOR[3]:

@@ -102,6 +102,13 @@ RESEED_M2 = 16.3
 AXLE_SPLIT = 0.5
 AXLE_CONVERGED_REL = 0.03  # per-axle std / value below which an axle counts as known (twice the mean's)
 AXLE_CORR_MAX = 0.95  # |correlation| of the two beyond this: the data know one combination of them
+# The split is held (one C_alpha in effect: its half-difference's std SPLIT_HELD of C_alpha's prior
+# std) until the data know the axles' mean to SPLIT_FREE_REL, then freed to AXLE_SPLIT.  In a steady
+# corner the data fix each axle's force, F = C alpha, not C and the slip angle (v_y, no sensor)
+# apart; one C_alpha closes that, two leave a curve (C_f, C_r, v_y) along which a filter started
+# far off (priors x0.6 on vdp's `suv`) slid to C_alpha 0.1x with a std of 1 % and never came back.
+SPLIT_HELD = 0.1
+SPLIT_FREE_REL = 0.05
 
 # Stage 1's tyre shape (core.longitudinal), estimated beside l_f, h, C_K and not reported:
 # priors (mean, std).  The bend b = 1 / (3 mu) of a brush tyre is 0.28-0.42 for mu 0.8-1.2;
@@ -152,10 +159,14 @@ class LearnerConfig:
     block_time: float = 0.1  # s: stage 1 averages the samples of this long a block per filter step
     stage2_step: float = 0.04  # s: stage 2 steps its filter this often (CPU), inputs in between still used
     # Stage 2 estimates the front and the rear cornering stiffness separately (published:
-    # their mean as C_alpha, each in its extra); off: one C_alpha for both axles.  Off by
-    # default: on the independent models the split moved I_z (bmw_320i's short drive from
-    # +3 % to -14 %) while both axles stay about 30 % low (BENCHMARKS.md, "Per-axle cornering stiffness")
-    per_axle: bool = False
+    # their mean as C_alpha, each in its extra); off: one C_alpha for both axles.  On by default
+    # since eq (9) is driven by the measured a_y (roll_by_ay): one C_alpha cannot fit a car whose
+    # axles differ (its best fit of mb/bmw_320i's drive is C_alpha +46 %, I_z +53 %), and the
+    # roll row no longer pulls it back (BENCHMARKS.md, "Stage 2 on the independent models")
+    per_axle: bool = True
+    # Stage 2's roll, eq (9), driven by the measured a_y (lateral.Known.roll_by_ay): the roll-rate
+    # row then informs the roll states and I_x, not C_alpha and I_z
+    roll_by_ay: bool = True
     # Stage 1 reads C_K as the small-slip (initial) stiffness of a tyre law that bends
     # (core.longitudinal), so it takes only blocks where both axles use at most this share of
     # their load (|F_x| / F_z): beyond it the law's third-order series leaves the brush curve
@@ -965,11 +976,35 @@ class Stage2(StageLearner):
         ) @ self._SPLIT.T + self._difference_cov(c.std)
 
     @staticmethod
-    def _difference_cov(c_std: float) -> np.ndarray:
-        """Covariance of (+D, -D, 0, 0), D the axles' half-difference, std AXLE_SPLIT c_std."""
+    def _difference_cov(c_std: float, share: float = AXLE_SPLIT) -> np.ndarray:
+        """Covariance of (+D, -D, 0, 0), D the axles' half-difference, std ``share`` c_std."""
         d = np.zeros((4, 4))
-        d[:2, :2] = (AXLE_SPLIT * c_std) ** 2 * np.array([[1.0, -1.0], [-1.0, 1.0]])
+        d[:2, :2] = (share * c_std) ** 2 * np.array([[1.0, -1.0], [-1.0, 1.0]])
         return d
+
+    def _free_split(self) -> None:
+        """Free the held half-difference (SPLIT_HELD) to AXLE_SPLIT once the data know the
+        axles' mean to SPLIT_FREE_REL: its variance goes into the open filter's covariance."""
+        if not self.split_held or self.filter is None:
+            return
+        x, P = self.filter_state()
+        f, r = x[lateral.C_F], x[lateral.C_R]
+        mean_sd = 0.5 * math.sqrt(
+            max(P[lateral.C_F, lateral.C_F] + P[lateral.C_R, lateral.C_R] + 2.0 * P[lateral.C_F, lateral.C_R], 0.0)
+        )
+        if not mean_sd < SPLIT_FREE_REL * 0.5 * (f + r):
+            return
+        c_std = self.priors["C_alpha"].std
+        var = (AXLE_SPLIT**2 - SPLIT_HELD**2) * c_std**2
+        # (C_f, C_r) = (M + D, M - D): D's variance along (+1, -1), in the filter's coordinates
+        # (log C: d log C = dC / C)
+        v = np.zeros(self._n)
+        v[lateral.C_F], v[lateral.C_R] = 1.0 / f, -1.0 / r
+        self.filter.set_state(self.filter.x, self.filter.P + var * np.outer(v, v))
+        self.split_held = False
+        log.info(
+            "stage 2 %s: axles' mean known to %.1f %%; their split freed", self.kind, 100 * mean_sd / (0.5 * (f + r))
+        )
 
     def _publish(self, theta, cov):
         M = self._M
@@ -983,7 +1018,8 @@ class Stage2(StageLearner):
             P[1, :] = P[:, 1] = 0.0
             P[1, 1] = c_std**2
             return S @ theta, P
-        return S @ theta, S @ cov @ S.T + self._difference_cov(c_std)
+        share = SPLIT_HELD if self.split_held else AXLE_SPLIT
+        return S @ theta, S @ cov @ S.T + self._difference_cov(c_std, share)
 
     def _in_range(self, theta) -> bool:
         return all(BY_NAME[n].lo <= v <= BY_NAME[n].hi for n, v in zip(("C_alpha",) * 2 + STAGE2[1:], theta))
@@ -1047,6 +1083,13 @@ class Stage2(StageLearner):
         super().reset()
         P = self.theta_P
         self.prior_diff_std = math.sqrt(P[0, 0] + P[1, 1] - 2.0 * P[0, 1])  # of C_alpha_f - C_alpha_r
+        # the split starts held (SPLIT_HELD) when it comes from the C_alpha prior, not the profile's per-axle priors
+        p = self.priors
+        self.split_held = self.cfg.per_axle and (p.get("C_alpha_f") is None or p.get("C_alpha_r") is None)
+        if self.split_held:
+            c_std = p["C_alpha"].std
+            self.theta_P = P - self._difference_cov(c_std) + self._difference_cov(c_std, SPLIT_HELD)
+            self._good = (self.theta.copy(), self.theta_P.copy(), None)
 
     def set_stage1(
         self, l_f: float, h: float, c_k: float | None, l_f_std: float | None = None, h_std: float | None = None
@@ -1075,6 +1118,7 @@ class Stage2(StageLearner):
             C_K=0.0 if c_k is None else c_k,
             g=v.g,
             per_axle=self.cfg.per_axle,
+            roll_by_ay=self.cfg.roll_by_ay,
         )
         ok = l_f_std is not None and math.isfinite(l_f_std) and l_f_std > 0
         self.l_f_std = max(l_f_std, L_F_STD_MIN) if ok else self.priors["l_f"].std
@@ -1228,6 +1272,13 @@ class Stage2(StageLearner):
 
     def _q_rate(self):
         dyn = np.square([V_Y_WALK, YAW_WALK, PHI_WALK, PHI_D_WALK])
+        k = self.known
+        if k.roll_by_ay:
+            # eq (9) driven by the measured a_y takes the accelerometer's noise in as a roll moment:
+            # m h n / I_x on phi'', white over each sample (variance per second: its variance times the tick)
+            n = self.cfg.noise
+            i_x = max(float(self.theta[self.keys.index("I_x")]), lateral.PARAM_FLOOR[3])
+            dyn[3] += (k.m * k.h * n.accel * n.inflate / i_x) ** 2 * self.cfg.tick
         return np.diag(np.concatenate([dyn, self._param_q(), [0.0]]))  # l_f: constant
 
     def _R(self):
@@ -1261,7 +1312,7 @@ class Stage2(StageLearner):
         w_f = 0.5 * (y[ch.WS_FL] + y[ch.WS_FR])
         if not k.C_K > 0.0:  # no front drive force in the model: its inputs don't matter
             w_f, a_x = 0.0, 0.0
-        return [y[ch.DELTA], v_x, w_f, a_x]
+        return [y[ch.DELTA], v_x, w_f, a_x, y[ch.AY]]  # a_y: eq (9)'s input (lateral.Known.roll_by_ay)
 
     @staticmethod
     def measurements(s) -> tuple[np.ndarray, np.ndarray]:
@@ -1324,16 +1375,28 @@ class Stage2(StageLearner):
         state.  A diverged window is never reported.
         """
         y, S = self.filter.innovation()
+        r = int(np.count_nonzero(mask[: lateral.Z_ROLL])) if mask[lateral.Z_ROLL] else None
+        # With eq (9) driven by the measured a_y the roll-rate row informs the roll states and I_x
+        # only: its innovations are tested on their own (below, roll_mismatch), and the lateral
+        # rows' alone decide the lateral model's consistency and a divergence.  A roll model that
+        # misses a quick steering reversal (0.1 rad/s, 30 sigma, on the multi-body cars) then no
+        # longer throws away the window, whose C_alpha and I_z it does not bear on.
+        keep = [i for i in range(len(y)) if i != r] if self.known.roll_by_ay and r is not None else None
         try:
-            nis = float(y @ np.linalg.solve(S, y))
+            if keep is None:
+                nis = float(y @ np.linalg.solve(S, y))
+            else:
+                yl, Sl = y[keep], S[np.ix_(keep, keep)]
+                nis = float(yl @ np.linalg.solve(Sl, yl)) if len(keep) else 0.0
         except np.linalg.LinAlgError:
             return False
+        rows = len(y) if keep is None else len(keep)
         a = int(np.count_nonzero(mask[: lateral.Z_AY])) if mask[lateral.Z_AY] else None
         e = float(y[a] / math.sqrt(S[a, a])) if a is not None and S[a, a] > 0 else None
-        self.window.add(nis, len(y), e)
-        self.total.add(nis, len(y), e)
+        if rows:
+            self.window.add(nis, rows, e)
+            self.total.add(nis, rows, e)
         # the roll-rate row on its own: the roll model (eq 9) can fail while the lateral one holds
-        r = int(np.count_nonzero(mask[: lateral.Z_ROLL])) if mask[lateral.Z_ROLL] else None
         if r is not None and S[r, r] > 0:
             e_r = float(y[r] / math.sqrt(S[r, r]))
             self.roll_window.add(e_r * e_r, 1, e_r)
@@ -1411,6 +1474,7 @@ class Stage2(StageLearner):
         self._us = [u]
         if self._consistency(mask):
             return
+        self._free_split()
         self.t_last = t
         if self.samples % self.cfg.save_every < self.cfg.stage2_every:
             self._save_good()
