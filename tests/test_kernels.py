@@ -30,8 +30,19 @@ MEAN_ROUNDING = 1e-10  # and the weighted mean rounds to ~3e4 x 2e-16 of the sta
 DRIVE_RTOL = 1e-7
 
 
-def _lat_pair(per_axle: bool):
-    k = lateral.Known(m=1600.0, L=2.7, r=0.31, k_phi=9e4, c_phi=6e3, l_f=1.25, h=0.55, C_K=11.0, per_axle=per_axle)
+def _lat_pair(per_axle: bool, roll_by_ay: bool = False):
+    k = lateral.Known(
+        m=1600.0,
+        L=2.7,
+        r=0.31,
+        k_phi=9e4,
+        c_phi=6e3,
+        l_f=1.25,
+        h=0.55,
+        C_K=11.0,
+        per_axle=per_axle,
+        roll_by_ay=roll_by_ay,
+    )
     b = Bounds(lateral.N_X, log=(lateral.C_F, lateral.C_R, lateral.I_Z, lateral.I_X))
     x0 = b.from_si(np.array([0.1, 0.15, 0.01, 0.02, 7e4, 6e4, 2500.0, 600.0, 1.25]))
     P0 = np.diag([0.3**2, 0.02**2, 0.01**2, 0.02**2, 0.3**2, 0.3**2, 0.2**2, 0.5**2, 1e-4])
@@ -75,18 +86,22 @@ def _same(ref, fast):
     _sync(ref, fast)
 
 
-@pytest.mark.parametrize("per_axle", [False, True])
-def test_stage2_steps_are_the_numpy_steps(per_axle):
-    ref, fast = _lat_pair(per_axle)
+@pytest.mark.parametrize(("per_axle", "roll_by_ay"), [(False, False), (True, False), (True, True)])
+def test_stage2_steps_are_the_numpy_steps(per_axle, roll_by_ay):
+    ref, fast = _lat_pair(per_axle, roll_by_ay)
     rng = np.random.default_rng(3)
     for i in range(40):
-        # inputs sampled over the step (steering ramp, speed, front wheel speed, a_x), as Stage2 passes them
+        # inputs sampled over the step (steering ramp, speed, front wheel speed, a_x, a_y), as Stage2 passes them
+        a_y = rng.normal(2.5, 0.3, 3)
+        if i % 6 == 0:
+            a_y[1] = np.nan  # an accelerometer sample missing: eq (9) takes the model's a_y there
         us = np.column_stack(
             [
                 0.05 * np.sin(0.3 * i + np.arange(3) * 0.1),
                 np.full(3, 18.0 + 0.1 * i),
                 np.full(3, 18.0 / 0.31 * 1.002),
                 rng.normal(0.0, 0.2, 3),
+                a_y,
             ]
         )
         dt = 0.04 if i % 7 else 0.02  # one and several sub-steps
@@ -107,9 +122,10 @@ def test_stage2_steps_are_the_numpy_steps(per_axle):
     assert fast.x[lateral.L_F] == ref.x[lateral.L_F]
 
 
-def test_stage2_held_input_row():
-    ref, fast = _lat_pair(False)
-    u = np.array([0.03, 20.0, 20.0 / 0.31, 0.1])
+@pytest.mark.parametrize("roll_by_ay", [False, True])
+def test_stage2_held_input_row(roll_by_ay):
+    ref, fast = _lat_pair(False, roll_by_ay)
+    u = np.array([0.03, 20.0, 20.0 / 0.31, 0.1, 1.2])
     ref.predict(0.04, u)
     fast.predict(0.04, u)
     _same(ref, fast)

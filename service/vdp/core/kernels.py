@@ -48,7 +48,7 @@ MESSAGES = {
 }
 
 # a model's constants as numba takes them (attribute access on a named tuple)
-Lat = collections.namedtuple("Lat", "m L r k_phi c_phi l_f h C_K g per_axle ck_slope")
+Lat = collections.namedtuple("Lat", "m L r k_phi c_phi l_f h C_K g per_axle ck_slope roll_by_ay")
 Lon = collections.namedtuple("Lon", "m L r J g")
 
 # bounded transforms per state (core.bounds): 0 free, 1 log, 2 logit
@@ -56,7 +56,7 @@ FREE, LOG, LOGIT = 0, 1, 2
 
 
 def lat_known(k: lateral.Known) -> Lat:
-    return Lat(k.m, k.L, k.r, k.k_phi, k.c_phi, k.l_f, k.h, k.C_K, k.g, k.per_axle, k.ck_slope)
+    return Lat(k.m, k.L, k.r, k.k_phi, k.c_phi, k.l_f, k.h, k.C_K, k.g, k.per_axle, k.ck_slope, k.roll_by_ay)
 
 
 def lon_known(k: longitudinal.Known) -> Lon:
@@ -283,18 +283,26 @@ def _gain_step(x, P, sig, hz, z, R, Wm, Wc, consider):
 # -- stage 2: core.lateral on scaled, bounded sigma points ---------------------
 @_jit
 def _lat_grid(us, j, w, n, k):
-    """lateral._inputs of lateral._input_grid(us, n): (2n+1, 6) per-step input constants."""
-    g = np.empty((2 * n + 1, 6))
+    """lateral._inputs of lateral._input_grid(us, n): (2n+1, 7) per-step input constants; the
+    seventh is the measured a_y that drives eq (9) (lateral.Known.roll_by_ay; NaN: the model's)."""
+    g = np.empty((2 * n + 1, 7))
     base = k.C_K * k.m / k.L
+    by_ay = k.roll_by_ay and us.shape[1] > lateral.U_AY
     for i in range(2 * n + 1):
+        a_y = np.nan
         if us.shape[0] == 1:  # one row, held over the step
             d, v_x, w_f, a_x = us[0, 0], us[0, 1], us[0, 2], us[0, 3]
+            if by_ay:
+                a_y = us[0, lateral.U_AY]
         else:
             a, b, c = j[i], j[i] + 1, w[i]
             d = us[a, 0] + c * (us[b, 0] - us[a, 0])
             v_x = us[a, 1] + c * (us[b, 1] - us[a, 1])
             w_f = us[a, 2] + c * (us[b, 2] - us[a, 2])
             a_x = us[a, 3] + c * (us[b, 3] - us[a, 3])
+            if by_ay:
+                a_y = us[a, lateral.U_AY] + c * (us[b, lateral.U_AY] - us[a, lateral.U_AY])
+        g[i, 6] = a_y
         g[i, 0] = d
         g[i, 1] = max(v_x, V_MIN)
         g[i, 2] = np.sin(d)
@@ -330,11 +338,13 @@ def _lat_fx(x, dt, g, n, k):
     start = _rates(v_y, yaw, c_f, c_r, i_z, _row(g, 0), geo, k, _max)
     for i in range(n):
         vy_d, yaw_d, a0 = start[0], start[1], start[2]
+        if math.isfinite(g[2 * i, 6]):  # eq (9) driven by the measured a_y (lateral.fx's ``ays``)
+            a0 = g[2 * i, 6]
         mid = _rates(v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_f, c_r, i_z, _row(g, 2 * i + 1), geo, k, _max)
         v_y = v_y + h * mid[0]
         yaw = yaw + h * mid[1]
         start = _rates(v_y, yaw, c_f, c_r, i_z, _row(g, 2 * i + 2), geo, k, _max)
-        a1 = start[2]
+        a1 = start[2] if not math.isfinite(g[2 * i + 2, 6]) else g[2 * i + 2, 6]
         phi, phi_d = (t11 * phi + t12 * phi_d + p1 * a0 + q1 * a1, t21 * phi + t22 * phi_d + p2 * a0 + q2 * a1)
     x[lateral.V_Y], x[lateral.YAW], x[lateral.PHI], x[lateral.PHI_D] = v_y, yaw, phi, phi_d
 
