@@ -44,6 +44,8 @@ single track, one set per ``--terms`` group (``+`` joins terms, ``,`` separates 
 * ``rollcam``: a lateral force k m g phi with k fitted (camber thrust from roll, shared
   by the axles in proportion to their loads, so it adds no yaw moment; phi integrated
   from the roll-rate channel);
+* ``rate``: a roll-rate slip q phi' / v_x on both axles' slip angles with the length q
+  fitted (what mb's unsprung roll on its tyres does, as a single track could carry it);
 * ``mh``: what an estimator could add with what it knows: m h phi'' in the lateral balance
   (eq 9's whole mass, stage 1's h as the truth has it, phi'' from the roll-rate channel);
 * ``camber``: mb: each axle's camber thrust, F_y(gamma) - F_y(0) at the recorded
@@ -155,7 +157,7 @@ def fit(case: str, cache: Path) -> str:
 
 
 # -- terms: the single track with the models' left-out physics added back, term by term --
-TERMS = ("curve", "load", "fiala", "mu", "roll", "mh", "swing", "rollcam", "camber", "fx", "kin", "arm")
+TERMS = ("curve", "load", "fiala", "mu", "roll", "mh", "swing", "rollcam", "rate", "camber", "fx", "kin", "arm")
 DEFAULT_GROUPS = (
     "base,curve,roll,curve+roll,load+roll,load+roll+fx,load+roll+fx+kin,camber,camber+kin,"
     "load+camber+roll+fx+kin,load+camber+roll+fx+kin+arm,base+ay<1.5"
@@ -382,8 +384,9 @@ def terms_fit(case: str, cache: Path, group: str) -> str:
     law = _law(model, case, terms, truth, loads, da)
     per_wheel = law is not None and "load" in terms  # the law takes each wheel's own slip angle
     fiala = "fiala" in terms or "mu" in terms
-    extras = [n for n in ("mu", "rollcam", "swing") if n in terms]  # fitted beside C_f, C_r, I_z
-    x0 = np.array([1.0, 1.0, 1.0] + [{"mu": 1.0, "rollcam": 0.0, "swing": 0.0}[n] for n in extras])
+    extras = [n for n in ("mu", "rollcam", "rate", "swing") if n in terms]  # fitted beside C_f, C_r, I_z
+    x0 = np.array([1.0, 1.0, 1.0] + [{"mu": 1.0, "rollcam": 0.0, "rate": 0.0, "swing": 0.0}[n] for n in extras])
+    p_rate = rec["rows"][:, ch.ROLL]
     phi_dd = np.gradient(rec["rows"][:, ch.ROLL], STEP / 1000.0)
     phi = np.cumsum(rec["rows"][:, ch.ROLL]) * (STEP / 1000.0)
     fz_f, fz_r = truth["per_axle"]["F_z_front_stage2"], truth["per_axle"]["F_z_rear_stage2"]
@@ -404,12 +407,16 @@ def terms_fit(case: str, cache: Path, group: str) -> str:
         mu = k[3] if "mu" in extras else 1.0
         arm = k[-1] if "swing" in extras else 0.0
         cam = k[3 + extras.index("rollcam")] * 9.81 if "rollcam" in extras else 0.0
+        q = k[3 + extras.index("rate")] if "rate" in extras else 0.0
         l_f, l_r = lever, L - lever
 
         def rates(v_y, r, i):
             v, cdi = v_x[i], math.cos(d[i])
             a_f = d[i] - (v_y + l_f * r) / v
             a_r = (l_r * r - v_y) / v
+            if q:
+                a_f += q * p_rate[i] / v
+                a_r += q * p_rate[i] / v
             if not per_wheel:
                 a_f += 0.5 * (da[i, 0] + da[i, 1])
                 a_r += 0.5 * (da[i, 2] + da[i, 3])
@@ -443,12 +450,12 @@ def terms_fit(case: str, cache: Path, group: str) -> str:
         return math.sqrt(np.mean((e[:h] * 0.01) ** 2)), math.sqrt(np.mean((e[h:] * 0.1) ** 2))
 
     at_truth = rms(res(x0))
-    lo = [0.05, 0.05, 0.05] + [{"mu": 0.2, "rollcam": -5.0, "swing": -2.0}[n] for n in extras]
-    hi = [20.0, 20.0, 20.0] + [{"mu": 5.0, "rollcam": 5.0, "swing": 2.0}[n] for n in extras]
+    lo = [0.05, 0.05, 0.05] + [{"mu": 0.2, "rollcam": -5.0, "rate": -2.0, "swing": -2.0}[n] for n in extras]
+    hi = [20.0, 20.0, 20.0] + [{"mu": 5.0, "rollcam": 5.0, "rate": 2.0, "swing": 2.0}[n] for n in extras]
     best = least_squares(res, x0, bounds=(lo, hi), diff_step=1e-3)
     k, r = best.x, rms(best.fun)
     for j, n in enumerate(extras):
-        group += f" ({n} {k[3 + j]:.3g}{' m' if n == 'swing' else ''})"
+        group += f" ({n} {k[3 + j]:.3g}{' m' if n in ('swing', 'rate') else ''})"
     return (
         f"| `{case}` | {group} | {at_truth[0]:.4f} / {at_truth[1]:.3f} | {k[0]:.3f} | {k[1]:.3f} | {k[2]:.3f} "
         f"| {r[0]:.4f} / {r[1]:.3f} |"
