@@ -82,8 +82,11 @@ def test_per_axle_reports_each_axle_in_c_alphas_extra(drive, repo_root, capsys):
     assert x["per_axle_valid"] is False and x["per_axle_reason"] == "stage 2 has not run"
     text = capsys.readouterr().out
     assert "C_alpha per axle (C_alpha is their mean): front" in text and "not valid: stage 2 has not run" in text
-    # one C_alpha (the default): no per-axle numbers
+    # per axle is the default: the same numbers without the flag
     main(["replay", str(log), "--profile", prof, "--json", str(out), "--no-progress"])
+    assert json.loads(out.read_text())["parameters"]["C_alpha"]["extra"] == x
+    # --one-c: one C_alpha for both axles, no per-axle numbers
+    main(["replay", str(log), "--profile", prof, "--json", str(out), "--one-c", "--no-progress"])
     assert "extra" not in json.loads(out.read_text())["parameters"]["C_alpha"]
 
 

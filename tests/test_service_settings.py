@@ -31,7 +31,7 @@ def test_defaults_and_relative_paths(tmp_path):
     assert s.profile == (tmp_path / "p.toml").resolve()
     assert s.store.path == (tmp_path / "db" / "x.sqlite").resolve()
     assert s.api.host == "127.0.0.1" and s.bus.listen_only is True
-    assert s.service.per_axle is False  # one C_alpha for both axles unless asked
+    assert s.service.per_axle is True  # each axle's C_alpha, as vdp replay (LearnerConfig.per_axle)
 
 
 def test_per_axle_reaches_the_live_estimator(tmp_path):

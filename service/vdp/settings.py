@@ -85,7 +85,7 @@ class ServiceSettings:
     silence: float = 5.0  # s without any frame: the bus is reported silent
     diverged_hold: float = 60.0  # s /health stays degraded after a filter reset
     # stage 2 estimates the front and the rear cornering stiffness separately (LearnerConfig.per_axle)
-    per_axle: bool = False
+    per_axle: bool = True
 
 
 @dataclass(frozen=True)

@@ -49,11 +49,18 @@ def add_parser(sub):
     )
     p.add_argument("--no-ekf", action="store_true", help="no EKF baseline (the default; kept for scripts)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument(
+    axles = p.add_mutually_exclusive_group()
+    axles.add_argument(
         "--per-axle",
         action="store_true",
-        help="stage 2 estimates the front and the rear cornering stiffness separately (C_alpha is their "
-        "mean; each in C_alpha's extra); off: one C_alpha for both axles",
+        help="stage 2 estimates the front and the rear cornering stiffness separately (the default; C_alpha "
+        "is their mean, each axle in C_alpha's extra)",
+    )
+    axles.add_argument(
+        "--one-c",
+        action="store_true",
+        help="one cornering stiffness for both axles, as the paper (worse on a car whose axles differ: "
+        "BENCHMARKS.md, 'Stage 2 on the independent models')",
     )
     p.add_argument(
         "--per-frame",
@@ -131,7 +138,7 @@ def run(args) -> int:
     # the estimates' history is kept only for the plot: without one, memory stays flat on long logs
     # (at most PLOT_ROWS rows, thinned as the log goes on: ~1.5 KB each, and a plot has ~600 px per panel)
     cfg = EstimatorConfig(
-        learner=LearnerConfig(per_axle=args.per_axle),
+        learner=LearnerConfig(per_axle=not args.one_c),
         baseline=args.baseline == "ekf",
         trace_len=None if args.plot else 0,
         trace_max=PLOT_ROWS if args.plot else None,
