@@ -722,3 +722,34 @@ class LongitudinalUKF(_CompiledUKF):
         if status != OK:
             _raise("update", status)
         f.x, f.P, f.y, f.S = x, P, y, S
+
+
+def warm() -> None:
+    """Compile (or load) every kernel the learners call, on small inputs of the types they pass.
+
+    A fresh checkout compiles them at the first estimate (~15 s of CPU, once: the cache is
+    then on disk); deploy/bootstrap.sh runs this before the tests so that no test, and no
+    pair of Dask workers at once, pays it.
+    """
+    from .bounds import Bounds
+
+    lat = lateral.Known(m=1500.0, L=2.7, r=0.3, k_phi=6e4, c_phi=4e3, l_f=1.3, h=0.55, C_K=10.0)
+    b2 = Bounds(lateral.N_X, log=(lateral.C_F, lateral.C_R, lateral.I_Z, lateral.I_X))
+    x2 = b2.from_si(np.array([0.0, 0.1, 0.0, 0.0, 6e4, 6e4, 2000.0, 500.0, 1.3]))
+    f = LateralUKF(x2, np.eye(lateral.N_X) * 1e-4, np.eye(lateral.N_X) * 1e-8, np.eye(3) * 1e-4,
+                   np.ones(lateral.N_X), None, None, b2, lat, lateral.CONSIDER)  # fmt: skip
+    u = np.array([[0.02, 15.0, 50.0, 0.1]] * 3)
+    f.predict(0.04, u)
+    f.update(np.array([0.1, 0.0, 1.5]), np.array([True, False, True]), u[-1])
+    lon = longitudinal.Known(m=1500.0, L=2.7, r=0.3, J=1.0)
+    b1 = Bounds(longitudinal.N_X, log=(longitudinal.H, longitudinal.C_K), logit={longitudinal.L_F: (0.0, 2.7)})
+    x1 = b1.from_si(np.array([1.3, 0.55, 10.0, 0.0, 0.0, 0.0, 0.0]))
+    g = LongitudinalUKF(x1, np.eye(longitudinal.N_X) * 1e-4, np.eye(longitudinal.N_X) * 1e-9, np.eye(2) * 1e-4,
+                        np.ones(longitudinal.N_X), None, None, b1, lon)  # fmt: skip
+    u1 = np.array([100.0, 50.0, 0.5, 15.0, 0.05, 0.1, 0.1])
+    g.predict(0.1, u1)
+    g.update(np.array([50.2, 50.1]), np.ones(2, dtype=bool), u1)
+    U = np.tile(u1, (50, 1))
+    lon_solve(b1, lon, U, np.tile([50.2, 50.1], (50, 1)), np.tile(np.eye(2) * 1e-4, (50, 1, 1)), x1,
+              np.eye(longitudinal.N_X), [x1], iters=2)  # fmt: skip
+    lon_hx_rows(b1.to_si(x1), U, lon_known(lon))
