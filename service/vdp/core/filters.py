@@ -166,6 +166,10 @@ class UKF(JointFilter):
         return mean, d.T @ (self._Wc_col * d) + noise, d
 
     def predict(self, dt: float, u) -> None:
+        self._predict(dt, u)
+
+    def _predict(self, dt: float, u) -> None:
+        # (the step itself: core.kernels' compiled filters replace this, not predict)
         f = self._f
         c = self.consider
         held = None if c is None else f.x[c]

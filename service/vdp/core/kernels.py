@@ -672,7 +672,7 @@ class LateralUKF(_CompiledUKF):
             cls._grids[(rows, n)] = g
         return g
 
-    def predict(self, dt: float, u) -> None:
+    def _predict(self, dt: float, u) -> None:
         f = self._f
         us = np.asarray(u, dtype=float)
         if us.ndim == 1:
@@ -706,7 +706,7 @@ class LongitudinalUKF(_CompiledUKF):
     def __init__(self, x0, P0, Q_rate, R, scale, fx, hx, bounds, known: longitudinal.Known, consider=None):
         super().__init__(x0, P0, Q_rate, R, scale, fx, hx, bounds, lon_known(known), consider)
 
-    def predict(self, dt: float, u) -> None:
+    def _predict(self, dt: float, u) -> None:
         f = self._f
         x, P, sig, status = lon_predict(f.x, f.P, self._lam_n, self._Wm, self._Wc, self.Q_rate, self.scale, float(dt))
         if status != OK:
