@@ -530,9 +530,10 @@ REFIT_ROWS = 250  # new rows (10 s of windows) before an open window's fit is so
 class Check:
     """The learner's side: the record, the latest fit, and when to solve again.
 
-    A fit costs tens of ms per minute of windows, so it is solved when asked for (a
-    snapshot), and again only once REFIT_ROWS new rows have come or the window has closed:
-    a replay solves it once, a live service at most every 10 s of stage-2 windows.
+    A fit costs about 0.1 s of CPU per minute of windows kept, so it is solved when asked
+    for (a snapshot), and again only once enough new rows have come (:meth:`stale`) or the
+    window has closed: a replay solves it once, a live service at most every 10 s of
+    stage-2 windows (every 75 s with a full record).
     """
 
     def __init__(self, cap: int = MAX_ROWS):
@@ -542,8 +543,13 @@ class Check:
         self._open_at = -1
 
     def stale(self, window_open: bool) -> bool:
+        """Whether to solve again: new rows, and no fit yet, the window closed, or new rows
+        REFIT_ROWS and a quarter of those kept (a solve costs about in proportion to the
+        rows kept, so a long drive's live cost per row stays bounded: ~0.4 s of CPU for a
+        full record, three times that with the halves)."""
         new = self.record.added - self._at
-        return new > 0 and (self.fit is None or not window_open or new >= REFIT_ROWS)
+        every = max(REFIT_ROWS, self.record.rows // 4)
+        return new > 0 and (self.fit is None or not window_open or new >= every)
 
     def solve(self, k: lateral.Known, sigma, prior_t, prior_P, starts) -> Fit | None:
         self._at = self.record.added
