@@ -181,6 +181,7 @@ def test_record_is_bounded_and_drops_short_windows():
 
 def test_check_solves_again_only_when_stale():
     c = oe.Check()
+    assert c.as_dict() is None
     t, U, Z = drive(20.0, seed=6)
     c.record.open()
     for i in range(0, len(t), 2):
@@ -188,6 +189,8 @@ def test_check_solves_again_only_when_stale():
     assert c.stale(window_open=True)
     f = c.solve(K, SIGMA, PRIOR_T, PRIOR_P, [np.array([80000.0, 80000.0, 2200.0])])
     assert f is not None and not c.stale(window_open=True) and not c.stale(window_open=False)
+    d = c.as_dict()  # what the learners' diagnostics show of it
+    assert d["rows"] == c.record.rows and d["C_alpha_front"] == f.theta[0] and d["I_z_halves_spread"] == 0.0
     c.record.add(t[-1] + 0.04, U[-1].tolist(), Z[-1, 0], Z[-1, 1])
     assert not c.stale(window_open=True)  # one new row in an open window: the fit stands
     assert c.stale(window_open=False)  # the window closed: solve again

@@ -220,6 +220,7 @@ class TwoStageEstimator:
                     "all_windows": l2.total.as_dict(),
                     "roll_rate_row": l2.roll_total.as_dict(),
                     "model_mismatch": l2.mismatch()[1],
+                    "output_error_fit": l2.check.as_dict(),  # the batch check (core.output_error)
                 },
             }
         return out

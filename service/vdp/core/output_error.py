@@ -567,3 +567,17 @@ class Check:
             fit = None
         self.fit = fit
         return fit
+
+    def as_dict(self) -> dict | None:
+        """The latest fit, plainly (the learners' diagnostics), or None before any."""
+        f = self.fit
+        if f is None:
+            return None
+        spread = f.spread if f.spread is not None else np.zeros(N_THETA)
+        out = {"rows": f.rows, "chi2_per_dof": round(f.chi2, 3), "whiteness_lag1": round(f.rho, 3)}
+        for i, name in enumerate(("C_alpha_front", "C_alpha_rear", "I_z")):
+            out[name] = float(f.theta[i])
+            out[name + "_rel_std"] = round(math.sqrt(f.cov[i, i]), 4)
+            out[name + "_halves_spread"] = round(float(spread[i]), 4)
+        out["a_y_offset"] = round(f.offset, 4)
+        return out
