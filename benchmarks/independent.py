@@ -1,7 +1,7 @@
 """Accuracy of the estimator on vehicle models vdp did not write, beside vdp's own simulator.
 
     python benchmarks/independent.py --seeds 5 --jobs 2 [--cases brush/small,mb/bmw_320i] [--json runs.json]
-        [--one-c]
+        [--one-c] [--no-batch-check]
 
 Cases: ``brush/saloon``, ``brush/small`` (vdp.sim.independent.brush, first principles),
 ``mb/bmw_320i``, ``mb/vw_vanagon`` (CommonRoad's multi-body car, the ``bench`` extra),
@@ -155,7 +155,8 @@ def truth_value(name: str, truth: dict) -> float | None:
 
 
 def run_one(job) -> dict:
-    case, scenario, seed, noise, cache, prior_scale, per_axle = job
+    case, scenario, seed, noise, cache, prior_scale, per_axle, *rest = job
+    batch_check = rest[0] if rest else True
     import logging
 
     from vdp.core.estimator import EstimatorConfig
@@ -171,7 +172,8 @@ def run_one(job) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "drive.log"
         write_log(sim.frames(), log, sim.bus_channel)
-        pipe = Pipeline(profile, EstimatorConfig(learner=LearnerConfig(per_axle=per_axle)))
+        cfg = LearnerConfig(per_axle=per_axle, batch_check=batch_check)
+        pipe = Pipeline(profile, EstimatorConfig(learner=cfg))
         spent = [0.0]
         handle = pipe.estimator.handle
 
@@ -371,6 +373,11 @@ def main() -> int:
         help="stage 2 estimates each axle's C_alpha (the default; kept for old commands)",
     )
     ap.add_argument("--one-c", action="store_true", help="one C_alpha for both axles (LearnerConfig.per_axle off)")
+    ap.add_argument(
+        "--no-batch-check",
+        action="store_true",
+        help="stage 2's stds without its output-error batch check (LearnerConfig.batch_check off)",
+    )
     ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
     a = ap.parse_args()
     a.per_axle = not a.one_c
@@ -387,9 +394,9 @@ def main() -> int:
                 print(f"recorded {case} {a.scenario} in {wall:.0f} s", file=sys.stderr)
         jobs = []
         for c in cases:
-            jobs.append((c, a.scenario, 0, "none", a.cache, a.prior_scale, a.per_axle))
+            jobs.append((c, a.scenario, 0, "none", a.cache, a.prior_scale, a.per_axle, not a.no_batch_check))
             jobs += [
-                (c, a.scenario, s, "realistic", a.cache, a.prior_scale, a.per_axle)
+                (c, a.scenario, s, "realistic", a.cache, a.prior_scale, a.per_axle, not a.no_batch_check)
                 for s in range(a.first_seed, a.first_seed + a.seeds)
             ]
         runs = list(ex.map(run_one, jobs))

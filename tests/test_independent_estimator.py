@@ -140,14 +140,19 @@ def test_stage_2_runs_where_the_drive_excites_it(case, tmp_path_factory):
     assert any(w["stage"] == 2 for w in res["windows"])
 
 
-@pytest.mark.parametrize("name", ["C_alpha", "I_z"])
+@pytest.mark.parametrize("name", ["C_alpha", "I_z", "C_alpha_front", "C_alpha_rear"])
 @pytest.mark.parametrize("kind", ["parameters", "baseline_ekf"])
 @pytest.mark.parametrize("case", CASES)
 def test_target_stage_2_truth_within_2_sigma(case, kind, name, tmp_path_factory):
-    """Issue 11's +-2 sigma coverage for stage 2 (core.output_error's batch check widens a std the
-    model cannot support): before it, brush/small's UKF C_alpha was 2.3 sigma and its EKF I_z 2.1 sigma
-    from the truth on this drive."""
+    """Issue 11's +-2 sigma coverage for stage 2, per axle too (core.output_error's batch check widens a
+    std the model cannot support).  On these short drives at 8510aeb the filter's own stds hold the truth
+    as well (without the check, LearnerConfig(batch_check=False), the worst is 1.9 sigma: bmw_320i's EKF
+    rear axle); where the check is what covers it: tests/test_output_error.py and BENCHMARKS.md."""
     res, truth = _run(case, tmp_path_factory)
-    v, sd, _ = _est(res, name, kind)
-    t = truth["parameters"][name]
+    if name.startswith("C_alpha_"):  # per axle: in C_alpha's extra
+        x = res[kind]["C_alpha"]["extra"]
+        v, sd, t = x[name], x[name + "_std"], truth["per_axle"][name]
+    else:
+        v, sd, _ = _est(res, name, kind)
+        t = truth["parameters"][name]
     assert abs(v - t) <= 2 * sd, f"{name} {v:.4g} ± {sd:.2g}, truth {t:.4g}"

@@ -8,6 +8,11 @@ import pytest
 
 from vdp.core import lateral
 from vdp.core import output_error as oe
+from vdp.core.estimator import EstimatorConfig
+from vdp.core.learner import LearnerConfig
+from vdp.pipeline import Pipeline
+from vdp.profile import load_profile
+from vdp.sim.run import simulate
 
 K = lateral.Known(m=1500.0, L=2.6, r=0.3, k_phi=60000.0, c_phi=4000.0, l_f=1.2, h=0.5, C_K=10.0, per_axle=True)
 TRUTH = np.array([70000.0, 91000.0, 2500.0])  # C_alpha_f, C_alpha_r, I_z
@@ -156,9 +161,17 @@ def test_the_gentle_and_the_brisk_half_tell_a_bending_tyre():
 
 
 def test_fit_of_a_car_whose_axles_differ_finds_both():
-    """Per axle always: a one-C_alpha filter on such a car lands off (vdp/axles: +20 %), the fit does not."""
+    """Per axle always: a one-C_alpha filter on such a car lands off (vdp/axles: +20 %), the fit does not;
+    each axle's filter value is checked as the mean's is."""
     f = fit_of(record([drive(60.0, seed=5)]))
     np.testing.assert_allclose(f.theta[:2] / TRUTH[:2], 1.0, atol=0.03)
+    assert f.value("C_alpha_front") == f.theta[0] and f.value("C_alpha_rear") == f.theta[1]
+    assert f.rel_std("C_alpha_rear") == pytest.approx(math.sqrt(f.cov[1, 1]))
+    one = f.c_alpha  # a one-C_alpha filter's front axle: 10 % above the fit's, tight
+    wide, why = oe.compare("C_alpha_front", one, 0.01 * one, f, oe.Z_MAX)
+    assert why is not None and abs(one - f.theta[0]) <= wide
+    std, why = oe.compare("C_alpha_rear", f.theta[1], 0.01 * f.theta[1], f, oe.Z_MAX)
+    assert why is None and std == 0.01 * f.theta[1]
 
 
 def test_record_is_bounded_and_drops_short_windows():
@@ -194,3 +207,37 @@ def test_check_solves_again_only_when_stale():
     c.record.add(t[-1] + 0.04, U[-1].tolist(), Z[-1, 0], Z[-1, 1])
     assert not c.stale(window_open=True)  # one new row in an open window: the fit stands
     assert c.stale(window_open=False)  # the window closed: solve again
+
+
+@pytest.fixture(scope="module")
+def one_c_on_axles_that_differ(repo_root):
+    """vdp's own car with the rear axle 1.3x the front, estimated with one C_alpha for both
+    (per_axle off): the filter's model cannot fit it (on this drive C_alpha -12 %, 2.5-2.8 std from
+    the truth), the check's per-axle fit can.  Both filters, with and without the check: {check: result}."""
+    prof = load_profile(repo_root / "profiles" / "paper.toml")
+    prof = dataclasses.replace(prof, vehicle=dataclasses.replace(prof.vehicle, l_f=1.4, l_f_std=0.01))
+    axles = {"C_alpha_front": 58200.0, "C_alpha_rear": 75600.0}
+    frames, truth = simulate(prof, "stage2", seed=5, noise="realistic", duration=60.0, params=axles)
+    frames = list(frames)
+    out = {}
+    for check in (True, False):
+        pipe = Pipeline(prof, EstimatorConfig(learner=LearnerConfig(per_axle=False, batch_check=check)))
+        for msg in frames:
+            pipe.feed(msg)
+        out[check] = pipe.result().to_dict()
+    return out, truth["parameters"]
+
+
+@pytest.mark.parametrize("kind", ["parameters", "baseline_ekf"])
+def test_the_learner_widens_what_its_model_cannot_fit(one_c_on_axles_that_differ, kind):
+    res, truth = one_c_on_axles_that_differ
+    off, on = res[False][kind]["C_alpha"], res[True][kind]["C_alpha"]
+    assert off["value"] == on["value"]  # the check never moves a value, only its std
+    assert abs(off["value"] - truth["C_alpha"]) > 2 * off["std"], off  # the filter alone: confidently off
+    assert abs(on["value"] - truth["C_alpha"]) <= 2 * on["std"], on
+    for name in ("C_alpha", "I_z"):
+        e = res[True][kind][name]
+        assert abs(e["value"] - truth[name]) <= 2 * e["std"] and not e["valid"], (name, e)
+        assert e["reason"].startswith("model mismatch")
+    fit = res[True]["supervisor"]["learners"]["ukf" if kind == "parameters" else "ekf"]["stage2"]["output_error_fit"]
+    assert fit["C_alpha_rear"] / fit["C_alpha_front"] == pytest.approx(1.3, rel=0.05)  # the fit sees both axles

@@ -167,6 +167,9 @@ class LearnerConfig:
     # Stage 2's roll, eq (9), driven by the measured a_y (lateral.Known.roll_by_ay): the roll-rate
     # row then informs the roll states and I_x, not C_alpha and I_z
     roll_by_ay: bool = True
+    # Stage 2's batch check (core.output_error): C_alpha's and I_z's stds widen where an output-error
+    # fit of the windows disagrees with the filter or with itself (off: the filter's own stds)
+    batch_check: bool = True
     # Stage 1 reads C_K as the small-slip (initial) stiffness of a tyre law that bends
     # (core.longitudinal), so it takes only blocks where both axles use at most this share of
     # their load (|F_x| / F_z): beyond it the law's third-order series leaves the brush curve
@@ -1039,6 +1042,11 @@ class Stage2(StageLearner):
         corr = cov_fr / math.sqrt(var_f * var_r) if var_f > 0 and var_r > 0 else math.nan
         diff = factor * math.sqrt(max(var_f + var_r - 2.0 * cov_fr, 0.0))
         f, r = float(theta[0]), float(theta[1])
+        axle_why = None  # the batch check (core.output_error) per axle, as adjust() does for the mean
+        if self.cfg.batch_check and self.known is not None and (fit := self.batch_fit()) is not None:
+            sf, why_f = output_error.compare("C_alpha_front", f, sf, fit, output_error.Z_MAX)
+            sr, why_r = output_error.compare("C_alpha_rear", r, sr, fit, output_error.Z_MAX)
+            axle_why = why_f or why_r
         why = None
         if self.samples == 0:
             why = "stage 2 has not run"
@@ -1049,6 +1057,8 @@ class Stage2(StageLearner):
             )
         elif reason is not None:
             why = reason
+        elif axle_why is not None:
+            why = axle_why
         elif not valid:
             why = "the mean C_alpha is not valid"
         elif sf > AXLE_CONVERGED_REL * abs(f) or sr > AXLE_CONVERGED_REL * abs(r):
@@ -1197,7 +1207,7 @@ class Stage2(StageLearner):
           (their size or colour), the std widens by the roll row's own factor and takes
           ROLL_MODEL_ERROR of I_x as model error, and I_x is not valid, with the reason.
         """
-        if name in output_error.CHECKED and self.known is not None:
+        if name in output_error.CHECKED and self.known is not None and self.cfg.batch_check:
             fit = self.batch_fit()
             return (std, None) if fit is None else output_error.compare(name, value, std, fit, output_error.Z_MAX)
         if name != "I_x" or self.known is None or not (math.isfinite(value) and math.isfinite(std)):

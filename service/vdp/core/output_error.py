@@ -123,9 +123,10 @@ class Fit:
         return 0.5 * float(self.theta[0] + self.theta[1])
 
     def _w(self, name: str) -> np.ndarray:
-        """d ln(published) / d (ln C_f, ln C_r, ln I_z)."""
-        if name == "I_z":
-            return np.array([0.0, 0.0, 1.0])
+        """d ln(name) / d (ln C_f, ln C_r, ln I_z); C_alpha is the axles' mean."""
+        one = {"C_alpha_front": 0, "C_alpha_rear": 1, "I_z": 2}
+        if name in one:
+            return np.eye(N_THETA)[one[name]]
         return np.array([self.theta[0], self.theta[1], 0.0]) / (self.theta[0] + self.theta[1])
 
     def rel_std(self, name: str) -> float:
@@ -140,7 +141,9 @@ class Fit:
         return 0.0 if self.spread is None else 0.5 * float(abs(self._w(name)) @ self.spread)
 
     def value(self, name: str) -> float:
-        return self.c_alpha if name == "C_alpha" else float(self.theta[2])
+        """C_alpha (the axles' mean), C_alpha_front, C_alpha_rear or I_z."""
+        one = {"C_alpha_front": 0, "C_alpha_rear": 1, "I_z": 2}
+        return float(self.theta[one[name]]) if name in one else self.c_alpha
 
 
 class _Pre:
@@ -491,7 +494,7 @@ def spread(prob: Problem, fit: Fit, prior_t, prior_P) -> np.ndarray | None:
 
 
 def compare(name: str, value: float, std: float, fit: Fit, z_max: float) -> tuple[float, str | None]:
-    """The filter's (value, std) of C_alpha or I_z against the fit's: (std, reason or None).
+    """The filter's (value, std) of C_alpha, I_z or an axle's C_alpha against the fit's: (std, reason or None).
 
     - They disagree when their relative difference exceeds ``z_max`` times the two relative
       stds combined.  Then the data do not support one answer (the filter's rows, the roll
