@@ -1,13 +1,16 @@
 """CPU time of one bulk replay (UKF alone, no trace), of this checkout or another; or where it goes.
 
-    python benchmarks/replay_cpu.py LOG [--tree CHECKOUT] [--profile]
+    python benchmarks/replay_cpu.py LOG [--tree CHECKOUT] [--profile] [--numpy]
 
 Runs ``vdp.io.bulk.replay_log(LOG, bulk=True)`` with the paper profile, as
 ``vdp replay LOG`` does without ``--plot`` (and ``vdp batch`` per log), on the
 vdp of ``--tree`` (a git checkout or worktree of any commit; default this one),
 and prints its CPU time and two of its estimates.  ``--profile`` runs it under
 cProfile instead and prints where the time went (cumulative shares; cProfile
-inflates many small calls).
+inflates many small calls).  ``--numpy`` runs the learners' numpy filter steps instead of
+the compiled ones (LearnerConfig.compiled off: the reference, same estimates); ``--parts``
+prints, besides the whole replay, its CPU with parts of the estimator left out (their
+share without cProfile's inflation; the estimates then differ).
 """
 
 from __future__ import annotations
@@ -25,6 +28,8 @@ def main() -> int:
     ap.add_argument("log")
     ap.add_argument("--tree", type=Path, default=ROOT)
     ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--numpy", action="store_true", help="numpy's filter steps, not the compiled ones")
+    ap.add_argument("--parts", action="store_true", help="also the CPU with parts of the estimator left out")
     a = ap.parse_args()
     sys.path.insert(0, str(a.tree / "service"))
     from vdp.core.estimator import EstimatorConfig
@@ -33,9 +38,14 @@ def main() -> int:
     from vdp.profile import load_profile
 
     prof = load_profile(a.tree / "profiles" / "paper.toml")
+    cfg = EstimatorConfig(baseline=False, trace_len=0)
+    if a.numpy:
+        from dataclasses import replace
+
+        cfg = replace(cfg, learner=replace(cfg.learner, compiled=False))
 
     def run():
-        return replay_log(a.log, lambda: Pipeline(prof, EstimatorConfig(baseline=False, trace_len=0)), bulk=True)[0]
+        return replay_log(a.log, lambda: Pipeline(prof, cfg), bulk=True)[0]
 
     if a.profile:
         import cProfile
@@ -74,8 +84,42 @@ def main() -> int:
     res = run()
     cpu = time.process_time() - t0
     p = res.parameters
-    print(f"{a.tree}: {cpu:.2f} s of CPU; l_f {p['l_f'].value:.6f}, C_alpha {p['C_alpha'].value:.2f}")
+    print(f"{a.tree}: {cpu:.2f} s of CPU; l_f {p['l_f'].value:.6f}, C_alpha {p['C_alpha'].value:.2f}", flush=True)
+    if a.parts:
+        parts(run, cpu)
     return 0
+
+
+def parts(run, full: float) -> None:
+    """The replay again with parts of the estimator left out, in the same process (warm)."""
+    from vdp.core import learner as lm
+    from vdp.core.estimator import TwoStageEstimator
+    from vdp.core.supervisor import Supervisor
+
+    def cpu():
+        t0 = time.process_time()
+        run()
+        return time.process_time() - t0
+
+    saved = (lm.Stage1.check_batch, lm.Stage2.handle, lm.Stage1.handle, TwoStageEstimator.l_f_known)
+    rows = [("whole replay (again, warm)", cpu())]
+    lm.Stage1.check_batch = lambda self: None
+    rows.append(("without stage 1's batch check", cpu()))
+    lm.Stage2.handle = lambda self, t, s: None
+    rows.append(("... and without stage 2", cpu()))
+    lm.Stage1.handle = lambda self, t, s: None
+    TwoStageEstimator.l_f_known = lambda self: False
+    rows.append(("... and without stage 1 (supervisor, speed, glue left)", cpu()))
+    su = Supervisor.update
+    Supervisor.update = lambda self, t, s, done: None
+    rows.append(("... and without the supervisor", cpu()))
+    handle = TwoStageEstimator.handle
+    TwoStageEstimator.handle = lambda self, t, s: s
+    rows.append(("front only (reader, decoder, aligner)", cpu()))
+    TwoStageEstimator.handle, Supervisor.update = handle, su
+    lm.Stage1.check_batch, lm.Stage2.handle, lm.Stage1.handle, TwoStageEstimator.l_f_known = saved
+    for label, t in rows:
+        print(f"{label:58} {t:6.2f} s of CPU")
 
 
 if __name__ == "__main__":
