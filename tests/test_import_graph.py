@@ -60,6 +60,7 @@ ALLOWED = {
 CORE_MAY_IMPORT = {"numpy", "scipy", "math", "dataclasses", "typing", "collections", "functools"}
 CORE_MAY_IMPORT |= {"logging", "__future__"}
 CORE_MAY_IMPORT |= {"numba"}  # core.kernels: the compiled filter steps, imported at the first filter
+CORE_MAY_IMPORT |= {"hashlib", "pathlib"}  # core.kernels: its cache directory, named by a hash of the models' sources
 
 
 def module_name(path: Path) -> str:

@@ -16,7 +16,8 @@ holds both paths to the same numbers (models, filter steps, and the estimates of
 drives); a change to the models there must be followed here, and that test says so.
 
 Every function is compiled on first use and cached on disk (``cache=True``: the next
-process loads it instead of compiling).  The learners import this module only when they
+process loads it instead of compiling), in a directory named by a hash of the model
+sources (``_cache_dir``).  The learners import this module only when they
 build their first filter (numba's import costs ~0.5 s), and take the numpy path when
 numba cannot be imported or ``LearnerConfig.compiled`` is off.  Small matrix products are
 loops here, not BLAS, so nothing pulls in scipy's BLAS wrappers.
@@ -25,12 +26,15 @@ loops here, not BLAS, so nothing pulls in scipy's BLAS wrappers.
 from __future__ import annotations
 
 import collections
+import hashlib
 import logging
 import math
 import typing
+from pathlib import Path
 
 import numpy as np
 from numba import njit
+from numba.core import config as _numba_config
 
 from ..errors import FilterError
 from . import lateral, longitudinal
@@ -75,6 +79,25 @@ def transforms(bounds) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return kind, lo, span
 
 
+def _cache_dir() -> str:
+    """Where the compiled code is cached: a directory named by a hash of the model sources.
+
+    numba invalidates a cached function when its own file changes, not when a function it
+    calls from another file does, nor a module constant it read (numba's caching notes):
+    a change to core/lateral.py or core/longitudinal.py would otherwise leave the old
+    physics compiled here.  Under NUMBA_CACHE_DIR when that is set, else beside this file
+    (numba falls back to its user-wide cache where that is read-only).
+    """
+    h = hashlib.sha1()
+    for f in (__file__, lateral.__file__, longitudinal.__file__):
+        h.update(Path(f).read_bytes())
+    base = Path(_numba_config.CACHE_DIR) if _numba_config.CACHE_DIR else Path(__file__).parent / "__pycache__"
+    return str(base / f"kernels-{h.hexdigest()[:12]}")
+
+
+# numba picks a function's cache directory when it is decorated: set for this module's only
+_user_cache_dir = _numba_config.CACHE_DIR
+_numba_config.CACHE_DIR = _cache_dir()
 _jit = njit(cache=True, nogil=True)
 
 # the physics, compiled from core.lateral's own source
@@ -626,6 +649,9 @@ def lon_update(x, P, sig, Wm, Wc, R, scale, kind, lo, span, z, u, k):
         _to_si(t, kind, lo, span, s)
         _lon_hx(s, u, k, hz[i])
     return _gain_step(x, P, sig, hz, z, R, Wm, Wc, -1)
+
+
+_numba_config.CACHE_DIR = _user_cache_dir
 
 
 # -- the filters: core.filters.UKF with its steps compiled ---------------------------
