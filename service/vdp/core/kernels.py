@@ -462,28 +462,63 @@ def _lon_hx(x, u, k, out):
 
 
 @_jit
-def lon_hx_rows(x, U, k):
-    """longitudinal.hx of one SI state on many blocks' inputs (stage 1's batch check)."""
-    out = np.empty((U.shape[0], 2))
+def _lon_forces(U, k):
+    """Each block's tyre forces (eq 2 solved, longitudinal.tyre_forces): they do not depend
+    on the parameters, so the batch check takes them once per solve."""
+    F = np.empty((U.shape[0], 2))
     for i in range(U.shape[0]):
-        _lon_hx(x, U[i], k, out[i])
+        F[i, 0] = (U[i, longitudinal.U_TF] - k.J * U[i, longitudinal.U_WDF]) / k.r
+        F[i, 1] = (U[i, longitudinal.U_TR] - k.J * U[i, longitudinal.U_WDR]) / k.r
+    return F
+
+
+@_jit
+def _lon_rows(x, U, F, k, out):
+    """_lon_hx on every block, what does not change from block to block taken once (the
+    same operations on the same operands: the same floats)."""
+    l_f, h = x[longitudinal.L_F], x[longitudinal.H]
+    mg = k.m * k.g
+    lo_ = MIN_LOAD * mg
+    zf0 = mg * (k.L - l_f) / k.L
+    zr0 = mg * l_f / k.L
+    c_k = max(x[longitudinal.C_K], 1e-3)
+    if x.shape[0] > longitudinal.BEND:
+        b, c, s0f, s0r = x[longitudinal.BEND], x[longitudinal.CUBIC], x[longitudinal.S_0F], x[longitudinal.S_0R]
+    else:
+        b, c, s0f, s0r = 0.0, 0.0, 0.0, 0.0
+    for i in range(U.shape[0]):
+        shift = k.m * U[i, longitudinal.U_AX] * h / k.L
+        u_f = F[i, 0] / max(zf0 - shift, lo_)
+        u_r = F[i, 1] / max(zr0 + shift, lo_)
+        a_f, a_r = abs(u_f), abs(u_r)
+        s_f = s0f + u_f / c_k * (1.0 + b * a_f + c * a_f * a_f)
+        s_r = s0r + u_r / c_k * (1.0 + b * a_r + c * a_r * a_r)
+        v = U[i, longitudinal.U_VX]
+        out[i, 0] = v * (1.0 + s_f) / k.r
+        out[i, 1] = v * (1.0 + s_r) / k.r
+
+
+@_jit
+def lon_hx_rows(x, U, k):
+    """longitudinal.hx of one SI state on many blocks' inputs, as the batch check evaluates it."""
+    out = np.empty((U.shape[0], 2))
+    _lon_rows(x, U, _lon_forces(U, k), k, out)
     return out
 
 
 @_jit
-def _lon_h(t, U, kind, lo, span, k, out):
+def _lon_h(t, U, F, kind, lo, span, k, out):
     """longitudinal.hx of transformed parameters t on every block (the batch check's h)."""
     x = np.empty(t.shape[0])
     _to_si(t, kind, lo, span, x)
-    for i in range(U.shape[0]):
-        _lon_hx(x, U[i], k, out[i])
+    _lon_rows(x, U, F, k, out)
 
 
 @_jit
-def _lon_cost(t, U, Z, W, prior_t, P0i, kind, lo, span, k):
+def _lon_cost(t, U, F, Z, W, prior_t, P0i, kind, lo, span, k):
     """core.batch.solve's cost: (data + prior term, data, residuals r = Z - h(t))."""
     r = np.empty(Z.shape)
-    _lon_h(t, U, kind, lo, span, k, r)
+    _lon_h(t, U, F, kind, lo, span, k, r)
     data = 0.0
     for i in range(Z.shape[0]):
         r0, r1 = Z[i, 0] - r[i, 0], Z[i, 1] - r[i, 1]
@@ -494,9 +529,9 @@ def _lon_cost(t, U, Z, W, prior_t, P0i, kind, lo, span, k):
 
 
 @_jit
-def _lon_normal(t, base, r, U, W, P0i, prior_t, kind, lo, span, k, J, want_g):
+def _lon_normal(t, base, r, U, F, W, P0i, prior_t, kind, lo, span, k, J, want_g):
     """H = J'WJ + P0^-1 and g = J'Wr - P0^-1 (t - t0), J by core.batch.solve's forward differences
-    from ``base`` (its Z - r)."""
+    from ``base`` (its Z - r).  J'WJ is symmetric: its upper triangle, mirrored."""
     n = t.shape[0]
     N = U.shape[0]
     hp = np.empty((N, 2))
@@ -505,11 +540,11 @@ def _lon_normal(t, base, r, U, W, P0i, prior_t, kind, lo, span, k, J, want_g):
         e = 1e-6 * max(1.0, abs(t[i]))
         tp[:] = t
         tp[i] += e
-        _lon_h(tp, U, kind, lo, span, k, hp)
+        _lon_h(tp, U, F, kind, lo, span, k, hp)
         for m in range(N):
             J[m, 0, i] = (hp[m, 0] - base[m, 0]) / e
             J[m, 1, i] = (hp[m, 1] - base[m, 1]) / e
-    H = P0i.copy()
+    D = np.zeros((n, n))
     g = np.zeros(n)
     if want_g:
         g = -_mv(P0i, t - prior_t)
@@ -518,11 +553,14 @@ def _lon_normal(t, base, r, U, W, P0i, prior_t, kind, lo, span, k, J, want_g):
         for a in range(n):
             wa0 = J[m, 0, a] * w00 + J[m, 1, a] * w10  # (J' W)[a, 0]
             wa1 = J[m, 0, a] * w01 + J[m, 1, a] * w11
-            for b in range(n):
-                H[a, b] += wa0 * J[m, 0, b] + wa1 * J[m, 1, b]
+            for b in range(a, n):
+                D[a, b] += wa0 * J[m, 0, b] + wa1 * J[m, 1, b]
             if want_g:
                 g[a] += wa0 * r[m, 0] + wa1 * r[m, 1]
-    return H, g
+    for a in range(n):
+        for b in range(a):
+            D[a, b] = D[b, a]
+    return D + P0i, g
 
 
 @_jit
@@ -562,12 +600,13 @@ def lon_lm(t, U, Z, W, prior_t, P0i, iters, kind, lo, span, k):
     (finite start, t, cost, data, r, H at the end)."""
     n = t.shape[0]
     J = np.empty((U.shape[0], 2, n))
-    c, data, r = _lon_cost(t, U, Z, W, prior_t, P0i, kind, lo, span, k)
+    F = _lon_forces(U, k)
+    c, data, r = _lon_cost(t, U, F, Z, W, prior_t, P0i, kind, lo, span, k)
     if not math.isfinite(c):
         return False, t, c, data, r, P0i
     lam = 1e-3
     for _ in range(iters):
-        H, g = _lon_normal(t, Z - r, r, U, W, P0i, prior_t, kind, lo, span, k, J, True)
+        H, g = _lon_normal(t, Z - r, r, U, F, W, P0i, prior_t, kind, lo, span, k, J, True)
         step_ok = False
         dt = np.zeros(n)
         while lam < 1e8:
@@ -578,7 +617,7 @@ def lon_lm(t, U, Z, W, prior_t, P0i, iters, kind, lo, span, k):
             if not ok:
                 lam *= 10.0
                 continue
-            c2, data2, r2 = _lon_cost(t + dt, U, Z, W, prior_t, P0i, kind, lo, span, k)
+            c2, data2, r2 = _lon_cost(t + dt, U, F, Z, W, prior_t, P0i, kind, lo, span, k)
             if math.isfinite(c2) and c2 <= c:
                 t, c, data, r = t + dt, c2, data2, r2
                 lam = max(lam / 10.0, 1e-9)
@@ -587,7 +626,7 @@ def lon_lm(t, U, Z, W, prior_t, P0i, iters, kind, lo, span, k):
             lam *= 10.0
         if not step_ok or np.max(np.abs(dt)) < 1e-7:
             break
-    H, _ = _lon_normal(t, Z - r, r, U, W, P0i, prior_t, kind, lo, span, k, J, False)
+    H, _ = _lon_normal(t, Z - r, r, U, F, W, P0i, prior_t, kind, lo, span, k, J, False)
     return True, t, c, data, r, H
 
 
