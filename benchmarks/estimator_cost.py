@@ -1,12 +1,13 @@
 """CPU time of the estimator against the whole in-memory pipeline, on the `paper` drive.
 
-    PYTHONPATH=TREE/service python benchmarks/estimator_cost.py LABEL [--per-axle]
+    PYTHONPATH=TREE/service python benchmarks/estimator_cost.py LABEL [--per-axle] [--no-batch-check]
 
 Run it with PYTHONPATH on two trees (say, before and after a change), back to back: it
 prints, per seed, the pipeline's CPU time (with the final result, as a replay ends), the
 part spent inside ``TwoStageEstimator.handle`` and in that final result (stage 2's batch
 check is solved when a result is asked for), and that part's share.  ``--per-axle``: stage 2 estimates
-each axle's cornering stiffness (LearnerConfig.per_axle; a tree that has it).
+each axle's cornering stiffness (LearnerConfig.per_axle; a tree that has it);
+``--no-batch-check``: without stage 2's output-error batch check (LearnerConfig.batch_check).
 """
 
 from __future__ import annotations
@@ -26,13 +27,17 @@ def main() -> int:
 
     logging.disable(logging.WARNING)
     prof = load_profile(ROOT / "profiles" / "paper.toml")
-    args = [a for a in sys.argv[1:] if a != "--per-axle"]
+    flags = ("--per-axle", "--no-batch-check")
+    args = [a for a in sys.argv[1:] if a not in flags]
     cfg = None
-    if "--per-axle" in sys.argv:
+    if any(f in sys.argv for f in flags):
         from vdp.core.estimator import EstimatorConfig
         from vdp.core.learner import LearnerConfig
 
-        cfg = EstimatorConfig(learner=LearnerConfig(per_axle=True))
+        kw = {"batch_check": False} if "--no-batch-check" in sys.argv else {}
+        if "--per-axle" in sys.argv:
+            kw["per_axle"] = True
+        cfg = EstimatorConfig(learner=LearnerConfig(**kw))
     cells = []
     for seed in (1, 2):
         frames = list(simulate(prof, "paper", seed=seed, noise="realistic")[0])

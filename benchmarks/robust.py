@@ -1,6 +1,6 @@
 """Robustness of the estimator on vdp's own simulator: car sets x prior scales x seeds.
 
-    python benchmarks/robust.py --cars paper,small,suv --scales 0.6,1,1.6 --seeds 3 --jobs 2 [-v]
+    python benchmarks/robust.py --cars paper,small,suv --scales 0.6,1,1.6 --seeds 3 --jobs 2 [-v] [--no-batch-check]
         [--one-c] [--axle-ratio 1.3] [--axle-split 0.5]
 
 Each car set is the paper profile's bus layout (dbc/vdp.dbc) with the car's known
@@ -86,7 +86,8 @@ def car_profile(car: str, scale: float):
 
 
 def run_one(args) -> dict:
-    car, scale, seed, noise, per_axle, ratio, split = args
+    car, scale, seed, noise, per_axle, ratio, split, *rest = args
+    batch_check = rest[0] if rest else True
     import logging
 
     from vdp.core import learner
@@ -105,7 +106,7 @@ def run_one(args) -> dict:
     axles = {"C_alpha_front": 2.0 * c / (1.0 + ratio), "C_alpha_rear": 2.0 * c * ratio / (1.0 + ratio)}
     frames, _ = simulate(prof, "paper", seed=seed, noise=noise, params={**params, **axles})
     truth.update(axles)
-    pipe = Pipeline(prof, EstimatorConfig(learner=LearnerConfig(per_axle=per_axle)))
+    pipe = Pipeline(prof, EstimatorConfig(learner=LearnerConfig(per_axle=per_axle, batch_check=batch_check)))
     t0 = time.process_time()
     for msg in frames:
         pipe.feed(msg)
@@ -176,6 +177,9 @@ def main() -> int:
     ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
     ap.add_argument("--per-axle", action="store_true", help="stage 2 estimates each axle's C_alpha (the default)")
     ap.add_argument("--one-c", action="store_true", help="one C_alpha for both axles (LearnerConfig.per_axle off)")
+    ap.add_argument(
+        "--no-batch-check", action="store_true", help="without stage 2's output-error batch check (before/after)"
+    )
     ap.add_argument("--axle-ratio", type=float, default=1.0, help="simulated rear/front cornering stiffness")
     ap.add_argument(
         "--axle-split", type=float, help="prior std of the axles' half-difference / C_alpha's (learner.AXLE_SPLIT)"
@@ -189,7 +193,10 @@ def main() -> int:
     scales = [float(s) for s in a.scales.split(",")]
     seeds = range(a.first_seed, a.first_seed + a.seeds)
     jobs = [
-        (c, s, seed, a.noise, a.per_axle, a.axle_ratio, a.axle_split) for c in cars for s in scales for seed in seeds
+        (c, s, seed, a.noise, a.per_axle, a.axle_ratio, a.axle_split, not a.no_batch_check)
+        for c in cars
+        for s in scales
+        for seed in seeds
     ]
     with ProcessPoolExecutor(max_workers=a.jobs) as ex:
         runs = list(ex.map(run_one, jobs))
