@@ -308,16 +308,7 @@ def paper_run(name: str, tmp_path_factory) -> tuple[RunResult, dict]:
     "name,stage",
     [
         ("toyota_rav4", 1),
-        pytest.param(
-            "toyota_rav4",
-            2,
-            marks=pytest.mark.xfail(
-                strict=False,
-                reason="stage 2 takes the profile's measured l_f, 1.17 +- 0.08 m (truth 1.20): per axle (the "
-                "default since lat's change) C_alpha's mean carries that 7 % std and the -2.5 % error, -4.5 % with "
-                'std 6.5 % (uncertain); one C_alpha: -1.3 % (BENCHMARKS.md, "Stage 2 on the independent models")',
-            ),
-        ),
+        ("toyota_rav4", 2),
         ("vw_golf_mk7", 1),
         ("vw_golf_mk7", 2),
         ("hyundai_elantra_2017", 1),
@@ -332,6 +323,12 @@ def test_paper_drive_converges_on_the_cars_layout(name, stage, tmp_path_factory)
         assert car(name).channels["steering_angle"].fine == "STEER_FRACTION"
     for p in STAGES[stage]:
         est = res.parameters[p]
+        if name == "toyota_rav4" and stage == 2 and not est.valid:
+            # stage 2 takes the profile's l_f, 1.17 +- 0.08 m (truth 1.20), and carries that 7 % std:
+            # per axle, C_alpha's mean is not pinned to 3 % (-4.5 %, std 6.5 %; BENCHMARKS.md, "Stage 2
+            # on the independent models"); it must then say so, with the truth inside its 2 std
+            assert est.status != "converged" and abs(est.value - truth[p]) <= 2.0 * est.std, (p, est, truth[p])
+            continue
         assert est.value == pytest.approx(truth[p], rel=TOLERANCE[p]), (p, est, truth[p])
         # And not by luck: the filter's own std is inside the tolerance.  Not half of it, which
         # is what "converged" asks (params.py): the RAV4, heavier and stiffer, gets a C_alpha
