@@ -241,3 +241,29 @@ def test_the_learner_widens_what_its_model_cannot_fit(one_c_on_axles_that_differ
         assert e["reason"].startswith("model mismatch")
     fit = res[True]["supervisor"]["learners"]["ukf" if kind == "parameters" else "ekf"]["stage2"]["output_error_fit"]
     assert fit["C_alpha_rear"] / fit["C_alpha_front"] == pytest.approx(1.3, rel=0.05)  # the fit sees both axles
+
+
+def test_bad_records_give_no_fit_or_a_fit_never_an_error():
+    """Missing yaw rate or a_y rows, repeated time stamps, a window too short to keep, all rows
+    missing: the check answers (a fit or None) and never raises into the learner's snapshot."""
+    t, U, Z = drive(20.0, seed=8)
+    cases = []
+    Z1 = Z.copy()
+    Z1[::3, 1] = np.nan  # a_y missing on a third of the rows
+    cases.append((t, U, Z1))
+    t2 = t.copy()
+    t2[10:20] = t2[10]  # a clock that stood still
+    cases.append((t2, U, Z))
+    cases.append((t, U, np.full_like(Z, np.nan)))  # nothing measured
+    for tt, UU, ZZ in cases:
+        c = oe.Check()
+        c.record.open()
+        for i in range(0, len(tt), 2):
+            c.record.add(tt[i], UU[i].tolist(), ZZ[i, 0], ZZ[i, 1])
+        f = c.solve(K, SIGMA, PRIOR_T, PRIOR_P, [np.array([80000.0, 80000.0, 2200.0])])
+        assert f is None or np.all(np.isfinite(f.theta))
+    short = oe.Check()
+    short.record.open()
+    for i in range(0, 60, 2):  # 30 rows: shorter than a window kept
+        short.record.add(t[i], U[i].tolist(), Z[i, 0], Z[i, 1])
+    assert short.solve(K, SIGMA, PRIOR_T, PRIOR_P, [np.array([80000.0, 80000.0, 2200.0])]) is None
