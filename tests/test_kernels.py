@@ -267,3 +267,15 @@ def test_stage1_keeps_its_blocks_oldest_first_and_the_newest_only():
         for got, i in zip(ring.arrays(), range(3)):
             assert np.array_equal(got, np.array([b[i] for b in ref]))
     assert len(ring) == len(ref) == 50
+
+
+def test_a_replay_says_when_it_compiles_the_steps_first(monkeypatch, capsys):
+    from vdp.cli.replay import compile_note
+
+    kernels.warm()
+    assert kernels.cached()  # warm() left them on disk: nothing to say
+    compile_note()
+    assert capsys.readouterr().out == ""
+    monkeypatch.setattr(kernels, "cached", lambda: False)  # a fresh checkout
+    compile_note()
+    assert "compiling the estimator's filter steps once" in capsys.readouterr().out

@@ -335,6 +335,10 @@ def run(args) -> int:
     if pending:
         from distributed import as_completed
 
+        from .replay import compile_note
+
+        compile_note(warm=args.scheduler is None)  # local workers then load them from the cache
+
         cl, cluster = client(args)
         try:
             print(f"dask: {len(cl.scheduler_info()['workers'])} workers at {cl.scheduler.address}")

@@ -70,6 +70,22 @@ def add_parser(sub):
     return p
 
 
+def compile_note(warm: bool = False) -> None:
+    """Say so when this checkout's compiled filter steps are not cached yet: the first replay
+    compiles them (~20 s of CPU, once), which would otherwise look like a hang.  ``warm``:
+    compile them here and now (vdp batch, before its workers would each compile them)."""
+    try:
+        from ..core import kernels
+    except ImportError:  # no numba: the numpy steps run, nothing to compile
+        return
+    if kernels.cached():
+        return
+    print("compiling the estimator's filter steps once (about 20 s of CPU; later runs load them from the cache)")
+    sys.stdout.flush()
+    if warm:
+        kernels.warm()
+
+
 def default_profile() -> Path:
     """profiles/paper.toml from the working directory, else from the source checkout."""
     for base in (Path.cwd(), Path(__file__).resolve().parents[3]):
@@ -143,6 +159,7 @@ def run(args) -> int:
         trace_len=None if args.plot else 0,
         trace_max=PLOT_ROWS if args.plot else None,
     )
+    compile_note()
     try:
         size = Path(args.log).stat().st_size
     except OSError:

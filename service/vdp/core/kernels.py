@@ -789,6 +789,11 @@ class LongitudinalUKF(_CompiledUKF):
         f.x, f.P, f.y, f.S = x, P, y, S
 
 
+def cached() -> bool:
+    """Whether this checkout's kernels are compiled and on disk (False: the first estimate compiles them)."""
+    return any(Path(_numba_config.CACHE_DIR).rglob("*.nbi"))
+
+
 def warm() -> None:
     """Compile (or load) every kernel the learners call, on small inputs of the types they pass.
 
