@@ -269,10 +269,11 @@ def test_stage1_keeps_its_blocks_oldest_first_and_the_newest_only():
     assert len(ring) == len(ref) == 50
 
 
-def test_a_replay_says_when_it_compiles_the_steps_first(monkeypatch, capsys):
+def test_a_replay_says_when_it_compiles_the_steps_first(monkeypatch, capsys, tmp_path):
     from vdp.cli.replay import compile_note
 
     kernels.warm()
+    monkeypatch.chdir(tmp_path)  # a user replays from anywhere, not from the checkout
     assert kernels.cached()  # warm() left them on disk: nothing to say
     compile_note()
     assert capsys.readouterr().out == ""

@@ -97,7 +97,8 @@ def _cache_dir() -> str:
 
 # numba picks a function's cache directory when it is decorated: set for this module's only
 _user_cache_dir = _numba_config.CACHE_DIR
-_numba_config.CACHE_DIR = _cache_dir()
+_KERNEL_CACHE = _cache_dir()
+_numba_config.CACHE_DIR = _KERNEL_CACHE
 _jit = njit(cache=True, nogil=True)
 
 # the physics, compiled from core.lateral's own source
@@ -790,8 +791,11 @@ class LongitudinalUKF(_CompiledUKF):
 
 
 def cached() -> bool:
-    """Whether this checkout's kernels are compiled and on disk (False: the first estimate compiles them)."""
-    return any(Path(_numba_config.CACHE_DIR).rglob("*.nbi"))
+    """Whether this checkout's kernels are compiled and on disk (False: the first estimate compiles them).
+
+    Looks where they were decorated to go, not at numba's config now: that is the user's
+    again (empty by default), and an empty path would search the working directory."""
+    return any(Path(_KERNEL_CACHE).rglob("*.nbi"))
 
 
 def warm() -> None:
