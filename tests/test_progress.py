@@ -115,6 +115,19 @@ def test_a_flagged_estimate_is_not_learnt_whatever_its_std():
     assert out["progress"] < 1.0 and "model mismatch" in out["hint"] and out["hint"].startswith("not valid")
 
 
+def test_a_parameter_the_drive_did_not_excite_is_not_called_a_model_mismatch():
+    quiet = {
+        "value": 3300.0,
+        "std": 1500.0,
+        "status": "not_identifiable",
+        "valid": False,
+        "samples": 900,
+        "reason": "roll not excited: quick steering reversals at speed excite the roll",
+    }
+    hint = progress.assess(snap(I_x=quiet), PRIORS, 0.02)["parameters"]["I_x"]["hint"]
+    assert hint.startswith("not valid: roll not excited") and "differs from the model" not in hint
+
+
 def test_next_names_the_stage_behind_or_the_one_being_driven():
     conv = {"value": 1.4, "std": 0.001, "status": "converged", "samples": 900}
     half = {"value": 10.0, "std": 0.5, "status": "uncertain", "samples": 900}

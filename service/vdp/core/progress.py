@@ -189,6 +189,9 @@ def _hint(name, stage, status, p, to_go, prior_std, why_not, reasons, excitation
     if why_not:
         return f"cannot be learnt on this car: {why_not}"
     if p.get("reason") is not None and not p.get("valid", status == CONVERGED) and status != INVALID:
+        if "mismatch" not in p["reason"]:
+            # e.g. I_x's "roll not excited: ...": other driving can fix it, and its reason says which
+            return f"not valid: {p['reason']}"
         return f"not valid: {p['reason']}; more of the same driving will not fix it, the car differs from the model"
     if status == CONVERGED:
         rel = (p.get("std") or 0) / abs(p["value"]) if p.get("value") else 0
