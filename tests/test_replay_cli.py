@@ -142,3 +142,13 @@ def test_the_plots_trace_is_thinned_not_grown(drive, repo_root, monkeypatch):
     png = log.parent / "thin.png"
     assert main(["replay", str(log), "--profile", str(repo_root / "profiles" / "paper.toml"), "--plot", str(png)]) == 0
     assert seen["trace_max"] == replay_cli.PLOT_ROWS and png.stat().st_size > 20000
+
+
+def test_the_readmes_profile_path_works_from_any_directory(drive, monkeypatch, capsys):
+    d, log = drive
+    monkeypatch.chdir(d)  # not the checkout: profiles/paper.toml is the shipped one
+    assert main(["replay", str(log), "--profile", "profiles/paper.toml", "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["replay", str(log), "--profile", "profiles/nosuch.toml", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "no such profile file" in err and str(d) in err

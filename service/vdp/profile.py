@@ -525,7 +525,7 @@ def load_profile(path: str | Path) -> Profile:
     path = Path(path)
     where = str(path)
     if not path.is_file():
-        raise ProfileError(f"{where}: no such profile file (try profiles/paper.toml)")
+        raise ProfileError(f"{where}: no such profile file (a relative path is read from {Path.cwd()})")
     if path.stat().st_size > _MAX_PROFILE:
         raise ProfileError(f"{where}: {path.stat().st_size:,} bytes is not a profile (at most {_MAX_PROFILE:,})")
     try:

@@ -95,6 +95,17 @@ def default_profile() -> Path:
     raise ConfigError("no --profile given and profiles/paper.toml not found; pass --profile PATH")
 
 
+def profile_path(given: str) -> Path:
+    """A --profile as given, else (relative and not in the working directory) from the source
+    checkout, as `vdp simulate` reads it: the README's `--profile profiles/paper.toml` then works
+    from any directory."""
+    p = Path(given)
+    if p.is_file() or p.is_absolute():
+        return p
+    q = Path(__file__).resolve().parents[3] / p
+    return q if q.is_file() else p
+
+
 class Progress:
     """A one-line progress bar on stderr, only on a terminal."""
 
@@ -143,7 +154,7 @@ def run(args) -> int:
     ):
         if path:
             check_output(path, flag, suffixes)
-    profile = load_profile(args.profile or default_profile())
+    profile = load_profile(profile_path(args.profile) if args.profile else default_profile())
     # the profile self-check reads the log's first minutes; a log of another car stops here
     check, cov = profilecheck.check_log(args.log, profile)
     if cov.missing:  # fewer than half seen stopped check_log; a few missing still cost their channels
