@@ -262,6 +262,13 @@ def test_bad_line_skipped_counted_strict(tmp_path, case):
         read(p, strict=True)
 
 
+def test_the_skipped_lines_warning_names_the_first_ones_line(tmp_path, caplog):
+    p = write(tmp_path, f"{GOOD_A}\n(1700000000.001000) can0 123#ABC\n{GOOD_B}\n")
+    with caplog.at_level("WARNING", logger="vdp.io.logs"):
+        read(p)
+    assert "skipped 1 bad line (odd number of data hex digits: 1; first at line 2)" in caplog.text
+
+
 def test_examples_capped_counts_exact(tmp_path):
     lines = [GOOD_A] + ["(1700000000.001000) can0 123#XYZW"] * 150 + [GOOD_B]
     frames, src = read(write(tmp_path, "\n".join(lines) + "\n"))

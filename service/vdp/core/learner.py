@@ -338,7 +338,7 @@ def _verdict(c: Consistency, size: str, colour: str, kind: str) -> tuple[float, 
     if nis > NIS_MISMATCH:
         why.append(f"{size} {math.sqrt(nis / NIS_MATCHED):.1f}x the size a matching model leaves")
     if rho is not None and rho > RHO_MISMATCH_2:
-        why.append(f"{colour} not white (lag-1 correlation {rho:.2f} > {RHO_MISMATCH_2})")
+        why.append(f"{colour} not white (lag-1 correlation {rho:.3f} > {RHO_MISMATCH_2})")
     return _widen(rho, nis), (f"{kind}: " + "; ".join(why)) if why else None
 
 

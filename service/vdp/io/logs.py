@@ -494,12 +494,15 @@ class _Reader:
                 ", ".join(sorted(st.channels)) or "none",
             )
         if st.bad:
+            at = f"; first at {st.unit} {st.examples[0].line}" if st.examples else ""
             log.warning(
-                "%s: skipped %d bad %ss (%s)",
+                "%s: skipped %d bad %s%s (%s%s)",
                 self.path,
                 st.bad,
                 st.unit,
+                "" if st.bad == 1 else "s",
                 ", ".join(f"{k}: {v}" for k, v in st.reasons.items()),
+                at,
             )
         if st.damaged:
             log.warning("%s: %s", self.path, st.damage_summary())
