@@ -201,6 +201,15 @@ def test_batch_runs_the_fleet_records_bad_logs_and_resumes(fleet, repo_root):
     veh = {(v["vehicle"], v["parameter"]): v for v in pq.read_table(d / "out" / "vehicles.parquet").to_pylist()}
     assert veh[("car2", "l_f")]["runs"] == 3  # car2-3, the cut copy, and car1-2's bytes as missing.log
 
+    # the README's pandas lines read them (pandas comes with the fleet extra)
+    import pandas as pd
+
+    runs, veh = pd.read_parquet(d / "out" / "runs.parquet"), pd.read_parquet(d / "out" / "vehicles.parquet")
+    lf = veh[(veh.vehicle == "car2") & (veh.parameter == "l_f")]
+    assert list(lf.runs) == [3] and list(lf.columns[:2]) == ["vehicle", "parameter"]
+    errors = runs[runs.status == "error"][["log", "error"]]
+    assert len(errors) == 1 and errors.log.iloc[0].endswith("garbage.log")
+
 
 @pytest.mark.slow
 def test_local_cluster_listens_on_loopback_only():
