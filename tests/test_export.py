@@ -217,3 +217,26 @@ def test_commonroad_file_loads_into_commonroad_vehicle_models(replayed, tmp_path
         assert p.tire.p_ky1 == OmegaConf.load(base / "parameters_tire.yaml").tire.p_ky1
     dx = vehicle_dynamics_st([0.0, 0.0, 0.02, 15.0, 0.0, 0.0, 0.0], [0.0, 0.0], p)
     assert all(math.isfinite(v) for v in dx) and dx[5] > 0  # steering left builds a left yaw rate
+
+
+def test_plot_boxes_say_not_valid_and_each_axle():
+    """A converged estimate the model does not explain says so in its panel, and C_alpha's panel
+    (the axles' mean) gives each axle."""
+    import matplotlib.pyplot as plt
+
+    from vdp import report
+    from vdp.core.params import NAMES
+
+    vals = {"l_f": 1.2, "h": 0.5, "C_K": 15.0, "C_alpha": 8.8e4, "I_z": 2800.0, "I_x": 790.0}
+    rows = [(t, 2, tuple((vals[n], 0.1 * vals[n]) for n in NAMES)) for t in (0.0, 1.0)]
+    params = {n: {"value": vals[n], "std": 0.1 * vals[n], "status": "uncertain", "valid": True} for n in NAMES}
+    params["l_f"].update(status="converged", valid=False, reason="model mismatch: residuals not white")
+    params["C_alpha"]["extra"] = {"C_alpha_front": 8.49e4, "C_alpha_rear": 9.03e4}
+    fig = report.figure(rows, [], None, "t", params)
+    try:
+        texts = [t.get_text() for ax in fig.axes for t in ax.texts]
+        assert any(t.startswith("1.2 ± 0.12  converged, not valid") for t in texts), texts
+        assert any("mean of front 8.49e+04, rear 9.03e+04" in t for t in texts), texts
+        assert not any("h" in t and "not valid" in t for t in texts if t.startswith("0.5 "))
+    finally:
+        plt.close(fig)

@@ -314,6 +314,11 @@ def figure(
             ax.set_title(head, fontsize=10, loc="left")
             if p.get("value") is not None:
                 text = f"{p['value']:.4g} ± {p['std']:.2g}  {p.get('status', '').replace('_', ' ')}"
+                if p.get("valid") is False and p.get("status") in ("converged", "uncertain"):
+                    text += ", not valid"  # the reason is in the table and the JSON
+                x = p.get("extra") or {}
+                if x.get("C_alpha_front") is not None:  # the line is the axles' mean: say what each is
+                    text += f"\nmean of front {x['C_alpha_front']:.4g}, rear {x['C_alpha_rear']:.4g}"
                 if ref is not None:
                     text += f"\nreal {ref:.4g} ({100 * (p['value'] - ref) / ref:+.1f} %)"
                 ax.text(
