@@ -165,6 +165,9 @@ def test_batch_runs_the_fleet_records_bad_logs_and_resumes(fleet, repo_root):
     assert [r["parameter"] for r in good] == ["l_f", "h", "C_K", "C_alpha", "I_z", "I_x"]
     assert all(r["error"] is None and r["damage"] is None and r["frames"] > 10000 for r in good)
     assert all(r["duration_s"] > 19 for r in good)
+    # a stage-1 drive: stage 2's parameters did not run, and their rows say why
+    assert all(r["reason"] and "no window" in r["reason"] for r in good if r["status"] == "not_run")
+    assert any(r["status"] == "not_run" for r in good)
 
     # the same numbers as vdp replay --json on the same log and profile
     out = d / "one.json"

@@ -32,6 +32,7 @@ P_CONSISTENT = 0.01  # chi^2 p-value below which a vehicle's drives are called i
 
 # what a status means when the parameter has no number worth using (the README's table)
 REASONS = {
+    NOT_RUN: "its stage had no window in this log (window_s is 0)",
     UNCERTAIN: "std still above the convergence threshold",
     NOT_IDENTIFIABLE: "the data did not halve the prior std: the value is mostly the prior's",
     INVALID: "non-finite or outside a sane range",
@@ -159,7 +160,8 @@ def rows_from_result(res: Any, task: Task, stamp: tuple[int, int] | None = None)
             continue
         reason = e.reason
         if reason is None:
-            reason = res.capabilities.get(str(e.stage)) if e.status == NOT_RUN else REASONS.get(e.status)
+            why_not = res.capabilities.get(str(e.stage)) if e.status == NOT_RUN else None  # the car cannot run it
+            reason = why_not or REASONS.get(e.status)
         row: dict[str, Any] = dict.fromkeys(RUN_COLUMNS)
         row.update(
             log=task.log,
