@@ -152,3 +152,14 @@ def test_the_readmes_profile_path_works_from_any_directory(drive, monkeypatch, c
     assert main(["replay", str(log), "--profile", "profiles/nosuch.toml", "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "no such profile file" in err and str(d) in err
+
+
+def test_a_skipped_line_is_warned_of_once(drive, repo_root, tmp_path, caplog):
+    """The profile check reads the log before the replay does: only the replay warns."""
+    _, log = drive
+    cut = tmp_path / "cut.log"
+    text = log.read_text()
+    cut.write_text(text[: len(text) // 2].rsplit("#", 1)[0] + "#ABC\n")  # the last line cut to an odd payload
+    with caplog.at_level("WARNING", logger="vdp.io.logs"):
+        assert main(["replay", str(cut), "--profile", str(repo_root / "profiles" / "paper.toml"), "--no-progress"]) == 0
+    assert caplog.text.count("skipped 1 bad line") == 1, caplog.text

@@ -434,12 +434,17 @@ class Coverage:
 
 
 def check_log(
-    path: str | Path, profile: Profile, seconds: float = CHECK_SECONDS, strict_coverage: bool = True
+    path: str | Path,
+    profile: Profile,
+    seconds: float = CHECK_SECONDS,
+    strict_coverage: bool = True,
+    quiet: bool = False,
 ) -> tuple[Report, Coverage]:
     """Decode the first ``seconds`` of bus time of a log and check the profile against it.
 
     A log that holds none of the profile's messages, or fewer than half, is a ProfileError
     with the counts and the ids the log does hold (unless ``strict_coverage`` is false).
+    ``quiet``: the reader logs no warnings (a replay that reads the log next gives them).
     """
     from .buffer import Aligner
     from .io.decoder import FrameDecoder
@@ -455,7 +460,7 @@ def check_log(
     ts: list[float] = []
     rows: list[np.ndarray] = []
     t0 = None
-    with open_log(path, channel=profile.bus_channel) as src:
+    with open_log(path, channel=profile.bus_channel, quiet=quiet) as src:
         for msg in src:
             if t0 is None:
                 t0 = msg.timestamp

@@ -156,7 +156,8 @@ def run(args) -> int:
             check_output(path, flag, suffixes)
     profile = load_profile(profile_path(args.profile) if args.profile else default_profile())
     # the profile self-check reads the log's first minutes; a log of another car stops here
-    check, cov = profilecheck.check_log(args.log, profile)
+    # quiet: the replay below reads the same lines and warns of what it skips, once
+    check, cov = profilecheck.check_log(args.log, profile, quiet=True)
     if cov.missing:  # fewer than half seen stopped check_log; a few missing still cost their channels
         print(f"profile check: {args.log}: {cov.message()}")
     for line in profilecheck.lines(check):

@@ -180,13 +180,22 @@ class LogStats:
         }
 
 
-def open_log(path: str | Path, strict: bool = False, channel: str | None = None) -> LogSource:
+def open_log(path: str | Path, strict: bool = False, channel: str | None = None, quiet: bool = False) -> LogSource:
     """Open a CAN log for streaming.
 
     ``strict``: the first bad line raises LogFormatError instead of being skipped.
     ``channel``: keep only frames of this bus channel (frames without one are kept).
+    ``quiet``: log no warnings (the stats still count everything).
     """
-    return LogSource(Path(path), strict=strict, channel=channel)
+    return LogSource(Path(path), strict=strict, channel=channel, quiet=quiet)
+
+
+class _Quiet:
+    def warning(self, *args, **kwargs) -> None:
+        pass
+
+
+_QUIET = _Quiet()
 
 
 _NOT_REGULAR = (
@@ -205,9 +214,10 @@ class LogSource:
     while iterating.
     """
 
-    def __init__(self, path: Path, strict: bool = False, channel: str | None = None):
+    def __init__(self, path: Path, strict: bool = False, channel: str | None = None, quiet: bool = False):
         self.path = path
         self.strict = strict
+        self.quiet = quiet  # no warnings: a second reader of the same bytes (the profile check) says nothing new
         self.channel = channel
         self._want = channel_keys(channel) if channel is not None else None
         self._used = False
@@ -348,6 +358,7 @@ class _Reader:
         self.path = src.path
         self.stats = src.stats
         self.strict = src.strict
+        self.log = _QUIET if src.quiet else log
         self._want = src._want
         self._first_good: int | None = None
         self._seg = 0.0  # start of the current run of bus time
@@ -398,7 +409,7 @@ class _Reader:
             st.bus_time += last - self._seg
             self._seg = ts
             st.jumps += 1
-            log.warning("%s: %s %d: clock jumped %.0f s forward", self.path, st.unit, n, ts - last)
+            self.log.warning("%s: %s %d: clock jumped %.0f s forward", self.path, st.unit, n, ts - last)
             return True
         if self._back_run and ts >= self._back_last and self._back_ref == last:
             self._back_run += 1
@@ -408,7 +419,7 @@ class _Reader:
         if self._back_run < _RESYNC_AFTER:
             self.bad(n, "timestamp goes backwards", text)
             return False
-        log.warning("%s: %s %d: clock jumped back %.6f s; following it", self.path, st.unit, n, last - ts)
+        self.log.warning("%s: %s %d: clock jumped back %.6f s; following it", self.path, st.unit, n, last - ts)
         st.resyncs += 1
         st.bus_time += last - self._seg
         self._seg = ts
@@ -487,7 +498,7 @@ class _Reader:
             what = "" if src.format == ".log" or not st.bad else f"not a valid {src.format} file: "
             raise LogFormatError(f"{self.path}: {what}no CAN frames in {where}{first}")
         if st.frames == 0:
-            log.warning(
+            self.log.warning(
                 "%s: no frames on channel %s; channels in the log: %s",
                 self.path,
                 src.channel,
@@ -495,7 +506,7 @@ class _Reader:
             )
         if st.bad:
             at = f"; first at {st.unit} {st.examples[0].line}" if st.examples else ""
-            log.warning(
+            self.log.warning(
                 "%s: skipped %d bad %s%s (%s%s)",
                 self.path,
                 st.bad,
@@ -505,7 +516,7 @@ class _Reader:
                 at,
             )
         if st.damaged:
-            log.warning("%s: %s", self.path, st.damage_summary())
+            self.log.warning("%s: %s", self.path, st.damage_summary())
 
     def gzip_end(self, exc: BaseException) -> None:
         """A gzip stream that ends early or breaks: keep what was read, say what was lost."""
