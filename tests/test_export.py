@@ -130,6 +130,10 @@ def test_export_formats(replayed, fmt, tmp_path):
             e = doc["parameters"][name]
             assert e["value"] == p[name]["value"] and e["std"] == p[name]["std"]
             assert e["unit"] == p[name]["unit"] and e["status"] == p[name]["status"]
+            assert e.get("reason") == p[name].get("reason")
+        ca, x = doc["parameters"]["C_alpha"], p["C_alpha"]["extra"]
+        for k in ("C_alpha_front", "C_alpha_front_std", "C_alpha_rear", "C_alpha_rear_std"):
+            assert ca[k] == x[k]  # each axle beside their mean
         assert doc["vehicle"]["wheelbase"] == 2.5
 
 

@@ -217,6 +217,12 @@ def _plain(params: dict, const: Constants | None = None, source: str = "") -> di
             "valid": bool(p.get("valid", False)),
             "description": BY_NAME[name].description,
         }
+        if p.get("reason"):  # why it is not valid, or not learnt
+            out["parameters"][name]["reason"] = p["reason"]
+        x = p.get("extra") or {}
+        for k in ("C_alpha_front", "C_alpha_front_std", "C_alpha_rear", "C_alpha_rear_std"):
+            if x.get(k) is not None:  # C_alpha is the axles' mean: each axle as well
+                out["parameters"][name][k] = finite(x[k])
     if const is not None:
         out["vehicle"] = asdict(const)
     if source:
