@@ -178,6 +178,8 @@ def test_batch_runs_the_fleet_records_bad_logs_and_resumes(fleet, repo_root):
         p = doc["parameters"][r["parameter"]]
         assert (r["value"], r["std"], r["status"], r["stage"]) == (p["value"], p["std"], p["status"], p["stage"])
     assert good[0]["frames"] == doc["log"]["frames"]
+    for r in runs:  # each axle on C_alpha's row only (a stage-1 drive: none here)
+        assert (r["C_alpha_front"] is None) or r["parameter"] == "C_alpha"
 
     veh = {(v["vehicle"], v["parameter"]): v for v in pq.read_table(d / "out" / "vehicles.parquet").to_pylist()}
     lf = veh[("car1", "l_f")]
@@ -235,3 +237,51 @@ def test_local_cluster_listens_on_loopback_only():
     finally:
         cl.close()
         cluster.close()
+
+
+def test_c_alphas_row_carries_each_axle():
+    from types import SimpleNamespace
+
+    from vdp.core.params import BY_NAME, NAMES
+    from vdp.core.result import Estimate
+    from vdp.fleet import Task, rows_from_result
+
+    axles = {"C_alpha_front": 7e4, "C_alpha_front_std": 700.0, "C_alpha_rear": 6e4, "C_alpha_rear_std": 400.0}
+    params = {
+        n: Estimate(
+            n,
+            1.0,
+            0.1,
+            BY_NAME[n].unit,
+            "uncertain",
+            False,
+            BY_NAME[n].stage,
+            10,
+            extra=axles if n == "C_alpha" else {},
+        )
+        for n in NAMES
+    }
+    res = SimpleNamespace(log=None, decode={}, windows=[], bus_time=None, frames=0, parameters=params, capabilities={})
+    rows = {r["parameter"]: r for r in rows_from_result(res, Task("a.log", "car", "p.toml"))}
+    assert {k: rows["C_alpha"][k] for k in axles} == axles
+    assert all(rows[n]["C_alpha_front"] is None for n in NAMES if n != "C_alpha")
+
+
+@pytest.mark.slow
+def test_a_log_rerun_under_another_profile_counts_once(tmp_path, repo_root):
+    """An edited profile (here a copy elsewhere) and a rerun: the log's earlier part is not
+    combined with the new one (the drive would count twice and its std shrink by sqrt 2)."""
+    prof = repo_root / "profiles" / "paper.toml"
+    frames, _ = simulate(prof, "stage1", seed=1, noise="realistic", duration=20.0)
+    write_log(frames, tmp_path / "a.log")
+    (tmp_path / "manifest.csv").write_text(f"log,vehicle,profile\na.log,car,{prof}\n")
+    assert batch(tmp_path, workers=1).returncode == 0
+    copy = tmp_path / "edited.toml"
+    copy.write_text(prof.read_text().replace('"../dbc/vdp.dbc"', f'"{repo_root / "dbc" / "vdp.dbc"}"'))
+    (tmp_path / "manifest.csv").write_text(f"log,vehicle,profile\na.log,car,{copy}\n")
+    again = batch(tmp_path, workers=1)
+    assert again.returncode == 0 and "left out 1 earlier result" in again.stdout, again.stdout + again.stderr
+    runs = pq.read_table(tmp_path / "out" / "runs.parquet").to_pylist()
+    assert len(runs) == 6 and {r["profile"] for r in runs} == {str(copy)}
+    veh = pq.read_table(tmp_path / "out" / "vehicles.parquet").to_pylist()
+    assert all(v["runs"] == 1 for v in veh)

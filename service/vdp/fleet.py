@@ -62,7 +62,13 @@ RUN_COLUMNS = {
     "cpu_s": float,  # CPU time of the thread that replayed this log (Dask's own threads left out)
     "log_size": int,  # of the file when it was run: a rerun redoes a log that changed
     "log_mtime_ns": int,
+    # C_alpha's row: each axle (its Estimate's extra; C_alpha is their mean), else null
+    "C_alpha_front": float,
+    "C_alpha_front_std": float,
+    "C_alpha_rear": float,
+    "C_alpha_rear_std": float,
 }
+AXLE_COLUMNS = ("C_alpha_front", "C_alpha_front_std", "C_alpha_rear", "C_alpha_rear_std")
 
 
 @dataclass(frozen=True)
@@ -183,6 +189,10 @@ def rows_from_result(res: Any, task: Task, stamp: tuple[int, int] | None = None)
             damage=(src.get("damage") or {}).get("summary") or None,
             wall_s=float(lg.wall_s if lg is not None else 0.0),
         )
+        x = e.extra or {}
+        for k in AXLE_COLUMNS:
+            if x.get(k) is not None:
+                row[k] = _num(x[k])
         if stamp is not None:
             row["log_size"], row["log_mtime_ns"] = stamp
         rows.append(row)

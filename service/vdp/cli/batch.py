@@ -366,6 +366,16 @@ def run(args) -> int:
             cl.close()
             if cluster is not None:
                 cluster.close()
+    # a log this run replayed under another profile or vehicle before: its earlier part stays on
+    # disk but not in the results, or each such drive would count twice in vehicles.parquet
+    keys: dict[str, set[str]] = {}
+    for t in todo:
+        keys.setdefault(t.log, set()).add(t.key)
+    stale = [k for k, rows in parts.items() if rows and rows[0]["log"] in keys and k not in keys[rows[0]["log"]]]
+    for k in stale:
+        del parts[k]
+    if stale:
+        print(f"left out {len(stale)} earlier result(s) of these logs under another profile or vehicle")
     n_rows, n_veh = write_results(out, parts)
     print(f"wrote {out / 'runs.parquet'} ({n_rows} rows) and {out / 'vehicles.parquet'} ({n_veh} rows)")
     for path, err in failed:
