@@ -287,6 +287,10 @@ def test_independent_frames_are_seeded_and_carry_the_drive():
     assert a.model.profile().priors["I_z"].value == a.model.priors["I_z"][0]
 
 
+def prof_dbc_beside(d) -> bool:
+    return 'dbc = "vdp.dbc"' in (d / "drive.profile.toml").read_text() and (d / "vdp.dbc").is_file()
+
+
 def test_vdp_simulate_model_brush_then_replay(tmp_path):
     out = tmp_path / "drive.log"
     r = subprocess.run(
@@ -299,8 +303,13 @@ def test_vdp_simulate_model_brush_then_replay(tmp_path):
         timeout=300,
     )
     assert r.returncode == 0, r.stderr
-    prof, truth = tmp_path / "drive.profile.toml", tmp_path / "drive.truth.json"
-    assert prof.is_file() and truth.is_file()
+    assert prof_dbc_beside(tmp_path)
+    # the folder moves as one: log, truth, profile and the DBC it names beside it
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    for f in ("drive.log", "drive.truth.json", "drive.profile.toml", "vdp.dbc"):
+        (tmp_path / f).rename(moved / f)
+    out, prof, truth = moved / "drive.log", moved / "drive.profile.toml", moved / "drive.truth.json"
     r = subprocess.run(
         [*VDP, "replay", str(out), "--profile", str(prof), "--truth", str(truth), "--json", str(tmp_path / "o.json")],
         capture_output=True,

@@ -185,8 +185,15 @@ def _drive(args: argparse.Namespace, sim, profile: bool = False) -> tuple[int, l
             if profile:
                 stem = simrun.truth_path(args.out).name[: -len(".truth.json")]
                 prof = args.out.with_name(stem + ".profile.toml")
-                prof.write_text(sim.profile_toml(), encoding="utf-8")
-                files.append(str(prof))
+                from ..sim.independent.common import DBC as dbc
+
+                text = sim.profile_toml()
+                # the DBC beside the profile: the log, truth, profile and DBC move together as one folder
+                copy = prof.with_name(dbc.name)
+                if not copy.exists() or copy.read_bytes() != dbc.read_bytes():
+                    copy.write_bytes(dbc.read_bytes())
+                prof.write_text(text.replace(f'dbc = "{dbc}"', f'dbc = "{dbc.name}"'), encoding="utf-8")
+                files += [str(prof), str(copy)]
             count = simrun.write_log(frames, args.out, sim.bus_channel)
         else:
             for _ in frames:

@@ -38,7 +38,12 @@ class Estimate:
     std: float | None = field(metadata=_doc("1-sigma uncertainty; null when not known, and then valid is false"))
     unit: str = field(metadata=_doc("SI unit of value and std"))
     status: Status = field(metadata=_doc(f"one of {', '.join(STATUSES)}"))
-    valid: bool = field(metadata=_doc("true only for a converged, finite estimate inside its sane range"))
+    valid: bool = field(
+        metadata=_doc(
+            "true only for a converged, finite estimate inside its sane range whose model explains the data "
+            "(no model mismatch found; else reason says what)"
+        )
+    )
     stage: int = field(metadata=_doc("1 (l_f, h, C_K) or 2 (C_alpha, I_z, I_x)"))
     samples: int = field(metadata=_doc("samples the filter has used for this parameter"))
     reason: str | None = field(default=None, metadata=_doc("why the status is what it is, when not plain"))

@@ -43,6 +43,7 @@ START_TIME = 1700000000.0
 TRUTH_FORMAT = "vdp-truth/1"
 REPO_ROOT = Path(__file__).resolve().parents[4]
 BASE_PROFILE = REPO_ROOT / "profiles" / "paper.toml"  # vdp's bus: its DBC and channel map, nothing of its car
+DBC = (BASE_PROFILE.parent / "../dbc/vdp.dbc").resolve()  # the DBC that profile names
 SETTLE = 3.0  # s driven straight before the recorded drive starts
 AUX = ("F_zf", "F_zr", "v_x", "a_x")  # recorded beside the channels, for the truth definitions
 
@@ -130,8 +131,7 @@ class Model:
             lines.append(f"{k} = {{ value = {float(val)!r}, std = {float(sd)!r} }}")
         text = BASE_PROFILE.read_text(encoding="utf-8")
         can_part = text[text.index("[can]") :]
-        dbc = (BASE_PROFILE.parent / "../dbc/vdp.dbc").resolve()
-        can_part = can_part.replace('dbc = "../dbc/vdp.dbc"', f'dbc = "{dbc}"')
+        can_part = can_part.replace('dbc = "../dbc/vdp.dbc"', f'dbc = "{DBC}"')
         return "\n".join(lines) + "\n\n" + can_part
 
 
