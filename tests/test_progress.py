@@ -143,6 +143,26 @@ def test_next_names_the_stage_behind_or_the_one_being_driven():
     assert progress.assess(s, PRIORS, 0.02)["next"].startswith("keep going: on a straight")
 
 
+def test_a_model_mismatch_does_not_ask_for_more_of_the_same_driving():
+    conv = {"value": 1.4, "std": 0.001, "status": "converged", "valid": True, "samples": 900}
+    off = {"status": "uncertain", "valid": False, "samples": 900, "reason": "model mismatch: filter and fit differ"}
+    s = snap(stage="done", reasons={"1": "open", "2": "open"}, l_f=conv, h=conv, C_K=conv)
+    s["parameters"].update(
+        {
+            "C_alpha": {**off, "value": 6.0e4, "std": 6.0e3},
+            "I_z": {**off, "value": 2.2e3, "std": 300.0},
+            "I_x": {"value": 500.0, "std": 200.0, "status": "not_identifiable", "samples": 900},
+        }
+    )
+    out = progress.assess(s, PRIORS, 0.02)
+    # not learnt (its own progress says so), but driving more of stage 2 will not fix it
+    assert out["parameters"]["C_alpha"]["progress"] < 1.0
+    assert out["stages"]["2"]["progress"] == 1.0 and out["next"].startswith("done:")
+    # one stage-2 parameter still learning: keep going with it
+    s["parameters"]["I_z"] = {"value": 2.2e3, "std": 500.0, "status": "uncertain", "samples": 900}
+    assert progress.assess(s, PRIORS, 0.02)["next"].startswith("keep going")
+
+
 def test_what_the_learners_report_is_used():
     half = {"value": 10.0, "std": 0.5, "status": "uncertain", "samples": 10}
     s = snap(C_K=half, reasons={"1": "open", "2": "waiting for stage 1 to converge"})

@@ -152,9 +152,12 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
         per = out["parameters"]
         # the mean over the stage's parameters; one the data was judged unable to pin no longer
         # holds its stage back (the estimator calls the stage done then, too), nor one this car
-        # cannot learn (I_x without a roll-rate gyro)
+        # cannot learn (I_x without a roll-rate gyro), nor one whose model cannot explain the data
+        # ("model mismatch: ...": more of the same driving will not fix it, its hint says)
         counted = [
-            1.0 if params.get(n, {}).get("status") == NOT_IDENTIFIABLE or caps.get(n) else per[n]["progress"]
+            1.0
+            if params.get(n, {}).get("status") == NOT_IDENTIFIABLE or caps.get(n) or _mismatch(params.get(n) or {})
+            else per[n]["progress"]
             for n in names
         ]
         ex = excitation.get(str(stage)) or {}
@@ -173,6 +176,11 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
         out["stages"]["1"]["blocks_beyond_small_slip"] = s1.get("blocks_beyond_small_slip")
     out["next"] = _next(snapshot, out, reasons, caps)
     return out
+
+
+def _mismatch(p: dict) -> bool:
+    """Flagged not valid because the model cannot explain the data (driving more will not help)."""
+    return "mismatch" in (p.get("reason") or "") and not p.get("valid", False) and p.get("status") != INVALID
 
 
 def _too_hard(stage1: dict) -> str | None:
