@@ -105,6 +105,7 @@ _jit = njit(cache=True, nogil=True)
 _rates = _jit(lateral._rates)
 _roll_map = _jit(lateral._roll_map)
 _geometry = _jit(lateral._geometry)
+_pre = _jit(lateral._pre)
 
 V_MIN = lateral.V_MIN
 F0, F1, F2, F3 = (float(v) for v in lateral.PARAM_FLOOR)
@@ -310,7 +311,6 @@ def _lat_grid(us, j, w, n, k):
     """lateral._inputs of lateral._input_grid(us, n): (2n+1, 7) per-step input constants; the
     seventh is the measured a_y that drives eq (9) (lateral.Known.roll_by_ay; NaN: the model's)."""
     g = np.empty((2 * n + 1, 7))
-    base = k.C_K * k.m / k.L
     by_ay = k.roll_by_ay and us.shape[1] > lateral.U_AY
     for i in range(2 * n + 1):
         a_y = np.nan
@@ -327,12 +327,7 @@ def _lat_grid(us, j, w, n, k):
             if by_ay:
                 a_y = us[a, lateral.U_AY] + c * (us[b, lateral.U_AY] - us[a, lateral.U_AY])
         g[i, 6] = a_y
-        g[i, 0] = d
-        g[i, 1] = max(v_x, V_MIN)
-        g[i, 2] = np.sin(d)
-        g[i, 3] = np.cos(d)
-        g[i, 4] = base * (k.g * k.L - a_x * k.h)
-        g[i, 5] = w_f * k.r
+        g[i, 0], g[i, 1], g[i, 2], g[i, 3], g[i, 4], g[i, 5] = _pre(d, v_x, w_f, a_x, k)
     return g
 
 
@@ -412,16 +407,7 @@ def lat_predict(x, P, lam_n, Wm, Wc, Q, scale, kind, lo, span, dt, us, j, w, n, 
 def lat_update(x, P, sig, Wm, Wc, R, scale, kind, lo, span, z, rows, u, k, consider):
     """core.filters.UKF._update on lateral.hx, measurement rows ``rows``: (x, P, y, S, status)."""
     m, nx = sig.shape
-    d, v_x = u[lateral.U_DELTA], u[lateral.U_VX]
-    base = k.C_K * k.m / k.L
-    pre = (
-        d,
-        max(v_x, V_MIN),
-        math.sin(d),
-        math.cos(d),
-        base * (k.g * k.L - u[lateral.U_AX] * k.h),
-        u[lateral.U_WF] * k.r,
-    )
+    pre = _pre(u[lateral.U_DELTA], u[lateral.U_VX], u[lateral.U_WF], u[lateral.U_AX], k)
     hz = np.empty((m, rows.shape[0]))
     t = np.empty(nx)
     s = np.empty(nx)

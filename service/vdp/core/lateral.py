@@ -104,15 +104,21 @@ class Known:
         return self.C_K * self.m * self.g / self.L
 
 
-def _inputs(u, k: Known):
-    """Per-step constants from the inputs (they do not depend on the state); floats for one row.
+def _pre(d: float, v_x: float, w_f: float, a_x: float, k: Known):
+    """``_inputs`` of one row in plain floats (core.kernels compiles this as it is).
 
     The fifth is C_K F_zf at l_f = 0 (eq 3a); ``_geometry`` takes the l_f part off.
     """
-    base = k.C_K * k.m / k.L
+    fz0 = k.C_K * k.m / k.L * (k.g * k.L - a_x * k.h)
+    return d, max(v_x, V_MIN), math.sin(d), math.cos(d), fz0, w_f * k.r
+
+
+def _inputs(u, k: Known):
+    """Per-step constants from the inputs (they do not depend on the state); floats for one row."""
     if np.ndim(u) == 1:
         d, v_x, w_f, a_x = np.asarray(u, dtype=float).tolist()[:4]
-        return d, max(v_x, V_MIN), math.sin(d), math.cos(d), base * (k.g * k.L - a_x * k.h), w_f * k.r
+        return _pre(d, v_x, w_f, a_x, k)
+    base = k.C_K * k.m / k.L
     d = u[..., U_DELTA]
     v_x = np.maximum(u[..., U_VX], V_MIN)
     # NOTES 8: C_sigma = C_K F_zf; the slip uses the front wheel-frame speed (eq 13)
