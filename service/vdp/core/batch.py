@@ -57,6 +57,23 @@ def _jt_w(J: np.ndarray, W: np.ndarray, X: np.ndarray) -> np.ndarray:
     return np.tensordot(J, WX, axes=([0, 1], [0, 1]))
 
 
+def damped_step(H: np.ndarray, g: np.ndarray, cost: Callable[[np.ndarray], tuple], x: np.ndarray, c: float, lam: float):
+    """One Levenberg-Marquardt step from ``x`` (cost ``c``): (step, cost(x + step), lam) for the
+    first damping whose step does not raise the cost (``cost(.)[0]``), the damping then eased;
+    (None, None, lam) when none below 1e8 does.  Stage 1's and stage 2's batch fits share it."""
+    while lam < 1e8:
+        try:
+            step = np.linalg.solve(H + lam * np.diag(np.diag(H)), g)
+        except np.linalg.LinAlgError:
+            lam *= 10.0
+            continue
+        out = cost(x + step)
+        if np.isfinite(out[0]) and out[0] <= c:
+            return step, out, max(lam / 10.0, 1e-9)
+        lam *= 10.0
+    return None, None, lam
+
+
 def solve(
     h: Callable[[np.ndarray, np.ndarray], np.ndarray],
     U: np.ndarray,
@@ -103,21 +120,11 @@ def solve(
             J = jac(t, pred)
             H = _jt_w(J, W, J) + P0i
             g = _jt_w(J, W, r) - P0i @ (t - prior_t)
-            step_ok = False
-            while lam < 1e8:
-                try:
-                    dt = np.linalg.solve(H + lam * np.diag(np.diag(H)), g)
-                except np.linalg.LinAlgError:
-                    lam *= 10.0
-                    continue
-                c2, data2, r2 = cost(t + dt)
-                if np.isfinite(c2) and c2 <= c:
-                    t, c, data, r = t + dt, c2, data2, r2
-                    lam = max(lam / 10.0, 1e-9)
-                    step_ok = True
-                    break
-                lam *= 10.0
-            if not step_ok or np.max(np.abs(dt)) < 1e-7:
+            dt, out, lam = damped_step(H, g, cost, t, c, lam)
+            if out is None:
+                break
+            t, (c, data, r) = t + dt, out
+            if np.max(np.abs(dt)) < 1e-7:
                 break
         J = jac(t, Z - r)
         H = _jt_w(J, W, J) + P0i

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import lateral
+from .batch import damped_step
 
 # parameters: ln C_alpha_f, ln C_alpha_r, ln I_z, a_y offset, then (v_y0, yaw0) per window
 N_THETA = 3
@@ -422,21 +423,11 @@ def solve(
             J = prob.jacobian(p, aux)
             H = J.T @ J + P0i
             grad = -(J.T @ r) - P0i @ (p - mean)  # residuals are z - y: d r / d p = J
-            ok = False
-            while lam < 1e8:
-                try:
-                    dp = np.linalg.solve(H + lam * np.diag(np.diag(H)), grad)
-                except np.linalg.LinAlgError:
-                    lam *= 10.0
-                    continue
-                c2, data2, r2, aux2 = cost(p + dp)
-                if math.isfinite(c2) and c2 <= c:
-                    p, c, data, r, aux = p + dp, c2, data2, r2, aux2
-                    lam = max(lam / 10.0, 1e-9)
-                    ok = True
-                    break
-                lam *= 10.0
-            if not ok or np.max(np.abs(dp[:N_GLOBAL])) < 1e-6:
+            dp, out, lam = damped_step(H, grad, cost, p, c, lam)
+            if out is None:
+                break
+            p, (c, data, r, aux) = p + dp, out
+            if np.max(np.abs(dp[:N_GLOBAL])) < 1e-6:
                 break
         if best is None or c < best[0]:
             best = (c, p, data, r, aux, n_it)
