@@ -70,20 +70,24 @@ def test_wrapped_jacobians_match_finite_differences():
 
 
 # -- batch optimum ------------------------------------------------------------------------
+def _straight_inputs(k, a_x, share):
+    """Stage 1's input rows of a straight drive at 20 m/s: the force m a_x split front ``share``."""
+    f = k.m * a_x
+    U = np.zeros((len(a_x), longitudinal.N_U))
+    U[:, longitudinal.U_TF] = share * f * k.r
+    U[:, longitudinal.U_TR] = (1 - share) * f * k.r
+    U[:, longitudinal.U_AX] = a_x
+    U[:, longitudinal.U_VX] = 20.0
+    return U
+
+
 def test_batch_solution_finds_the_truth_from_a_far_start_and_linear_start_needs_none():
     k = longitudinal.Known(m=1600.0, L=2.5, r=0.3, J=0.6)
     rng = np.random.default_rng(3)
     n = 400
     a_x = 3.0 * np.sin(np.linspace(0, 12, n))
     truth = np.array([1.4, 0.637, 10.0])
-    f_zf, f_zr = longitudinal.axle_loads(truth[0], truth[1], a_x, k)
-    share = 0.6  # front share of the drive force
-    f = k.m * a_x
-    U = np.zeros((n, longitudinal.N_U))
-    U[:, longitudinal.U_TF] = share * f * k.r
-    U[:, longitudinal.U_TR] = (1 - share) * f * k.r
-    U[:, longitudinal.U_AX] = a_x
-    U[:, longitudinal.U_VX] = 20.0
+    U = _straight_inputs(k, a_x, 0.6)  # 0.6: front share of the drive force
     Z = longitudinal.hx(truth, U, k) + rng.normal(0, 0.01, (n, 2))
     R = np.broadcast_to(np.eye(2) * 0.01**2, (n, 2, 2)).copy()
     b = Bounds(3, log=(1, 2), logit={0: (0.0, 2.5)})
@@ -107,11 +111,7 @@ def test_batch_reads_the_initial_stiffness_of_a_bending_tyre_with_slip_offsets()
     f_zf, f_zr = longitudinal.axle_loads(l_f, h, a_x, k)
     share = 0.5 + 0.3 * np.sin(np.linspace(0, 7, n))  # front share of the drive force varies
     f = k.m * a_x
-    U = np.zeros((n, longitudinal.N_U))
-    U[:, longitudinal.U_TF] = share * f * k.r
-    U[:, longitudinal.U_TR] = (1 - share) * f * k.r
-    U[:, longitudinal.U_AX] = a_x
-    U[:, longitudinal.U_VX] = 20.0
+    U = _straight_inputs(k, a_x, share)
 
     def brush(q):  # slip of a brush tyre at load share q (mu 1), exact
         return np.sign(q) * 3.0 / c_k * (1.0 - (1.0 - np.abs(q)) ** (1.0 / 3.0))
