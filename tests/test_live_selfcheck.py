@@ -25,10 +25,10 @@ ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "profiles" / "paper.toml"
 
 
-def run_service(tmp_path, frames, checks):
+def run_service(tmp_path, frames, checks, profile=None):
     """Send ``frames`` to a service on the virtual bus; call ``checks(svc, client)`` after each batch."""
     settings = make_settings(tmp_path)
-    svc = Service(settings)
+    svc = Service(settings, profile=profile)
     svc.start()
     wait_up(svc)
     client = TestClient(create_app(settings, svc))
@@ -159,27 +159,16 @@ def test_a_finding_shows_in_health_and_the_estimates_it_doubts_are_not_valid(tmp
     chans = dict(paper.channels)
     chans["accel_x"] = dataclasses.replace(chans["accel_x"], sign=-1.0)
     flipped = dataclasses.replace(paper, channels=chans)
-    settings = make_settings(tmp_path)
-    svc = Service(settings, profile=flipped)
-    svc.start()
-    wait_up(svc)
-    client = TestClient(create_app(settings, svc))
-    tx = can.Bus(interface="virtual", channel=svc.bus_cfg.channel, preserve_timestamps=True)
-    try:
-        frames = drive(30.0)
-        for msg in frames:
-            tx.send(msg)
-        wait_frames(svc, len(frames))
-        svc.sync()
+
+    def check(svc, client):
         reasons = client.get("/health").json()["reasons"]
         assert any(r.startswith("profile check: accel_x looks sign-flipped") for r in reasons), reasons
         st = client.get("/status").json()["profile_check"]
         assert [f["subject"] for f in st["findings"]] == ["accel_x"] and st["coverage"]["seen"] == 7
         for name, e in client.get("/estimates").json()["parameters"].items():
             assert e["valid"] is False and "profile check: accel_x" in e["reason"], (name, e)
-    finally:
-        tx.shutdown()
-        svc.stop()
+
+    run_service(tmp_path, [drive(30.0)], [check], profile=flipped)
 
 
 def test_frames_on_another_bus_channel_are_named(tmp_path, capsys):
@@ -191,22 +180,14 @@ def test_frames_on_another_bus_channel_are_named(tmp_path, capsys):
     from vdp.sim.run import write_log
 
     can0 = dataclasses.replace(load_profile(PAPER), bus_channel="can0")
-    settings = make_settings(tmp_path / "live")
-    svc = Service(settings, profile=can0)
-    svc.start()
-    wait_up(svc)
-    tx = can.Bus(interface="virtual", channel=svc.bus_cfg.channel, preserve_timestamps=True)
-    try:
-        frames = drive(11.0)
-        for msg in frames:
-            tx.send(msg)
-        wait_frames(svc, len(frames))
+    frames = drive(11.0)
+
+    def check(svc, client):
         err = svc.status()["profile_check"]["error"]
         assert f"{len(frames)} frames came on other bus channels ({svc.bus_cfg.channel} ({len(frames)}))" in err
         assert "than the profile's [can] channel 'can0'" in err
-    finally:
-        tx.shutdown()
-        svc.stop()
+
+    run_service(tmp_path / "live", [frames], [check], profile=can0)
     log = tmp_path / "can1.log"
     frames = drive(11.0)
     for m in frames:
@@ -236,21 +217,10 @@ def test_the_real_rav4_capture_passes_the_live_self_check(tmp_path, monkeypatch)
     with open_log(ROOT / "tests" / "data" / "rav4-2018-highway-15s.log.gz", channel="can0") as src:
         frames = list(src)
 
-    settings = make_settings(tmp_path)
-    svc = Service(settings, profile=prof)
-    svc.start()
-    wait_up(svc)
-    client = TestClient(create_app(settings, svc))
-    tx = can.Bus(interface="virtual", channel=svc.bus_cfg.channel, preserve_timestamps=True)
-    try:
-        for msg in frames:
-            tx.send(msg)
-        wait_frames(svc, len(frames))
-        svc.sync()
+    def check(svc, client):
         st = client.get("/status").json()["profile_check"]
         assert st["error"] is None and st["findings"] == [] and st["coverage"]["seen"] == 3
         assert 0.8 < st["measured"]["accel_x_per_dv_dt"] < 1.25
         assert not any("profile check" in r for r in client.get("/health").json()["reasons"])
-    finally:
-        tx.shutdown()
-        svc.stop()
+
+    run_service(tmp_path, [frames], [check], profile=prof)
