@@ -434,7 +434,7 @@ class StageLearner:
             std = factor * math.sqrt(pcov[i, i]) if pcov[i, i] > 0 else math.nan
             if err is not None:
                 std = math.hypot(std, err[i])
-            std, own = self.adjust(name, value, std)
+            value, std, own = self.adjust(name, value, std)
             status = self.status(spec, value, std, self.pub_prior_std[i])
             reason = why if name in self.flagged and status not in (NOT_RUN, INVALID) else None
             if reason is None and own is not None and status not in (NOT_RUN, INVALID):
@@ -490,10 +490,10 @@ class StageLearner:
         """Per parameter, a std for the model's own error, added when it mismatches (or None)."""
         return None
 
-    def adjust(self, name: str, value: float, std: float) -> tuple[float, str | None]:
-        """One parameter's (std, reason it is not valid or None) after what the stage knows of
-        it beyond the filter's covariance; by default the std as it is."""
-        return std, None
+    def adjust(self, name: str, value: float, std: float) -> tuple[float, float, str | None]:
+        """One parameter's (value, std, reason it is not valid or None) after what the stage knows
+        of it beyond the filter's covariance; by default both as they are."""
+        return value, std, None
 
     def values(self) -> tuple:
         """((value, std), ...) of the parameters: the trace's cheap view of snapshot()."""
@@ -1044,8 +1044,8 @@ class Stage2(StageLearner):
         f, r = float(theta[0]), float(theta[1])
         axle_why = None  # the batch check (core.output_error) per axle, as adjust() does for the mean
         if self.cfg.batch_check and self.known is not None and (fit := self.batch_fit()) is not None:
-            sf, why_f = output_error.compare("C_alpha_front", f, sf, fit, output_error.Z_MAX)
-            sr, why_r = output_error.compare("C_alpha_rear", r, sr, fit, output_error.Z_MAX)
+            f, sf, why_f = output_error.compare("C_alpha_front", f, sf, fit, output_error.Z_MAX)
+            r, sr, why_r = output_error.compare("C_alpha_rear", r, sr, fit, output_error.Z_MAX)
             axle_why = why_f or why_r
         why = None
         if self.samples == 0:
@@ -1196,8 +1196,11 @@ class Stage2(StageLearner):
         size (NIS) and whiteness, as :meth:`mismatch` tests all rows."""
         return _verdict(self.roll_total, "roll-rate innovations", "roll-rate innovations", "roll model mismatch")
 
-    def adjust(self, name: str, value: float, std: float) -> tuple[float, str | None]:
-        """I_x's std carries what eq (9) takes as known but is not (see ROLL_MODEL_ERROR):
+    def adjust(self, name: str, value: float, std: float) -> tuple[float, float, str | None]:
+        """C_alpha and I_z: the batch check's verdict (output_error.compare: where the model
+        mismatches, the output-error fit's value with the std widened).
+
+        I_x's std carries what eq (9) takes as known but is not (see ROLL_MODEL_ERROR):
 
         - stage 1's h: the roll moment m h (a_y + g phi) scales with it, and I_x with the
           moment (the roll rate's response above the roll frequency is m h a_y / (I_x s)),
@@ -1209,9 +1212,11 @@ class Stage2(StageLearner):
         """
         if name in output_error.CHECKED and self.known is not None and self.cfg.batch_check:
             fit = self.batch_fit()
-            return (std, None) if fit is None else output_error.compare(name, value, std, fit, output_error.Z_MAX)
+            if fit is None:
+                return value, std, None
+            return output_error.compare(name, value, std, fit, output_error.Z_MAX)
         if name != "I_x" or self.known is None or not (math.isfinite(value) and math.isfinite(std)):
-            return std, None
+            return value, std, None
         h_rel = (self.h_std or 0.0) / self.known.h if self.known.h > 0 else 0.0
         factor, why = self.roll_mismatch()
         if why is not None:
@@ -1226,7 +1231,7 @@ class Stage2(StageLearner):
                 f"roll not excited: the drive's roll rate tells I_x to {100 * quiet:.0f} % at best "
                 f"(its prior: {100 * self._ix_prior_rel():.0f} %); quick steering reversals at speed excite the roll"
             )
-        return std, why
+        return value, std, why
 
     def batch_fit(self) -> output_error.Fit | None:
         """The output-error fit of the windows kept (core.output_error), solved again when stale:
@@ -1475,7 +1480,8 @@ class Stage2(StageLearner):
         self.filter.update(z, mask, us[-1])
         self.updates += 1
         self.roll_updates += bool(mask[lateral.Z_ROLL])
-        self.check.record.add(t, us[-1], z[lateral.Z_YAW], z[lateral.Z_AY])
+        roll = z[lateral.Z_ROLL] if mask[lateral.Z_ROLL] else math.nan
+        self.check.record.add(t, us[-1], z[lateral.Z_YAW], z[lateral.Z_AY], roll)
         if mask[lateral.Z_ROLL] and self._excite is not None:
             n = self.cfg.noise
             j = self._excite.chi_d**2 / (n.gyro * n.inflate) ** 2  # the roll row's R
