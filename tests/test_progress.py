@@ -25,7 +25,7 @@ def snap(stage="stage1", reasons=None, caps=None, **params):
     return {
         "parameters": base,
         "stage": stage,
-        "supervisor": {"reasons": reasons or {"1": "open", "2": "waiting for stage 1 to converge"}, "excitation": {}},
+        "supervisor": {"reasons": reasons or {"1": "open", "2": "waiting for stage 1's l_f"}, "excitation": {}},
         "capabilities": caps or {"1": None, "2": None},
     }
 
@@ -165,7 +165,7 @@ def test_a_model_mismatch_does_not_ask_for_more_of_the_same_driving():
 
 def test_what_the_learners_report_is_used():
     half = {"value": 10.0, "std": 0.5, "status": "uncertain", "samples": 10}
-    s = snap(C_K=half, reasons={"1": "open", "2": "waiting for stage 1 to converge"})
+    s = snap(C_K=half, reasons={"1": "open", "2": "waiting for stage 1's l_f"})
     s["supervisor"]["learners"] = {
         "ukf": {"stage1": {"seconds_in_windows": 42.0, "blocks_used": 30, "blocks_beyond_small_slip": 90}}
     }

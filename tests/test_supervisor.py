@@ -40,7 +40,7 @@ def test_straight_acceleration_opens_stage_1_only():
     sup = Supervisor()
     stages = run(sup, 1000, accel)
     assert stages[-1] == 1 and 2 not in stages
-    assert sup.reason[2] == "waiting for stage 1 to converge"
+    assert sup.reason[2] == "waiting for stage 1's l_f"
 
 
 def test_steering_closes_stage_1_at_once_and_no_window_below_min_speed():

@@ -19,12 +19,14 @@ import numpy as np
 
 from .. import channels as ch
 from .learner import LearnerConfig, Stage1, Stage2
-from .result import NOT_RUN, SETTLED, Estimate, Snapshot, WindowSpan
+from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
 from .sample import Sample
 from .speed import SpeedConfig, speed_filter, wheel_reference
 from .supervisor import GateConfig, Supervisor
 
 log = logging.getLogger(__name__)
+
+L_F_KNOWN = 0.02  # stage 1's l_f relative std at which stage 2 may start (TwoStageEstimator.l_f_known)
 
 
 @dataclass(frozen=True)
@@ -228,8 +230,21 @@ class TwoStageEstimator:
     # -- helpers -------------------------------------------------------
     def l_f_known(self) -> bool:
         """Stage 2 needs l_f only (BENCHMARKS.md, sensitivity: h and C_K hardly move it): measured
-        in the profile, or stage 1's UKF estimate valid, whether or not h and C_K are."""
-        return getattr(self.vehicle, "l_f", None) is not None or self.s1["ukf"].snapshot()["l_f"].status == "converged"
+        in the profile, or stage 1's UKF estimate converged or known to L_F_KNOWN, whether or not
+        h and C_K are.  Stage 2 carries l_f's std (lateral.CONSIDER), so a car whose stage 1 is
+        widened by a model mismatch (l_f 0.8-1.8 % on the independent models, never converged with
+        the priors x1.6) still runs stage 2, with C_alpha's and I_z's stds the wider for it."""
+        if getattr(self.vehicle, "l_f", None) is not None:
+            return True
+        e = self.s1["ukf"].snapshot()["l_f"]
+        if e.status == CONVERGED:
+            return True
+        return (
+            e.status == UNCERTAIN
+            and e.value is not None
+            and e.std is not None
+            and 0.0 < e.std <= L_F_KNOWN * abs(e.value)
+        )
 
     def l_f(self, kind: str) -> tuple[float, float | None]:
         """(l_f, std) for stage 2: the profile's measured value (1 % if no std given), else stage 1's."""

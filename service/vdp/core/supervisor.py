@@ -115,7 +115,7 @@ class Supervisor:
                 b = self.blockers[stage]
                 b[d] = b.get(d, 0.0) + dt
         r1 = self._missing(y, self.stage1_needs) or d1
-        r2 = "waiting for stage 1 to converge" if not stage1_done else self._missing(y, self.stage2_needs) or d2
+        r2 = "waiting for stage 1's l_f" if not stage1_done else self._missing(y, self.stage2_needs) or d2
         self.reason = {1: r1 or "open", 2: r2 or "open"}
         hard1 = r1 is not None and not r1.startswith("little")
         hard2 = r2 is not None and not r2.startswith("little")
