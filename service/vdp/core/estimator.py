@@ -75,6 +75,15 @@ class GyroBias:
         return self.yaw, self.roll
 
 
+def _known(e: Estimate) -> bool:
+    """Whether stage 1's l_f estimate is good enough for stage 2: converged, or uncertain with
+    its std within L_F_KNOWN of its value."""
+    if e.status == CONVERGED:
+        return True
+    ok = e.status == UNCERTAIN and e.value is not None and e.std is not None
+    return ok and 0.0 < e.std <= L_F_KNOWN * abs(e.value)
+
+
 class TwoStageEstimator:
     def __init__(self, vehicle, priors, cfg: EstimatorConfig | None = None):
         self.vehicle = vehicle
@@ -234,24 +243,17 @@ class TwoStageEstimator:
         h and C_K are.  Stage 2 carries l_f's std (lateral.CONSIDER), so a car whose stage 1 is
         widened by a model mismatch (l_f 0.8-1.8 % on the independent models, never converged with
         the priors x1.6) still runs stage 2, with C_alpha's and I_z's stds the wider for it."""
-        if getattr(self.vehicle, "l_f", None) is not None:
-            return True
-        e = self.s1["ukf"].snapshot()["l_f"]
-        if e.status == CONVERGED:
-            return True
-        return (
-            e.status == UNCERTAIN
-            and e.value is not None
-            and e.std is not None
-            and 0.0 < e.std <= L_F_KNOWN * abs(e.value)
-        )
+        return getattr(self.vehicle, "l_f", None) is not None or _known(self.s1["ukf"].snapshot()["l_f"])
 
     def l_f(self, kind: str) -> tuple[float, float | None]:
-        """(l_f, std) for stage 2: the profile's measured value (1 % if no std given), else stage 1's."""
+        """(l_f, std) for stage 2: the profile's measured value (1 % if no std given), else stage 1's;
+        the UKF's where this kind's own is not known to L_F_KNOWN (l_f_known judges the UKF's)."""
         v = self.vehicle
         if getattr(v, "l_f", None) is not None:
             return v.l_f, v.l_f_std if v.l_f_std is not None else 0.01 * v.l_f
         e = self.s1[kind].snapshot()["l_f"]
+        if kind != "ukf" and not _known(e):
+            e = self.s1["ukf"].snapshot()["l_f"]
         return e.value, e.std
 
     def parameters(self, kind: str = "ukf") -> dict[str, Estimate]:

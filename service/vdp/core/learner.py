@@ -1047,6 +1047,10 @@ class Stage2(StageLearner):
             f, sf, why_f = output_error.compare("C_alpha_front", f, sf, fit, output_error.Z_MAX)
             r, sr, why_r = output_error.compare("C_alpha_rear", r, sr, fit, output_error.Z_MAX)
             axle_why = why_f or why_r
+            if output_error.departs(fit) is not None:  # the axles are the fit's: so is what separates them
+                c = fit.cov
+                corr = c[0, 1] / math.sqrt(c[0, 0] * c[1, 1]) if c[0, 0] > 0 and c[1, 1] > 0 else math.nan
+                diff = math.sqrt(max(f * f * c[0, 0] + r * r * c[1, 1] - 2.0 * f * r * c[0, 1], 0.0))
         why = None
         if self.samples == 0:
             why = "stage 2 has not run"

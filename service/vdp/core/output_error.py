@@ -26,6 +26,12 @@ numpy throughout, no Python loop over the samples.
 :func:`compare` is the verdict: when the filter's value and the fit's differ by more
 than their uncertainties, the model cannot explain the data one way, and the filter's
 std widens to cover the difference (not valid, with the reason).
+
+Two terms beyond the filter's model make the fit's class richer (BENCHMARKS.md, "A tyre shape
+the data must earn"): the roll swing a_y += s phi'' (SWING), fitted wherever there is a
+roll-rate gyro, and the tyre's shape (SHAPE_B, SHAPE_C), freed only where it takes most of the
+linear law's structured misfit away (Check.solve).  Where the shape is freed, the values
+reported for C_alpha, each axle and I_z are the fit's.
 """
 
 from __future__ import annotations
@@ -60,7 +66,10 @@ HELD = 1e-6  # the prior std of a parameter the fit holds (its shape while the t
 # u = C |alpha| / F_z at the axle's static load.  C stays the initial (small-slip) slope, the truth's
 # definition; a brush tyre has b = 1/(3 mu), c = 1/(27 mu^2), a Magic-Formula tyre b near 0.
 SHAPE_STD = 1.0
-SHAPE_ITERS = 4  # fixed-point passes: each axle's secant stiffness at the previous pass's slip angles
+# fixed-point passes: each axle's secant stiffness at the previous pass's slip angles, until the
+# factors move by less than SHAPE_TOL (3-5 passes at mu 0.7; near the friction limit more)
+SHAPE_ITERS = 16
+SHAPE_TOL = 1e-5
 V_Y0_STD = 2.0  # m/s, only to keep the normal equations regular
 YAW0_STD = 1.0  # rad/s
 
@@ -231,13 +240,20 @@ class Problem:
         z = z[:, :2]
         self.w = np.where(np.isfinite(z), 1.0 / np.asarray(sigma, dtype=float), 0.0)  # per row's 1/sigma
         self.zf = np.where(np.isfinite(z), z, 0.0)
-        # phi'' per row from the roll-rate gyro, central differences within each window (0 where none)
+        # phi'' per row from the roll-rate gyro: central differences over each window's finite
+        # samples, linear between them (a slower gyro or dropouts leave gaps); 0 where none
         phi_dd = np.zeros(n)
+        self.has_roll = False
         for a, b in self.bounds:
-            if b - a >= 3:
-                with np.errstate(invalid="ignore", divide="ignore"):  # a clock that stood still: not finite, 0
-                    phi_dd[a:b] = np.gradient(roll[a:b], t[a:b])
-        self.has_roll = bool(np.isfinite(phi_dd).any() and np.isfinite(roll).any())
+            ok = np.isfinite(roll[a:b])
+            if np.count_nonzero(ok) < 3:
+                continue
+            tt = t[a:b][ok]
+            with np.errstate(invalid="ignore", divide="ignore"):  # a clock that stood still: not finite, 0
+                g = np.gradient(roll[a:b][ok], tt)
+            g = np.where(np.isfinite(g), g, 0.0)
+            phi_dd[a:b] = np.interp(t[a:b], tt, g)
+            self.has_roll = True
         phi_dd = np.where(np.isfinite(phi_dd), phi_dd, 0.0)
         # the static axle loads (u of the tyre's shape): F_zf = m g l_r / L, F_zr = m g l_f / L
         self.fz = (k.m * k.g * (k.L - k.l_f) / k.L, k.m * k.g * k.l_f / k.L)
@@ -355,9 +371,14 @@ class Problem:
             phi = self._scan(self._maps(theta, swing, steps))
             v_y = phi[0] * x0[..., 0] + phi[1] * x0[..., 1] + phi[4]
             r = phi[2] * x0[..., 0] + phi[3] * x0[..., 1] + phi[5]
-            if bent:
-                rows = self._bend(theta, shape, v_y, r)
-                steps = [self._at_steps(b) for b in rows]
+            if not bent:
+                break
+            new = self._bend(theta, shape, v_y, r)
+            moved = math.inf if rows is None else max(float(np.max(np.abs(x - y))) for x, y in zip(new, rows))
+            rows = new
+            if moved < SHAPE_TOL:
+                break
+            steps = [self._at_steps(b) for b in rows]
         *_, c1, c2, a0 = _system(self.pre_rows, theta, self.k, swing, rows)
         a_y = c1 * v_y + c2 * r + a0 + p[:, OFFSET, None]
         return np.stack([r, a_y], axis=-1), (phi[:4, 0], c1[0], c2[0])
@@ -637,12 +658,12 @@ def compare(name: str, value: float, std: float, fit: Fit, z_max: float) -> tupl
       row among them, pull it elsewhere than yaw rate and a_y do).
     - The fit's halves may disagree (Fit.rel_spread): the model's own error in this drive,
       which no std from the data holds.
-    Either way the value reported is the fit's: the optimum of all the windows' yaw rate and
-    a_y under a model class at least as rich as the filter's (each axle, the roll swing, the
-    tyre's shape where the data freed it), where the filter's one-step rows may settle where its
-    own errors pull them (on the independent models the fit was the closer in 13 of 16 cells).
+    - The fit freed the tyre's shape (:func:`departs`): the filter's linear law cannot hold.
     The std widens to cover the filter's value, the fit's std and the model's error:
-    hypot(std, |difference|, fit's value x hypot(fit's std, model error)), not valid.
+    hypot(std, |difference|, fit's value x hypot(fit's std, model error)), not valid.  The value
+    stays the filter's unless the shape was freed: then it is the fit's, the optimum of all the
+    windows' yaw rate and a_y under the richer model (each axle, the roll swing, the tyre's
+    shape), whose C_alpha is the small-slip slope the truth defines.
     """
     b = fit.value(name)
     if not (math.isfinite(value) and math.isfinite(std) and value > 0 and b > 0):
@@ -740,6 +761,6 @@ class Check:
             out[name + "_rel_std"] = round(math.sqrt(f.cov[i, i]), 4)
             out[name + "_halves_spread"] = round(float(spread[i]), 4)
         out["a_y_offset"] = round(f.offset, 4)
-        out["roll_swing_m"] = round(f.swing, 4)
+        out["roll_swing_m"] = round(f.swing, 4) if math.isfinite(f.swing_std) else None  # None: no roll gyro
         out["tyre_shape_bc"] = None if f.shape is None else [round(v, 4) for v in f.shape]
         return out
