@@ -67,9 +67,10 @@ HELD = 1e-6  # the prior std of a parameter the fit holds (its shape while the t
 # definition; a brush tyre has b = 1/(3 mu), c = 1/(27 mu^2), a Magic-Formula tyre b near 0.
 SHAPE_STD = 1.0
 # fixed-point passes: each axle's secant stiffness at the previous pass's slip angles, until the
-# factors move by less than SHAPE_TOL (3-5 passes at mu 0.7; near the friction limit more)
-SHAPE_ITERS = 16
-SHAPE_TOL = 1e-5
+# factors move by less than SHAPE_TOL; each call starts from the last converged factors (Problem._warm),
+# so a Levenberg-Marquardt step or a Jacobian column takes 1-3 passes, a cold start 5-10
+SHAPE_ITERS = 30
+SHAPE_TOL = 1e-8
 V_Y0_STD = 2.0  # m/s, only to keep the normal equations regular
 YAW0_STD = 1.0  # rad/s
 
@@ -367,6 +368,10 @@ class Problem:
         x0 = p[:, N_GLOBAL:].reshape(len(p), -1, 2)[:, self.seg, :]  # (S, n, 2): each row's window's x0
         bent = bool(np.any(shape != 0.0))
         rows = steps = None
+        warm = getattr(self, "_warm", None)
+        if bent and warm is not None:
+            rows = [np.repeat(w[None, :], len(p), axis=0) for w in warm]
+            steps = [self._at_steps(b) for b in rows]
         for _ in range(SHAPE_ITERS if bent else 1):
             phi = self._scan(self._maps(theta, swing, steps))
             v_y = phi[0] * x0[..., 0] + phi[1] * x0[..., 1] + phi[4]
@@ -379,6 +384,8 @@ class Problem:
             if moved < SHAPE_TOL:
                 break
             steps = [self._at_steps(b) for b in rows]
+        if bent:
+            self._warm = [b[0].copy() for b in rows]
         *_, c1, c2, a0 = _system(self.pre_rows, theta, self.k, swing, rows)
         a_y = c1 * v_y + c2 * r + a0 + p[:, OFFSET, None]
         return np.stack([r, a_y], axis=-1), (phi[:4, 0], c1[0], c2[0])
