@@ -434,11 +434,13 @@ class StageLearner:
             std = factor * math.sqrt(pcov[i, i]) if pcov[i, i] > 0 else math.nan
             if err is not None:
                 std = math.hypot(std, err[i])
+            filtered = value
             value, std, own = self.adjust(name, value, std)
             status = self.status(spec, value, std, self.pub_prior_std[i])
             reason = why if name in self.flagged and status not in (NOT_RUN, INVALID) else None
-            if reason is None and own is not None and status not in (NOT_RUN, INVALID):
-                reason = own
+            if own is not None and status not in (NOT_RUN, INVALID):
+                # a value that is not the filter's says where it came from first
+                reason = own if reason is None else f"{own}; {reason}" if value != filtered else reason
             valid = status == CONVERGED and reason is None
             out[name] = Estimate(
                 name=name,
@@ -1046,11 +1048,10 @@ class Stage2(StageLearner):
         if self.cfg.batch_check and self.known is not None and (fit := self.batch_fit()) is not None:
             f, sf, why_f = output_error.compare("C_alpha_front", f, sf, fit, output_error.Z_MAX)
             r, sr, why_r = output_error.compare("C_alpha_rear", r, sr, fit, output_error.Z_MAX)
+            # whether the drive separates the axles stays the filter's verdict (its covariance: what the
+            # drive excited), also where the values are the fit's: the fit's common-mode model error
+            # correlates its axles (0.99 on brush/small) without saying the drive could not tell them apart
             axle_why = why_f or why_r
-            if output_error.departs(fit) is not None:  # the axles are the fit's: so is what separates them
-                c = fit.cov
-                corr = c[0, 1] / math.sqrt(c[0, 0] * c[1, 1]) if c[0, 0] > 0 and c[1, 1] > 0 else math.nan
-                diff = math.sqrt(max(f * f * c[0, 0] + r * r * c[1, 1] - 2.0 * f * r * c[0, 1], 0.0))
         why = None
         if self.samples == 0:
             why = "stage 2 has not run"
