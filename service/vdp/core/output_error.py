@@ -606,11 +606,12 @@ def departs(fit: Fit) -> str | None:
 
 
 SMOOTH = 25  # rows (1 s at 40 ms): a model's error follows the manoeuvre, the sensors' noise averages out
-# The tyre's shape is kept only where it takes at least this share of the structured misfit
-# away (structured()): the brush cars' fell to 0.03-0.06 of the linear law's; on the multi-body
-# cars, whose misfit is mostly camber thrust and roll-rate slip, it fell to about 0.65-0.7 and
-# bent C_alpha 10-14 % high (BENCHMARKS.md, "A tyre shape the data must earn").
-SHAPE_GAIN = 0.25
+# The tyre's shape is kept only where what it leaves of the linear law's structured misfit
+# (structured()) is below this share: the brush cars' 0.05 noise-free, 0.18-0.21 with realistic
+# noise; the multi-body cars' (mostly camber thrust and roll-rate slip, which a tyre curve must not
+# absorb: freed there it bent C_alpha 10-14 % high) 0.90-0.98, vdp's own simulator's 0.99
+# (BENCHMARKS.md, "A tyre shape the data must earn").
+SHAPE_GAIN = 0.5
 # ... and tried only where the linear law leaves structure (structured() per row used, in units of
 # the sensors' noise squared): 0.005 on vdp's own simulator with realistic noise, 0.02-0.03 on the
 # independent models.  The shaped fit costs about 6 times the linear one.
