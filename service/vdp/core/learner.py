@@ -439,8 +439,10 @@ class StageLearner:
             status = self.status(spec, value, std, self.pub_prior_std[i])
             reason = why if name in self.flagged and status not in (NOT_RUN, INVALID) else None
             if own is not None and status not in (NOT_RUN, INVALID):
-                # a value that is not the filter's says where it came from first
-                reason = own if reason is None else f"{own}; {reason}" if value != filtered else reason
+                if reason is None:
+                    reason = own
+                elif value != filtered:  # a value that is not the filter's says where it came from first
+                    reason = f"{own}; {reason}"
             valid = status == CONVERGED and reason is None
             out[name] = Estimate(
                 name=name,

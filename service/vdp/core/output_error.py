@@ -368,9 +368,8 @@ class Problem:
         x0 = p[:, N_GLOBAL:].reshape(len(p), -1, 2)[:, self.seg, :]  # (S, n, 2): each row's window's x0
         bent = bool(np.any(shape != 0.0))
         rows = steps = None
-        warm = getattr(self, "_warm", None)
-        if bent and warm is not None:
-            rows = [np.repeat(w[None, :], len(p), axis=0) for w in warm]
+        if bent and self._warm is not None:
+            rows = [np.repeat(w[None, :], len(p), axis=0) for w in self._warm]
             steps = [self._at_steps(b) for b in rows]
         for _ in range(SHAPE_ITERS if bent else 1):
             phi = self._scan(self._maps(theta, swing, steps))
@@ -414,6 +413,7 @@ class Problem:
         return J.reshape(self.n * 2, len(p))
 
     shaped = False  # whether the tyre's shape is free (Check.solve frees it where the data need it)
+    _warm: list[np.ndarray] | None = None  # the last converged secant factors per axle (outputs())
 
     @property
     def swung(self) -> bool:
@@ -422,19 +422,20 @@ class Problem:
         bent their C_alpha +8...+12 %, I_z +19 %: BENCHMARKS.md, "A tyre shape the data must earn")."""
         return self.has_roll
 
-    def shaping(self, on: bool) -> Problem:
-        """The same problem with the tyre's shape free (on) or held at the linear law."""
+    def _variant(self, **changes) -> Problem:
+        """The same problem (its arrays shared) with some attributes changed."""
         out = object.__new__(Problem)
         out.__dict__.update(self.__dict__)
-        out.shaped = on
+        out.__dict__.update(changes)
         return out
+
+    def shaping(self, on: bool) -> Problem:
+        """The same problem with the tyre's shape free (on) or held at the linear law."""
+        return self._variant(shaped=on)
 
     def only(self, keep: np.ndarray) -> Problem:
         """The same problem with the residuals of the rows not in ``keep`` weighted out."""
-        out = object.__new__(Problem)
-        out.__dict__.update(self.__dict__)
-        out.w = self.w * keep[:, None]
-        return out
+        return self._variant(w=self.w * keep[:, None])
 
     # -- starts -----------------------------------------------------------------
     def start(self, theta) -> np.ndarray:
@@ -577,7 +578,17 @@ def solve(
     theta = np.exp(p[:N_THETA])
     s_sd = math.sqrt(cov[SWING, SWING]) * float(k.max()) if prob.swung else math.inf
     return Fit(
-        theta, float(p[OFFSET]), 0.5 * (c3 + c3.T), chi2, rho, prob.n, n_it, p, None, float(p[SWING]), s_sd, shape
+        theta,
+        float(p[OFFSET]),
+        0.5 * (c3 + c3.T),
+        chi2,
+        rho,
+        prob.n,
+        n_it,
+        p,
+        swing=float(p[SWING]),
+        swing_std=s_sd,
+        shape=shape,
     )
 
 
@@ -613,8 +624,9 @@ SMOOTH = 25  # rows (1 s at 40 ms): a model's error follows the manoeuvre, the s
 # (BENCHMARKS.md, "A tyre shape the data must earn").
 SHAPE_GAIN = 0.5
 # ... and tried only where the linear law leaves structure (structured() per row used, in units of
-# the sensors' noise squared): 0.005 on vdp's own simulator with realistic noise, 0.02-0.03 on the
-# independent models.  The shaped fit costs about 6 times the linear one.
+# the sensors' noise squared): 0.0004-0.004 on vdp's paper drive with realistic noise (0.0101 on one
+# seed, where it is tried in vain), 0.02-0.03 on the independent models.  The shaped fit costs
+# several times the linear one.
 STRUCTURE_MIN = 0.01
 
 
@@ -744,11 +756,12 @@ class Check:
             prob = Problem(t, u, z, bounds, k, sigma)
             fit = solve(prob, prior_t, prior_P, starts)
             used = max(int(np.count_nonzero(prob.w[:, 1])), 1)
-            if fit is not None and structured(prob, fit.p) > STRUCTURE_MIN * used:
+            left = structured(prob, fit.p) if fit is not None else 0.0
+            if left > STRUCTURE_MIN * used:
                 # the tyre's shape, kept where it explains most of what the linear law leaves
                 bent_prob = prob.shaping(True)
                 bent = solve(bent_prob, prior_t, prior_P, [fit.p])
-                if bent is not None and structured(bent_prob, bent.p) < SHAPE_GAIN * structured(prob, fit.p):
+                if bent is not None and structured(bent_prob, bent.p) < SHAPE_GAIN * left:
                     prob, fit = bent_prob, bent
             if fit is not None and (mismatched(fit) or departs(fit)):  # two more solves, only where the model errs
                 fit = dataclasses.replace(fit, spread=spread(prob, fit, prior_t, prior_P))
