@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vdp.core import kernels, lateral, longitudinal
+from vdp.core import kernels, lateral, longitudinal, output_error
 from vdp.core.bounds import Bounds
 from vdp.core.estimator import EstimatorConfig
 from vdp.core.filters import UKF
@@ -280,3 +280,34 @@ def test_a_replay_says_when_it_compiles_the_steps_first(monkeypatch, capsys, tmp
     monkeypatch.setattr(kernels, "cached", lambda: False)  # a fresh checkout
     compile_note()
     assert "compiling the estimator's filter steps once" in capsys.readouterr().out
+
+
+def _oe_record(seed: int = 3):
+    """(known, t, U, Z, windows): two windows of sine steering with a roll gyro (the states' inputs only)."""
+    rng = np.random.default_rng(seed)
+    k = lateral.Known(m=1500.0, L=2.6, r=0.3, k_phi=6e4, c_phi=4e3, l_f=1.2, h=0.5, C_K=10.0, per_axle=True)
+    t = np.concatenate([np.arange(300) * 0.04, 30.0 + np.arange(200) * 0.04])
+    d = 0.05 * np.sin(0.6 * t) + 0.02 * np.sin(4.0 * t)
+    v = 12.0 + 0.5 * np.sin(0.3 * t)
+    U = np.stack([d, v, v / k.r, 0.2 * np.sin(0.5 * t)], axis=1)
+    Z = np.stack([0.3 * d, 3.0 * d, 0.02 * np.sin(4.0 * t + 0.3)], axis=1)
+    Z += rng.normal(0.0, 1.0, Z.shape) * [0.002, 0.05, 0.002]
+    return k, t, U, Z, [(0, 300), (300, 500)]
+
+
+@pytest.mark.parametrize("bent", [False, True])
+def test_the_fits_states_compiled_equal_the_prefix_scan(bent):
+    """core.kernels.oe_states gives Problem._scan(Problem._maps(...)): the same products, summed
+    left to right instead of in a tree, so equal to rounding."""
+    k, t, U, Z, windows = _oe_record()
+    prob = output_error.Problem(t, U, Z, windows, k, (0.003, 0.08))
+    rng = np.random.default_rng(1)
+    theta = np.exp(np.log([7e4, 9e4, 2500.0]) + 0.2 * rng.normal(size=(4, 3)))
+    swing = rng.normal(0.0, 0.3, 4)
+    bend = [rng.uniform(0.7, 1.0, (4, prob.n)) for _ in range(2)] if bent else None
+    ref = prob._states(theta, swing, bend)
+    prob.compiled = True
+    got = prob._states(theta, swing, bend)
+    assert got.shape == ref.shape == (6, 4, prob.n)
+    assert np.abs(ref[4]).max() > 1e-3  # the states move (the comparison is not of zeros)
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-13 * np.abs(ref).max())

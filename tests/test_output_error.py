@@ -311,8 +311,8 @@ def brush_drive(duration, seed, mu=0.7, swing=0.0, noise=True):
     return t, U, Z
 
 
-def check_of(t, U, Z, every=2):
-    c = oe.Check()
+def check_of(t, U, Z, every=2, compiled=False):
+    c = oe.Check(compiled=compiled)
     c.record.open()
     for i in range(0, len(t), every):
         c.record.add(t[i], U[i].tolist(), Z[i, 0], Z[i, 1], Z[i, 2])
@@ -334,6 +334,20 @@ def test_the_fit_frees_the_tyres_shape_and_finds_the_swing_where_the_car_has_the
     assert v == f.c_alpha and why.startswith("model mismatch: the tyres' force bends with the slip angle")
     assert wide > 5 * 0.01 * value  # widened well beyond the filter's own std
     assert abs(v - TRUTH[:2].mean()) < wide
+
+
+def test_the_fit_is_the_same_with_the_compiled_states():
+    """The shaped fit of a brush tyre, its states by core.kernels.oe_states (what a replay runs)
+    and by the prefix scan: the same fit to rounding, in units of its own std."""
+    drive = brush_drive(60.0, seed=8, swing=0.45)
+    (_, ref), (_, got) = check_of(*drive), check_of(*drive, compiled=True)
+    assert ref.shape is not None and got.shape is not None  # the shape was tried and kept: both paths ran
+    sd = np.sqrt(np.diagonal(ref.cov))  # of the logs of C_f, C_r, I_z
+    assert np.all(np.abs(np.log(got.theta / ref.theta)) <= 1e-6 * sd)
+    assert got.swing == pytest.approx(ref.swing, abs=1e-6 * ref.swing_std)
+    np.testing.assert_allclose(got.shape, ref.shape, rtol=1e-6)
+    np.testing.assert_allclose(got.cov, ref.cov, rtol=1e-6)
+    assert got.chi2 == pytest.approx(ref.chi2, rel=1e-9)
 
 
 def test_a_linear_tyre_keeps_the_linear_law_and_no_swing():

@@ -28,6 +28,7 @@ from .. import channels as ch
 from ..errors import FilterError
 from . import batch, lateral, longitudinal, output_error
 from .bounds import Bounds
+from .compiled import kernel
 from .filters import EKF, UKF
 from .params import BY_NAME, STAGE1, STAGE2
 from .result import CONVERGED, INVALID, NOT_IDENTIFIABLE, NOT_RUN, UNCERTAIN, Estimate, finite
@@ -191,22 +192,6 @@ class LearnerConfig:
     @property
     def stage2_every(self) -> int:
         return max(1, round(self.stage2_step / self.tick))
-
-
-_KERNELS: list = []  # core.kernels once imported, or None when numba cannot be
-
-
-def _compiled(name: str):
-    """core.kernels' compiled UKF class ``name``, or None (numba missing: the numpy path does
-    the same work).  Imported at the first filter, not with this module: numba takes ~0.5 s."""
-    if not _KERNELS:
-        try:
-            from . import kernels
-        except ImportError as exc:
-            log.warning("compiled filter steps unavailable (%s); using numpy's", exc)
-            kernels = None
-        _KERNELS.append(kernels)
-    return None if _KERNELS[0] is None else getattr(_KERNELS[0], name)
 
 
 def _widen(rho: float | None, nis: float | None = None) -> float:
@@ -552,7 +537,7 @@ class StageLearner:
         scale = np.where(b.transformed, 1.0, m.SCALE)
         fx, hx = b.wrap_fx(self._fx), b.wrap_hx(self._hx)
         if self.kind == "ukf":
-            cls = _compiled(self.compiled_ukf) if self.cfg.compiled and self.compiled_ukf else None
+            cls = kernel(self.compiled_ukf) if self.cfg.compiled and self.compiled_ukf else None
             if cls is not None:
                 return cls(t0, P0, Q, R, scale, fx, hx, b, self.known, m.CONSIDER)
             return UKF(t0, P0, Q, R, scale, fx, hx, m.CONSIDER)
@@ -787,8 +772,8 @@ class Stage1(StageLearner):
         """core.batch.solve on this stage's model (longitudinal.hx of the transformed parameters);
         compiled (core.kernels.lon_solve, the same iterations) when the filter steps are."""
         b, k = self.bounds, self.known
-        if self.cfg.compiled and _compiled("lon_solve") is not None:
-            return _compiled("lon_solve")(b, k, U, Z, R, t0, P0, starts, iters)
+        if self.cfg.compiled and kernel("lon_solve") is not None:
+            return kernel("lon_solve")(b, k, U, Z, R, t0, P0, starts, iters)
         return batch.solve(lambda t, u: longitudinal.hx(b.to_si(t), u, k), U, Z, R, t0, P0, starts, iters)
 
     def _q_rate(self):
@@ -1096,7 +1081,8 @@ class Stage2(StageLearner):
         self._info_window = 0.0
         self._excite: RollExcitation | None = None
         self.roll_updates = 0  # of them, those that had a roll-rate measurement
-        self.check = output_error.Check()  # the batch check: windows' samples and their output-error fit
+        # the batch check: windows' samples and their output-error fit
+        self.check = output_error.Check(compiled=self.cfg.compiled)
         super().reset()
         P = self.theta_P
         self.prior_diff_std = math.sqrt(P[0, 0] + P[1, 1] - 2.0 * P[0, 1])  # of C_alpha_f - C_alpha_r

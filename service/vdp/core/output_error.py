@@ -45,6 +45,7 @@ import numpy as np
 
 from . import lateral
 from .batch import damped_step
+from .compiled import kernel
 
 # parameters: ln C_alpha_f, ln C_alpha_r, ln I_z, a_y offset, the swing length, the tyre's
 # shape (b, c), then (v_y0, yaw0) per window
@@ -78,6 +79,7 @@ MAX_ROWS = 7500  # samples kept (5 min of windows at stage 2's 40 ms step)
 MIN_ROWS = 50  # a window shorter than this (2 s) is not kept: two initial states for little
 MAX_SUBSTEP = lateral.MAX_SUBSTEP
 DIFF = 1e-4  # step of the numerical derivatives in the logs
+_NO_BEND = np.empty((0, 0))  # the linear law, to the compiled states (no secant factors)
 
 
 class Record:
@@ -264,6 +266,7 @@ class Problem:
             seg[a:b] = s
             first[a] = True
         self.seg = seg
+        self.first = first
         # the rows reached by a step (every row but a window's first) and the step's start row
         self.to = np.flatnonzero(~first)
         idx = self.to - 1
@@ -319,6 +322,19 @@ class Problem:
             out[i][:, self.to] = v
         return out
 
+    def _states(self, theta: np.ndarray, swing: np.ndarray, bend=None) -> np.ndarray:
+        """(Phi, G) per row, (6, S, n); ``bend``: each axle's secant factor per row (S, n), or None.
+        Compiled (core.kernels.oe_states) where numba is and ``compiled`` is on, else
+        :meth:`_scan` of :meth:`_maps` (the reference; the two differ by rounding,
+        tests/test_kernels.py)."""
+        fn = kernel("oe_states") if self.compiled else None
+        if fn is None:
+            return self._scan(self._maps(theta, swing, None if bend is None else [self._at_steps(b) for b in bend]))
+        pre, k = self.pre_steps, self.k
+        bf, br = (_NO_BEND, _NO_BEND) if bend is None else bend
+        args = (np.ascontiguousarray(pre.d), pre.cd, pre.v_x, pre.x0, pre.alpha, pre.phi_dd, self.h, self.frac)
+        return fn(*args, self.first, theta, np.ascontiguousarray(swing), bf, br, k.l_f, k.L, k.m)
+
     def _scan(self, m: np.ndarray) -> np.ndarray:
         """Inclusive segmented prefix scan of the maps: (Phi, G) per row, (6, S, n)."""
         m = m.copy()
@@ -367,12 +383,11 @@ class Problem:
         shape = p[:, SHAPE_B : SHAPE_C + 1]
         x0 = p[:, N_GLOBAL:].reshape(len(p), -1, 2)[:, self.seg, :]  # (S, n, 2): each row's window's x0
         bent = bool(np.any(shape != 0.0))
-        rows = steps = None
+        rows = None  # the secant factors per row the pass freezes (None: the linear law)
         if bent and self._warm is not None:
             rows = [np.repeat(w[None, :], len(p), axis=0) for w in self._warm]
-            steps = [self._at_steps(b) for b in rows]
         for _ in range(SHAPE_ITERS if bent else 1):
-            phi = self._scan(self._maps(theta, swing, steps))
+            phi = self._states(theta, swing, rows)
             v_y = phi[0] * x0[..., 0] + phi[1] * x0[..., 1] + phi[4]
             r = phi[2] * x0[..., 0] + phi[3] * x0[..., 1] + phi[5]
             if not bent:
@@ -382,7 +397,6 @@ class Problem:
             rows = new
             if moved < SHAPE_TOL:
                 break
-            steps = [self._at_steps(b) for b in rows]
         if bent:
             self._warm = [b[0].copy() for b in rows]
         *_, c1, c2, a0 = _system(self.pre_rows, theta, self.k, swing, rows)
@@ -412,6 +426,7 @@ class Problem:
             J[rows, 1, cols + j] = -(c1 * dv + c2 * dr) * self.w[:, 1]
         return J.reshape(self.n * 2, len(p))
 
+    compiled = False  # core.kernels' pass for the states (Check sets it from LearnerConfig.compiled)
     shaped = False  # whether the tyre's shape is free (Check.solve frees it where the data need it)
     _warm: list[np.ndarray] | None = None  # the last converged secant factors per axle (outputs())
 
@@ -730,8 +745,9 @@ class Check:
     stage-2 windows (every 75 s with a full record).
     """
 
-    def __init__(self, cap: int = MAX_ROWS):
+    def __init__(self, cap: int = MAX_ROWS, compiled: bool = False):
         self.record = Record(cap)
+        self.compiled = compiled  # the fit's states by core.kernels (Problem.compiled)
         self.fit: Fit | None = None
         self._at = 0  # record.added at the last solve
         self._open_at = -1
@@ -754,6 +770,7 @@ class Check:
         t, u, z, bounds = a
         try:
             prob = Problem(t, u, z, bounds, k, sigma)
+            prob.compiled = self.compiled
             fit = solve(prob, prior_t, prior_P, starts)
             used = max(int(np.count_nonzero(prob.w[:, 1])), 1)
             left = structured(prob, fit.p) if fit is not None else 0.0
