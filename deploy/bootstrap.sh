@@ -43,7 +43,9 @@ case "$mode" in
         .venv/bin/ruff check . && .venv/bin/ruff format --check . || exit 1
         # the compiled filter steps once, before any test (a fresh checkout compiles them: ~15 s)
         .venv/bin/python -c "from vdp.core import kernels; kernels.warm()"
-        exec .venv/bin/python -m pytest "$@" ;;
+        # on both cores (pytest-xdist), a test file per worker: a file's module fixtures are built
+        # once; VDP_TEST_WORKERS=0 runs it in one process
+        exec .venv/bin/python -m pytest -n "${VDP_TEST_WORKERS:-2}" --dist loadfile "$@" ;;
     run)  exec .venv/bin/vdp serve --simulate --loop "$@" ;;
     simulate) exec .venv/bin/vdp simulate "$@" ;;
     *) echo "usage: bash deploy/bootstrap.sh run|test|simulate [args...]" >&2; exit 2 ;;
