@@ -1,5 +1,8 @@
 """Compiled (numba) UKF steps on vdp's two models: the numpy filters' numbers, without numpy's per-call cost.
 
+Also stage 2's output-error pass (``oe_states``: core.output_error.Problem's prefix scan as
+one loop over the rows, the same products associated left to right).
+
 The UKF's arrays are tiny (stage 2: 19 sigma points of 9 states; stage 1: 15 of 7), so
 the numpy path (core.filters with core.lateral / core.longitudinal) spends its time in
 the per-call overhead of ~100 array operations per step, not in arithmetic.  Here one

@@ -21,7 +21,9 @@ The model is linear in the state (v_y, yaw rate) for given parameters: the front
 force's dependence on the slip angle is linearised at zero (its second-order term is
 below 1e-4 of the lateral force), so each step is x' = F x + g with F and g computed for
 all steps at once, and the simulation is a prefix scan of these maps (:class:`Problem`):
-numpy throughout, no Python loop over the samples.
+numpy throughout, no Python loop over the samples; or, where the learners' steps are
+compiled (a replay, ``vdp batch``), one compiled pass over the rows (core.kernels.oe_states,
+six to seven times less CPU per fit; the live service keeps numpy).
 
 :func:`compare` is the verdict: when the filter's value and the fit's differ by more
 than their uncertainties, the model cannot explain the data one way, and the filter's
@@ -231,7 +233,8 @@ class Problem:
 
     The state at each sample is x_i = Phi_i x0 + G_i, x0 its window's initial state, where
     (Phi_i, G_i) composes the maps x_j = F_j x_j-1 + g_j of the window's steps so far: a
-    segmented prefix scan (log2 n rounds of array operations, no Python loop over samples).
+    segmented prefix scan (log2 n rounds of array operations, no Python loop over samples),
+    or the same products left to right in one compiled pass (``compiled``, :meth:`_states`).
     """
 
     def __init__(self, t: np.ndarray, u: np.ndarray, z: np.ndarray, bounds, k: lateral.Known, sigma):
@@ -739,7 +742,8 @@ REFIT_ROWS = 250  # new rows (10 s of windows) before an open window's fit is so
 class Check:
     """The learner's side: the record, the latest fit, and when to solve again.
 
-    A fit costs about 0.1 s of CPU per minute of windows kept, so it is solved when asked
+    A fit costs about 0.1 s of CPU per minute of windows kept (numpy; a sixth of that with
+    ``compiled``, core.kernels.oe_states), so it is solved when asked
     for (a snapshot), and again only once enough new rows have come (:meth:`stale`) or the
     window has closed: a replay solves it once, a live service at most every 10 s of
     stage-2 windows (every 75 s with a full record).
