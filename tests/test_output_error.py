@@ -392,3 +392,35 @@ def test_bad_roll_records_give_a_fit_never_an_error():
     c, f = check_of(t, U, Z)
     assert f is not None and f.shape is not None and c.as_dict() is not None
     assert np.all(np.isfinite(f.theta)) and math.isfinite(f.swing)
+
+
+def test_a_replay_polled_on_the_way_ends_on_the_same_result(repo_root, tmp_path):
+    """``vdp replay --series`` asks for the result every 0.2 s of window; the batch check then solves
+    on the rows it has, and again only every quarter of its record.  The log's end makes the last
+    result take every row (TwoStageEstimator.finish), so polling never changes what is reported."""
+    from vdp.io.bulk import replay_log
+    from vdp.series import SeriesRecorder
+    from vdp.sim.run import write_log
+
+    prof = load_profile(repo_root / "profiles" / "paper.toml")
+    prof = dataclasses.replace(prof, vehicle=dataclasses.replace(prof.vehicle, l_f=1.4, l_f_std=0.01))
+    axles = {"C_alpha_front": 58200.0, "C_alpha_rear": 75600.0}  # a mismatch: the check widens the stds
+    frames, _ = simulate(prof, "stage2", seed=5, noise="realistic", duration=60.0, params=axles)
+    path = tmp_path / "d.log"
+    write_log(frames, path)
+    cfg = EstimatorConfig(baseline=False, learner=LearnerConfig(per_axle=False))
+    plain, _ = replay_log(path, lambda: Pipeline(prof, cfg), bulk=False)
+    made = {}
+
+    def make():
+        made["pipe"] = pipe = Pipeline(prof, cfg)
+        made["rec"] = SeriesRecorder(pipe)
+        return pipe
+
+    # (the recorder exists only once replay_log has made the pipeline)
+    polled, _ = replay_log(path, make, bulk=False, wrap=lambda src: made["rec"].wrap(src))  # noqa: PLW0108
+    assert len(made["rec"].rows) > 200  # polled all the way
+    fit = polled.supervisor["learners"]["ukf"]["stage2"]["output_error_fit"]
+    assert fit["rows"] > 1000  # beyond REFIT_ROWS and a quarter of it: a stale fit was possible
+    assert polled.parameters == plain.parameters
+    assert polled.supervisor["learners"] == plain.supervisor["learners"]

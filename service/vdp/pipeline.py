@@ -168,6 +168,7 @@ class Pipeline:
             start_time=first,
             source=stats,
         )
+        self.estimator.finish()
         return self.result(trace=True, t0=first, log=info)
 
     def result(self, trace: bool = False, t0: float | None = None, log: LogInfo | None = None) -> RunResult:

@@ -195,6 +195,13 @@ class TwoStageEstimator:
             self.trace.clear()
             self._trace_every = self.cfg.trace_every
 
+    def finish(self) -> None:
+        """The data have ended (a log's last frame): the next snapshot is the whole log's, its batch
+        checks solved on every row kept.  Without this a replay polled for results on the way
+        (``vdp replay --series``) would end on a check up to a quarter of its rows old."""
+        for learner in self.s2.values():
+            learner.check.complete = True
+
     def snapshot(self) -> Snapshot:
         return Snapshot(
             parameters=self.parameters("ukf"),

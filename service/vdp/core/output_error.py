@@ -755,6 +755,9 @@ class Check:
         self.fit: Fit | None = None
         self._at = 0  # record.added at the last solve
         self._open_at = -1
+        # the record is complete (a log's end, TwoStageEstimator.finish): the next fit takes
+        # every row, so a replay's result does not depend on how often it was asked for before
+        self.complete = False
 
     def stale(self, window_open: bool) -> bool:
         """Whether to solve again: new rows, and no fit yet, the window closed, or new rows
@@ -763,7 +766,7 @@ class Check:
         full record, three times that with the halves)."""
         new = self.record.added - self._at
         every = max(REFIT_ROWS, self.record.rows // 4)
-        return new > 0 and (self.fit is None or not window_open or new >= every)
+        return new > 0 and (self.fit is None or not window_open or self.complete or new >= every)
 
     def solve(self, k: lateral.Known, sigma, prior_t, prior_P, starts) -> Fit | None:
         self._at = self.record.added
