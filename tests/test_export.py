@@ -137,6 +137,16 @@ def test_export_formats(replayed, fmt, tmp_path):
         assert doc["vehicle"]["wheelbase"] == 2.5
 
 
+def test_export_refuses_a_truth_file_with_a_clear_error(replayed, capsys):
+    """The truth JSON lies beside the result: exporting it by mistake says so, no traceback."""
+    _, out, _ = replayed
+    truth = sorted(out["json"].parent.glob("*.truth.json"))
+    assert truth, list(out["json"].parent.iterdir())
+    assert main(["export", str(truth[0]), "--format", "toml", "--out", "-"]) == 2
+    err = capsys.readouterr().err
+    assert "plain numbers, not estimates" in err and len(err.strip().splitlines()) == 1
+
+
 @pytest.mark.parametrize(
     "args,needle",
     [

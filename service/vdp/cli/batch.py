@@ -379,7 +379,8 @@ def run(args) -> int:
     n_rows, n_veh = write_results(out, parts)
     print(f"wrote {out / 'runs.parquet'} ({n_rows} rows) and {out / 'vehicles.parquet'} ({n_veh} rows)")
     for path, err in failed:
-        print(f"failed: {path}: {err}")
+        # the error names the log itself where the reader wrote it ("PATH: no such file")
+        print(f"failed: {err}" if err.startswith(f"{path}:") else f"failed: {path}: {err}")
     if failed:
         print(f"{len(failed)} of {len(pending)} logs failed (recorded in runs.parquet; a rerun tries them again)")
         return 1

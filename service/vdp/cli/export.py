@@ -42,6 +42,12 @@ def _load(path: Path) -> dict:
         raise ConfigError(f"{path}: not a result JSON: {exc}") from None
     if not isinstance(data, dict) or not isinstance(data.get("parameters"), dict):
         raise ConfigError(f"{path}: has no 'parameters' object; is it the JSON of vdp replay --json?")
+    if not all(isinstance(p, dict) for p in data["parameters"].values()):
+        # the truth file beside a replay's result has plain numbers: {"l_f": 1.4, ...}
+        raise ConfigError(
+            f"{path}: its parameters are plain numbers, not estimates (a truth file from vdp simulate?); "
+            "export the JSON of vdp replay --json"
+        )
     return data
 
 

@@ -1052,7 +1052,7 @@ class Stage2(StageLearner):
         elif axle_why is not None:
             why = axle_why
         elif not valid:
-            why = "the mean C_alpha is not valid"
+            why = "the mean C_alpha has not converged yet (each axle waits for it)"
         elif sf > AXLE_CONVERGED_REL * abs(f) or sr > AXLE_CONVERGED_REL * abs(r):
             why = f"a per-axle std is above {100 * AXLE_CONVERGED_REL:g} % of its value"
         return {
