@@ -254,3 +254,34 @@ def test_plot_boxes_say_not_valid_and_each_axle():
         assert not any("h" in t and "not valid" in t for t in texts if t.startswith("0.5 "))
     finally:
         plt.close(fig)
+
+
+def test_the_plot_marks_what_the_result_reports_beside_the_filters_line():
+    """The filter's line can end elsewhere than the reported value (the output-error fit's), with
+    a narrower band than the reported std (widened for a mismatch): the reported value ± 2 std is
+    drawn at the trace's end, inside the axes."""
+    import matplotlib.pyplot as plt
+
+    from vdp import report
+    from vdp.core.params import BY_NAME
+
+    vals = {"l_f": 1.2, "h": 0.5, "C_K": 15.0, "C_alpha": 8.8e4, "I_z": 2800.0, "I_x": 790.0}
+    rows = [(t, 2, tuple((vals[n], 0.01 * vals[n]) for n in NAMES)) for t in (0.0, 10.0)]
+    windows = [{"stage": s, "start": 0.0, "end": 10.0, "samples": 500} for s in (1, 2)]
+    params = {n: {"value": vals[n], "std": 0.01 * vals[n], "status": "converged", "valid": True} for n in NAMES}
+    params["C_alpha"].update(value=9.6e4, std=6e3, status="uncertain", valid=False)
+    fig = report.figure(rows, windows, None, "t", params)
+    try:
+        ax = next(a for a in fig.axes if a.get_title(loc="left").endswith(BY_NAME["C_alpha"].description))
+        marks = [ln for ln in ax.lines if ln.get_marker() == "D"]
+        assert len(marks) == 1 and list(marks[0].get_xdata()) == [10.0] and list(marks[0].get_ydata()) == [9.6e4]
+        lo, hi = ax.get_ylim()
+        assert lo < 8.8e4 < 9.6e4 < hi and ax.get_xlim()[1] > 10.0  # the line's end and the mark both show
+        from matplotlib.collections import LineCollection
+
+        bars = [c for c in ax.collections if isinstance(c, LineCollection)]  # the ±2 std bar
+        assert len(bars) == 1
+        (seg,) = bars[0].get_segments()
+        assert seg[:, 1].tolist() == pytest.approx([9.6e4 - 1.2e4, 9.6e4 + 1.2e4])
+    finally:
+        plt.close(fig)

@@ -147,6 +147,7 @@ def write_json(doc: dict | RunResult, path: str | Path) -> None:
 # each panel is one parameter over time, the real value as a line, UKF and EKF.
 FIGURE_PANELS = ((5, ("C_K", "h", "l_f")), (7, ("C_alpha", "I_x", "I_z")))
 _WINDOW_COLOR = {1: "tab:green", 2: "tab:orange"}
+_REPORTED = "tab:purple"  # the value and std the result reports, at the end of the trace
 _SYMBOL = {"C_K": "$C_K$", "h": "$h$", "l_f": "$l_f$", "C_alpha": r"$C_\alpha$", "I_x": "$I_x$", "I_z": "$I_z$"}
 
 
@@ -272,6 +273,16 @@ def figure(
                 lim = None
             if ref is not None:
                 ax.axhline(ref, color="k", lw=1.3, zorder=5)
+            p = (params or {}).get(name) or {}
+            shown = ran and p.get("value") is not None and p.get("std") is not None
+            if shown:
+                # what the result reports can differ from the filter's line: the std widened where the
+                # model does not explain the data, or the output-error fit's value (core.output_error)
+                v, s = p["value"], p["std"]
+                ax.errorbar([t_end], [v], yerr=2 * s, fmt="D", ms=5, color=_REPORTED, capsize=3, zorder=7)
+                if lim is not None:
+                    pad = 0.05 * (lim[1] - lim[0])
+                    lim = (min(lim[0], v - pad), max(lim[1], v + pad))
             if lim is not None:
                 ax.set_ylim(*lim)
             if prior is not None and lim is not None:
@@ -287,10 +298,9 @@ def figure(
                         fontsize=8,
                         color="0.4",
                     )
-            ax.set_xlim(t0, t_end)
+            ax.set_xlim(t0, t_end + (0.03 * (t_end - t0) if shown else 0.0))  # room for the reported value
             ax.set_ylabel(f"{_SYMBOL[name]} [{spec.unit.replace('*', '·')}]")
             ax.grid(alpha=0.3)
-            p = (params or {}).get(name) or {}
             if not ran:
                 cannot = (capabilities or {}).get(str(stage))
                 why = (
@@ -346,6 +356,8 @@ def figure(
         Line2D([], [], color="tab:blue", lw=1.6, label="UKF"),
         Patch(color="tab:blue", alpha=0.2, label="UKF ±2σ"),
     ]
+    if params:
+        legend.append(Line2D([], [], color=_REPORTED, marker="D", ms=5, ls="", label="reported ±2σ"))
     if has_ekf:
         legend.append(Line2D([], [], color="tab:red", lw=1.1, ls="--", label="EKF"))
     if priors:
