@@ -285,3 +285,25 @@ def test_a_log_rerun_under_another_profile_counts_once(tmp_path, repo_root):
     assert len(runs) == 6 and {r["profile"] for r in runs} == {str(copy)}
     veh = pq.read_table(tmp_path / "out" / "vehicles.parquet").to_pylist()
     assert all(v["runs"] == 1 for v in veh)
+
+
+def test_a_tasks_warnings_name_its_log(monkeypatch, caplog):
+    """Many logs run at once in a worker: a warning from deep in the pipeline names its log, and
+    records outside a task (or of other libraries) are left as they are."""
+    import logging
+
+    from vdp import fleet
+
+    def replay(path, profile):
+        logging.getLogger("vdp.profilecheck").warning("vehicle.mass is %d kg", 1600)
+        logging.getLogger("distributed.worker").warning("not ours")
+        raise ConfigError("stop here")
+
+    monkeypatch.setattr(fleet, "replay_log", replay)
+    path = "/data/car%1/drive.log"  # a '%' in the path must not break the record's formatting
+    with caplog.at_level(logging.WARNING):
+        rows = fleet.run_task(fleet.Task(path, "car", "p.toml"))
+        logging.getLogger("vdp.pipeline").warning("after the task")
+    assert rows[0]["error"] == "stop here"
+    got = [r.getMessage() for r in caplog.records]
+    assert got == [f"{path}: vehicle.mass is 1600 kg", "not ours", "after the task"]

@@ -10,6 +10,7 @@ Python and numpy: the CLI owns Dask and Parquet.
 
 from __future__ import annotations
 
+import contextvars
 import hashlib
 import logging
 import math
@@ -120,8 +121,41 @@ def replay_log(path: str, profile_path: str) -> Any:
     return result
 
 
+_TASK_LOG: contextvars.ContextVar[str | None] = contextvars.ContextVar("vdp_task_log", default=None)
+
+
+def _name_the_log() -> None:
+    """Make vdp's log records name the log a task replays (``PATH: message``).
+
+    Many logs run at once in a worker's threads, and a warning deep in the pipeline (the profile
+    check's mass, a message's counter failures) does not know which file it came from.  The record
+    factory is the one place every record passes through, whatever handlers the worker has."""
+    old = logging.getLogRecordFactory()
+    if getattr(old, "names_the_log", False):
+        return
+
+    def factory(*args, **kwargs):
+        rec = old(*args, **kwargs)
+        path = _TASK_LOG.get()
+        if path is not None and rec.name.startswith("vdp") and not str(rec.msg).startswith(path):
+            rec.msg = f"{path.replace('%', '%%')}: {rec.msg}"
+        return rec
+
+    factory.names_the_log = True
+    logging.setLogRecordFactory(factory)
+
+
 def run_task(task: Task) -> list[dict]:
     """Replay one log; its rows, or one error row.  Never raises for a bad log."""
+    _name_the_log()
+    token = _TASK_LOG.set(task.log)
+    try:
+        return _run(task)
+    finally:
+        _TASK_LOG.reset(token)
+
+
+def _run(task: Task) -> list[dict]:
     stamp = file_stamp(task.log)
     t0, c0 = time.monotonic(), time.thread_time()
     try:
