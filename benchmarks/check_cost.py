@@ -1,0 +1,65 @@
+"""CPU time of one solve of stage 2's batch check (core.output_error), numpy against compiled.
+
+    python benchmarks/check_cost.py [--model brush --car small] [--seed 1] [--rounds 3]
+
+Replays one drive of an independent model (``paper`` scenario, realistic noise; the brush cars
+free the tyre's shape, the multi-body cars and vdp's own do not), then solves the UKF's stage-2
+check on its full record again and again: with the fit's states by the prefix scan (numpy, what
+the live service runs) and by core.kernels.oe_states (what a replay and ``vdp batch`` run),
+alternated.  Prints each solve's CPU time and the two fits' C_alpha and I_z.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "service"))
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--model", default="brush")
+    ap.add_argument("--car", default="small")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--rounds", type=int, default=3)
+    a = ap.parse_args()
+    from vdp.core.estimator import EstimatorConfig
+    from vdp.pipeline import Pipeline
+    from vdp.profile import load_profile
+    from vdp.sim.independent.common import IndependentSimulation
+
+    logging.disable(logging.WARNING)
+    sim = IndependentSimulation(a.model, a.car, "paper", a.seed, "realistic")
+    with tempfile.TemporaryDirectory() as d:  # the car's profile, as vdp simulate --model writes it
+        path = Path(d) / "car.profile.toml"
+        path.write_text(sim.profile_toml(), encoding="utf-8")
+        prof = load_profile(path)
+    pipe = Pipeline(prof, EstimatorConfig(baseline=False, trace_len=0))
+    for m in sim.frames():
+        pipe.feed(m)
+    l2 = pipe.estimator.s2["ukf"]
+    check = l2.check
+    print(f"{a.model}/{a.car} seed {a.seed}: {check.record.rows} rows in the record")
+    for r in range(a.rounds):
+        for compiled in (False, True):
+            check.compiled, check._at, check.fit = compiled, 0, None  # stale: solved again
+            t0 = time.process_time()
+            fit = l2.batch_fit()
+            cpu = time.process_time() - t0
+            shape = "linear" if fit.shape is None else f"shape b {fit.shape[0]:.3f} c {fit.shape[1]:.3f}"
+            print(
+                f"round {r + 1} {'compiled' if compiled else 'numpy   '}: {cpu:6.3f} s of CPU; "
+                f"C_alpha {fit.c_alpha:.6g}, I_z {fit.theta[2]:.6g}, {shape}",
+                flush=True,
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
