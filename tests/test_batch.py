@@ -307,3 +307,16 @@ def test_a_tasks_warnings_name_its_log(monkeypatch, caplog):
     assert rows[0]["error"] == "stop here"
     got = [r.getMessage() for r in caplog.records]
     assert got == [f"{path}: vehicle.mass is 1600 kg", "not ours", "after the task"]
+
+
+def test_a_manifest_in_a_log_directory_is_not_taken_for_a_log(tmp_path, capsys):
+    """``vdp batch DIR`` where DIR also holds the manifest (a .csv, as python-can's CSV logs are):
+    the manifest is left out with a word, a CSV log of frames is kept."""
+    from vdp.cli.batch import expand
+
+    (tmp_path / "fleet.csv").write_text("log,vehicle,profile\na.log,car,p.toml\n")
+    (tmp_path / "frames.csv").write_text("timestamp,arbitration_id,extended,remote,error,dlc,data\n")
+    (tmp_path / "a.log").write_text("(1.0) can0 123#00\n")
+    got = expand([str(tmp_path)])
+    assert got == [str(tmp_path / "a.log"), str(tmp_path / "frames.csv")]
+    assert "fleet.csv is a manifest, not a log; left out (give it as --manifest)" in capsys.readouterr().err

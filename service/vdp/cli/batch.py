@@ -81,13 +81,30 @@ def expand(inputs: list[str]) -> list[str]:
                 print(f"vdp batch: warning: no file matches {item}", file=sys.stderr)
             out.extend(h for h in hits if Path(h).is_file())
         elif p.is_dir():
-            hits = sorted(str(f) for f in p.rglob("*") if is_log(f))
+            hits = []
+            for f in sorted(p.rglob("*")):
+                if is_log(f) and _is_manifest(f):  # a CSV of logs, not a CSV log of frames
+                    print(f"vdp batch: {f} is a manifest, not a log; left out (give it as --manifest)", file=sys.stderr)
+                elif is_log(f):
+                    hits.append(str(f))
             if not hits:
                 print(f"vdp batch: warning: no log files ({', '.join(FORMATS)}) in {item}", file=sys.stderr)
             out.extend(hits)
         else:
             out.append(item)
     return out
+
+
+def _is_manifest(path: Path) -> bool:
+    """Whether a .csv file is a manifest (its header names a 'log' column), not a CAN log."""
+    if path.suffix.lower() != ".csv":
+        return False
+    try:
+        with path.open(encoding="utf-8-sig", errors="replace") as f:
+            head = f.readline()
+    except OSError:
+        return False
+    return "log" in (c.strip().lower() for c in head.split(","))
 
 
 def read_manifest(path: str) -> list[tuple[str, str | None, str | None]]:
