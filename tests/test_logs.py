@@ -358,8 +358,29 @@ def test_corrupt_gzip_body_replays_what_is_before_it(tmp_path):
     got, src = read(p)
     assert 1000 < len(got) < 20000 and src.stats.damaged == 1
     assert "corrupt gzip data" in src.stats.damage[0].reason
+    # the reader cannot tell what the damage cost: never "nothing skipped"
+    summary = src.stats.damage_summary()
+    assert "how much was lost is unknown" in summary and "nothing skipped" not in summary, summary
+    assert "found at byte" in summary
     with pytest.raises(LogFormatError, match="damaged at byte"):
         read(p, strict=True)
+
+
+def test_damage_summary_counts_the_garbage_a_broken_stream_let_through():
+    """A gzip stream broken early can hand out garbage lines before its end fails the CRC check:
+    the summary counts them beside the damage, whose cost the reader cannot know."""
+    from vdp.io.logs import LogStats
+
+    st = LogStats()
+    for n in range(215):
+        st.add_bad(100 + n, "not a candump line", "\x8f\x02garbage")
+    st.add_damage(297_329, -1, "corrupt gzip data (CRC check failed) after line 10977; nothing after it is readable")
+    st.frames = 10_762
+    assert st.damage_summary() == (
+        "damaged in 1 place(s), how much was lost is unknown; 10,762 frames read; 215 bad lines rejected; "
+        "first: corrupt gzip data (CRC check failed) after line 10977; nothing after it is readable "
+        "(found at byte 297,329 of the file)"
+    )
 
 
 def test_truncated_plain_log_is_tolerated(tmp_path):

@@ -149,11 +149,22 @@ class LogStats:
         if not self.damaged:
             return ""
         first = self.damage[0]
-        where = f" (byte {first.at:,} of the file)" if first.at >= 0 else ""
-        lost = f"{self.lost_bytes:,} bytes skipped" if self.lost_bytes else "nothing skipped"
+        # where the reader found it: a corrupt gzip stream shows only at its end (the CRC check),
+        # however early the damage lies; what it held before that came out as bad lines, if at all
+        where = f" (found at byte {first.at:,} of the file)" if first.at >= 0 else ""
+        if self.lost_bytes:
+            lost = f"{self.lost_bytes:,} bytes skipped"
+        elif any(d.bytes < 0 for d in self.damage):
+            lost = "how much was lost is unknown"
+        else:
+            lost = "nothing skipped"
         if self.truncated:
             lost += ", the file ends early"
-        return f"damaged in {self.damaged} place(s), {lost}; {self.frames:,} frames read; first: {first.reason}{where}"
+        bad = f"; {self.bad:,} bad {self.unit}s rejected" if self.bad else ""
+        return (
+            f"damaged in {self.damaged} place(s), {lost}; {self.frames:,} frames read{bad}; "
+            f"first: {first.reason}{where}"
+        )
 
     def as_dict(self) -> dict[str, Any]:
         return {
