@@ -137,6 +137,24 @@ def test_export_formats(replayed, fmt, tmp_path):
         assert doc["vehicle"]["wheelbase"] == 2.5
 
 
+def test_a_simulator_export_says_which_values_are_not_valid(replayed, tmp_path, capsys):
+    """A simulator takes the numbers as they are: an estimate the result does not vouch for is
+    marked in its comment and named on stderr; valid ones are not."""
+    _, out, _ = replayed
+    doc = json.loads(out["json"].read_text())
+    for name, p in doc["parameters"].items():
+        p["valid"] = p["status"] in ("converged", "uncertain") and name != "I_z"
+    doc["parameters"]["I_z"].update(status="uncertain", valid=False)
+    src = tmp_path / "r.json"
+    src.write_text(json.dumps(doc))
+    dest = tmp_path / "car.yaml"
+    assert main(["export", str(src), "--format", "commonroad", "--out", str(dest)]) == 0
+    err = capsys.readouterr().err
+    assert "exported but not valid" in err and err.rstrip().endswith(": I_z"), err
+    marked = [ln for ln in dest.read_text().splitlines() if "NOT VALID" in ln]
+    assert len(marked) == 1 and "moment of inertia in yaw" in marked[0], marked
+
+
 def test_export_refuses_a_truth_file_with_a_clear_error(replayed, capsys):
     """The truth JSON lies beside the result: exporting it by mistake says so, no traceback."""
     _, out, _ = replayed

@@ -168,3 +168,16 @@ def test_the_real_rav4_drive_replays_without_decode_errors():
     assert st["errors"] == {} and st["padded"] == 93 and st["invalid_samples"] == {}
     # a padded value steps from the one before no further than full frames' values do
     assert jumps[True] and all(j <= jumps[False][idx] for idx, j in jumps[True].items())
+
+
+def test_coverage_names_the_logs_other_ids_only_where_they_say_something():
+    """Every message there and no other id: nothing to add (it said "the ids the log holds most:
+    none"); a message missing: the other ids, or none, are the clue to which one is it."""
+    from vdp.profilecheck import Coverage
+
+    full = Coverage({"A": 10, "B": 5}, [])
+    assert full.message() == "2 of 2 of the profile's messages seen"
+    missing = Coverage({"A": 10, "B": 0}, [])
+    assert missing.message() == "1 of 2 of the profile's messages seen (missing: B); the ids the log holds most: none"
+    other = Coverage({"A": 10, "B": 5}, [("0x3A0", 1200)])
+    assert other.message().endswith("; the ids the log holds most: 0x3A0 (1200)")

@@ -87,7 +87,14 @@ def _axle_loads(const: Constants, l_f: float) -> tuple[float, float]:
 def _about(p: dict) -> str:
     std = p.get("std")
     sd = f"+- {std:.4g}" if std is not None else "std unknown"
-    return f"{sd} {p.get('unit', '')}, {p.get('status', '?')}"
+    valid = "" if p.get("valid", True) else ", NOT VALID (see its reason in the result)"
+    return f"{sd} {p.get('unit', '')}, {p.get('status', '?')}{valid}"
+
+
+def not_valid(params: dict) -> list[str]:
+    """The names of the parameters handed on (``usable``) whose estimate is not valid."""
+    keep, _ = usable(params)
+    return [n for n, p in keep.items() if not p.get("valid", False)]
 
 
 def _commonroad(params: dict, const: Constants, source: str) -> str:

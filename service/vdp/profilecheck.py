@@ -415,7 +415,7 @@ class Coverage:
                 f"; {n} frames came on other bus channels ({names}) than the profile's [can] channel "
                 f"'{self.bus_channel}': set it to the channel the car's bus is on, or delete it"
             )
-        if top:
+        if top and (self.other or missing):  # (every message there and nothing else: nothing to add)
             ids = ", ".join(f"{i} ({n})" for i, n in self.other[:8]) or "none"
             out += f"; the ids the {'bus carries' if self.source == 'bus' else 'log holds'} most: {ids}"
         return out

@@ -62,7 +62,7 @@ def constants(data: dict, profile: str | None):
 
 
 def run(args) -> int:
-    from ..export import check_format, render, usable
+    from ..export import check_format, not_valid, render, usable
 
     # everything that can be refused is refused before any work
     check_format(args.format)
@@ -80,6 +80,14 @@ def run(args) -> int:
     if skipped and args.format in ("commonroad", "carla"):
         print(
             f"vdp export: left out (not estimated from the data, or mostly the prior): {', '.join(skipped)}",
+            file=sys.stderr,
+        )
+    bad = not_valid(data["parameters"])
+    if bad and args.format in ("commonroad", "carla"):
+        # a simulator takes the number as it is: say which ones the result does not vouch for
+        print(
+            f"vdp export: exported but not valid (the data or the model do not support them; each "
+            f"reason is in the result): {', '.join(bad)}",
             file=sys.stderr,
         )
     if not to_stdout:
