@@ -150,6 +150,8 @@ def test_batch_runs_the_fleet_records_bad_logs_and_resumes(fleet, repo_root):
     assert first.returncode == 1, first.stderr  # two logs failed, the rest went on
     assert "6 logs: 0 already done, 6 to run" in first.stdout
     runs = pq.read_table(d / "out" / "runs.parquet").to_pylist()
+    logs = [r["log"] for r in runs]
+    assert logs == sorted(logs)  # the table reads in the logs' order, each log's rows together
     by_log = {}
     for r in runs:
         by_log.setdefault(os.path.basename(r["log"]), []).append(r)

@@ -222,7 +222,11 @@ def write_results(out: Path, parts: dict[str, list[dict]]) -> tuple[int, int]:
 
     from ..fleet import combine
 
-    rows = [r for key in sorted(parts) for r in parts[key]]
+    def order(key: str) -> tuple[str, str]:  # by log, then vehicle; each log's rows in NAMES order
+        first = parts[key][0] if parts[key] else {}
+        return str(first.get("log", "")), str(first.get("vehicle", ""))
+
+    rows = [r for key in sorted(parts, key=order) for r in parts[key]]
     vehicles, zs = combine(rows)
     for r in rows:
         z = zs.get((r["log"], r["vehicle"], r["parameter"]))
