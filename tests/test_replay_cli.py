@@ -163,3 +163,26 @@ def test_a_skipped_line_is_warned_of_once(drive, repo_root, tmp_path, caplog):
     with caplog.at_level("WARNING", logger="vdp.io.logs"):
         assert main(["replay", str(cut), "--profile", str(repo_root / "profiles" / "paper.toml"), "--no-progress"]) == 0
     assert caplog.text.count("skipped 1 bad line") == 1, caplog.text
+
+
+def test_the_hints_do_not_repeat_the_reason_the_table_gave():
+    """Each "!" line under the table gives a parameter's reason; its hint under progress then says
+    only what to do, not the reason again (a new user read every reason twice)."""
+    from types import SimpleNamespace
+
+    from vdp.cli.replay import _coaching
+
+    why = "model mismatch: innovations 1.9x the size a matching model leaves"
+    hint = f"not valid: {why}; more of the same will not fix it"
+    params = {
+        "C_alpha": SimpleNamespace(status="uncertain", reason=why, hint=hint),
+        "I_x": SimpleNamespace(status="uncertain", reason=None, hint="weave at 0.5-1 Hz"),
+        "l_f": SimpleNamespace(status="converged", reason=None, hint="done"),
+    }
+    coaching = {"stages": {"1": {"progress": 1.0}, "2": {"progress": 0.5}}, "next": "weave"}
+    res = SimpleNamespace(coaching=coaching, parameters=params)
+    assert _coaching(res) == [
+        "progress: stage 1 100 %, stage 2 50 %; next: weave",
+        "  C_alpha: not valid (reason above); more of the same will not fix it",
+        "  I_x: weave at 0.5-1 Hz",
+    ]

@@ -279,5 +279,10 @@ def _coaching(result) -> list[str]:
     ]
     for name, p in result.parameters.items():
         if p.status != CONVERGED and p.hint:
-            lines.append(f"  {name}: {p.hint}")
+            hint = p.hint
+            # the table's "!" lines gave the reason already: the hint adds only what to do about it
+            if p.reason and p.reason in hint:
+                hint = hint.replace(f"not valid: {p.reason}", "not valid (reason above)")
+                hint = hint.replace(p.reason, "(reason above)")
+            lines.append(f"  {name}: {hint}")
     return lines
