@@ -298,17 +298,27 @@ def test_a_tasks_warnings_name_its_log(monkeypatch, caplog):
 
     def replay(path, profile):
         logging.getLogger("vdp.profilecheck").warning("vehicle.mass is %d kg", 1600)
+        logging.getLogger("vdp.io.logs").warning("%s: %s", path, "damaged in 1 place(s)")  # names it already
+        logging.getLogger("vdp.io.decoder").warning("3 bad frames in a row")  # no arguments
         logging.getLogger("distributed.worker").warning("not ours")
         raise ConfigError("stop here")
 
     monkeypatch.setattr(fleet, "replay_log", replay)
-    path = "/data/car%1/drive.log"  # a '%' in the path must not break the record's formatting
+    # the factory stays for the process (a worker's): put back this test process's own
+    monkeypatch.setattr(logging, "_logRecordFactory", logging.getLogRecordFactory())
+    path = "/data/car%1/drive.log"  # a '%' in the path must not meet the record's formatting
     with caplog.at_level(logging.WARNING):
         rows = fleet.run_task(fleet.Task(path, "car", "p.toml"))
         logging.getLogger("vdp.pipeline").warning("after the task")
     assert rows[0]["error"] == "stop here"
     got = [r.getMessage() for r in caplog.records]
-    assert got == [f"{path}: vehicle.mass is 1600 kg", "not ours", "after the task"]
+    assert got == [
+        f"{path}: vehicle.mass is 1600 kg",
+        f"{path}: damaged in 1 place(s)",
+        f"{path}: 3 bad frames in a row",
+        "not ours",
+        "after the task",
+    ]
 
 
 def test_a_manifest_in_a_log_directory_is_not_taken_for_a_log(tmp_path, capsys):
@@ -317,8 +327,11 @@ def test_a_manifest_in_a_log_directory_is_not_taken_for_a_log(tmp_path, capsys):
     from vdp.cli.batch import expand
 
     (tmp_path / "fleet.csv").write_text("log,vehicle,profile\na.log,car,p.toml\n")
+    (tmp_path / "quoted.csv").write_text('"log","vehicle"\na.log,car\n')  # csv's quoting, as read_manifest reads it
     (tmp_path / "frames.csv").write_text("timestamp,arbitration_id,extended,remote,error,dlc,data\n")
     (tmp_path / "a.log").write_text("(1.0) can0 123#00\n")
     got = expand([str(tmp_path)])
     assert got == [str(tmp_path / "a.log"), str(tmp_path / "frames.csv")]
-    assert "fleet.csv is a manifest, not a log; left out (give it as --manifest)" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "fleet.csv is a manifest, not a log; left out (give it as --manifest)" in err
+    assert "quoted.csv is a manifest" in err

@@ -186,5 +186,6 @@ def test_the_page_in_a_real_browser(live, tmp_path):
     # a client that went away left nothing behind: the service answers and drops nothing
     t0 = time.monotonic()
     health = TestClient(create_app(svc.settings, svc)).get("/health")
-    assert health.status_code == 200 and time.monotonic() - t0 < 1.0
+    # (not a speed figure: that it answers at all, not stuck behind the gone client; generous for a busy CI)
+    assert health.status_code == 200 and time.monotonic() - t0 < 10.0
     assert svc.intake.dropped == 0

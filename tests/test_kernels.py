@@ -283,16 +283,19 @@ def test_a_replay_says_when_it_compiles_the_steps_first(monkeypatch, capsys, tmp
 
 
 def _oe_record(seed: int = 3):
-    """(known, t, U, Z, windows): two windows of sine steering with a roll gyro (the states' inputs only)."""
+    """(known, t, U, Z, windows): three windows (one of a single row) of sine steering with a roll gyro,
+    steps of 40-100 ms (the states' inputs only)."""
     rng = np.random.default_rng(seed)
     k = lateral.Known(m=1500.0, L=2.6, r=0.3, k_phi=6e4, c_phi=4e3, l_f=1.2, h=0.5, C_K=10.0, per_axle=True)
-    t = np.concatenate([np.arange(300) * 0.04, 30.0 + np.arange(200) * 0.04])
+    # uneven steps (ten sub-steps each, of 4-10 ms, as the longest step needs) and a one-row window
+    t = np.cumsum(rng.choice([0.04, 0.04, 0.04, 0.08, 0.1], 501))
+    t[300:] += 30.0
     d = 0.05 * np.sin(0.6 * t) + 0.02 * np.sin(4.0 * t)
     v = 12.0 + 0.5 * np.sin(0.3 * t)
     U = np.stack([d, v, v / k.r, 0.2 * np.sin(0.5 * t)], axis=1)
     Z = np.stack([0.3 * d, 3.0 * d, 0.02 * np.sin(4.0 * t + 0.3)], axis=1)
     Z += rng.normal(0.0, 1.0, Z.shape) * [0.002, 0.05, 0.002]
-    return k, t, U, Z, [(0, 300), (300, 500)]
+    return k, t, U, Z, [(0, 300), (300, 301), (301, 501)]
 
 
 @pytest.mark.parametrize("bent", [False, True])

@@ -377,7 +377,7 @@ def test_damage_summary_counts_the_garbage_a_broken_stream_let_through():
     st.add_damage(297_329, -1, "corrupt gzip data (CRC check failed) after line 10977; nothing after it is readable")
     st.frames = 10_762
     assert st.damage_summary() == (
-        "damaged in 1 place(s), how much was lost is unknown; 10,762 frames read; 215 bad lines rejected; "
+        "damaged in 1 place(s), how much was lost is unknown; 10,762 frames read; 215 bad lines rejected in all; "
         "first: corrupt gzip data (CRC check failed) after line 10977; nothing after it is readable "
         "(found at byte 297,329 of the file)"
     )

@@ -137,8 +137,12 @@ def _name_the_log() -> None:
     def factory(*args, **kwargs):
         rec = old(*args, **kwargs)
         path = _TASK_LOG.get()
-        if path is not None and rec.name.startswith("vdp") and not str(rec.msg).startswith(path):
-            rec.msg = f"{path.replace('%', '%%')}: {rec.msg}"
+        if path is not None and rec.name.startswith("vdp"):
+            # formatted here, then prefixed: many records put the path in through their arguments
+            # ("%s: %s", path, ...), and a '%' in the path must not meet the formatting
+            text = rec.getMessage()
+            if not text.startswith(path):
+                rec.msg, rec.args = f"{path}: {text}", ()
         return rec
 
     factory.names_the_log = True

@@ -234,6 +234,7 @@ def figure(
     t = np.array([r[0] for r in rows]) if rows else np.array([0.0])
     t_end = float(t[-1]) if rows else 1.0
     has_ekf = bool(rows) and len(rows[0]) > 3
+    marked = False  # a reported value was drawn in some panel (its legend entry)
     for c, (fig_no, names) in enumerate(FIGURE_PANELS):
         stage = c + 1
         starts = [w["start"] for w in windows if w["stage"] == stage]
@@ -276,6 +277,7 @@ def figure(
             p = (params or {}).get(name) or {}
             shown = ran and p.get("value") is not None and p.get("std") is not None
             if shown:
+                marked = True
                 # what the result reports can differ from the filter's line: the std widened where the
                 # model does not explain the data, or the output-error fit's value (core.output_error)
                 v, s = p["value"], p["std"]
@@ -298,7 +300,8 @@ def figure(
                         fontsize=8,
                         color="0.4",
                     )
-            ax.set_xlim(t0, t_end + (0.03 * (t_end - t0) if shown else 0.0))  # room for the reported value
+            # room for the reported value at the end (the same in every panel: they share the column's x)
+            ax.set_xlim(t0, t_end + (0.03 * (t_end - t0) if params else 0.0))
             ax.set_ylabel(f"{_SYMBOL[name]} [{spec.unit.replace('*', '·')}]")
             ax.grid(alpha=0.3)
             if not ran:
@@ -356,7 +359,7 @@ def figure(
         Line2D([], [], color="tab:blue", lw=1.6, label="UKF"),
         Patch(color="tab:blue", alpha=0.2, label="UKF ±2σ"),
     ]
-    if params:
+    if marked:
         legend.append(Line2D([], [], color=_REPORTED, marker="D", ms=5, ls="", label="reported ±2σ"))
     if has_ekf:
         legend.append(Line2D([], [], color="tab:red", lw=1.1, ls="--", label="EKF"))

@@ -82,7 +82,7 @@ def expand(inputs: list[str]) -> list[str]:
             out.extend(h for h in hits if Path(h).is_file())
         elif p.is_dir():
             hits = []
-            for f in sorted(p.rglob("*")):
+            for f in sorted(p.rglob("*"), key=str):
                 if is_log(f) and _is_manifest(f):  # a CSV of logs, not a CSV log of frames
                     print(f"vdp batch: {f} is a manifest, not a log; left out (give it as --manifest)", file=sys.stderr)
                 elif is_log(f):
@@ -101,10 +101,10 @@ def _is_manifest(path: Path) -> bool:
         return False
     try:
         with path.open(encoding="utf-8-sig", errors="replace") as f:
-            head = f.readline()
+            head = next(csv.reader([f.readline()]), [])  # as read_manifest reads it: quotes allowed
     except OSError:
         return False
-    return "log" in (c.strip().lower() for c in head.split(","))
+    return "log" in (c.strip().lower() for c in head)
 
 
 def read_manifest(path: str) -> list[tuple[str, str | None, str | None]]:

@@ -152,15 +152,16 @@ class LogStats:
         # where the reader found it: a corrupt gzip stream shows only at its end (the CRC check),
         # however early the damage lies; what it held before that came out as bad lines, if at all
         where = f" (found at byte {first.at:,} of the file)" if first.at >= 0 else ""
+        unknown = any(d.bytes < 0 for d in self.damage)
         if self.lost_bytes:
-            lost = f"{self.lost_bytes:,} bytes skipped"
-        elif any(d.bytes < 0 for d in self.damage):
+            lost = f"{'at least ' if unknown else ''}{self.lost_bytes:,} bytes skipped"
+        elif unknown:
             lost = "how much was lost is unknown"
         else:
             lost = "nothing skipped"
         if self.truncated:
             lost += ", the file ends early"
-        bad = f"; {self.bad:,} bad {self.unit}s rejected" if self.bad else ""
+        bad = f"; {self.bad:,} bad {self.unit}s rejected in all" if self.bad else ""
         return (
             f"damaged in {self.damaged} place(s), {lost}; {self.frames:,} frames read{bad}; "
             f"first: {first.reason}{where}"
