@@ -1,8 +1,9 @@
 """CPU time of one solve of stage 2's batch check (core.output_error), numpy against compiled.
 
     python benchmarks/check_cost.py [--model brush --car small] [--seed 1] [--rounds 3]
+                                    [--scenario stage2 --duration 330]
 
-Replays one drive of an independent model (``paper`` scenario, realistic noise; the brush cars
+Replays one drive of an independent model (``paper`` scenario unless given, realistic noise; the brush cars
 free the tyre's shape, the multi-body cars and vdp's own do not), then solves the UKF's stage-2
 check on its full record again and again: with the fit's states by the prefix scan (numpy, what
 the live service runs) and by core.kernels.oe_states (what a replay and ``vdp batch`` run),
@@ -28,6 +29,8 @@ def main() -> int:
     ap.add_argument("--car", default="small")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--scenario", default="paper", choices=("paper", "stage2"))
+    ap.add_argument("--duration", type=float, default=None, help="s (stage2: 330 fills the record, 7,500 rows)")
     a = ap.parse_args()
     from vdp.core.estimator import EstimatorConfig
     from vdp.pipeline import Pipeline
@@ -35,17 +38,25 @@ def main() -> int:
     from vdp.sim.independent.common import IndependentSimulation
 
     logging.disable(logging.WARNING)
-    sim = IndependentSimulation(a.model, a.car, "paper", a.seed, "realistic")
+    sim = IndependentSimulation(a.model, a.car, a.scenario, a.seed, "realistic", duration=a.duration)
     with tempfile.TemporaryDirectory() as d:  # the car's profile, as vdp simulate --model writes it
         path = Path(d) / "car.profile.toml"
         path.write_text(sim.profile_toml(), encoding="utf-8")
         prof = load_profile(path)
+    if a.scenario == "stage2":  # no stage 1 to learn l_f: the profile gives it, as axle scales would
+        import dataclasses
+
+        l_f = sim.truth["parameters"]["l_f"]
+        prof = dataclasses.replace(prof, vehicle=dataclasses.replace(prof.vehicle, l_f=l_f, l_f_std=0.01 * l_f))
     pipe = Pipeline(prof, EstimatorConfig(baseline=False, trace_len=0))
     for m in sim.frames():
         pipe.feed(m)
     l2 = pipe.estimator.s2["ukf"]
     check = l2.check
-    print(f"{a.model}/{a.car} seed {a.seed}: {check.record.rows} rows in the record")
+    print(f"{a.model}/{a.car} {a.scenario} seed {a.seed}: {check.record.rows} rows in the record")
+    if not check.record.rows:
+        print("no stage-2 windows: nothing to solve")
+        return 1
     for r in range(a.rounds):
         for compiled in (False, True):
             check.compiled, check._at, check.fit = compiled, 0, None  # stale: solved again

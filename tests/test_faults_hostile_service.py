@@ -133,9 +133,10 @@ def test_1100_idle_clients_neither_starve_health_nor_the_raw_log(tmp_path):
         time.sleep(1.0)
         during = raw_bytes(raw)
         code, _ = get(port)
-        # with a hard limit above the service's bound, health never waits; at a hard limit of
-        # 1,024 the first answer waits for the idle sockets to be closed (5 s)
-        assert code == 200 and worst < (1.0 if hard >= 4096 else 6.0), worst
+        # with a hard limit above the service's bound, health never waits for the idle sockets; at
+        # a hard limit of 1,024 the first answer waits for them to be closed (5 s). 3 s tells the
+        # two apart on a busy machine (1.5 s seen with the other test worker's load beside it)
+        assert code == 200 and worst < (3.0 if hard >= 4096 else 6.0), worst
         assert during > before
         for s in socks:
             s.close()
