@@ -30,7 +30,10 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--scenario", default="paper", choices=("paper", "stage2"))
-    ap.add_argument("--duration", type=float, default=None, help="s (stage2: 330 fills the record, 7,500 rows)")
+    ap.add_argument("--duration", type=float, default=None, help="s of drive (the scenario's own length at most)")
+    ap.add_argument(
+        "--repeat", type=int, default=1, help="the record's windows this many times, shifted in time (a fuller record)"
+    )
     a = ap.parse_args()
     from vdp.core.estimator import EstimatorConfig
     from vdp.pipeline import Pipeline
@@ -53,6 +56,14 @@ def main() -> int:
         pipe.feed(m)
     l2 = pipe.estimator.s2["ukf"]
     check = l2.check
+    rec = check.record
+    if a.repeat > 1:  # the same windows again later: a record as full as a longer drive's, for the cost
+        span = rec.windows[-1][-1][0] - rec.windows[0][0][0] + 100.0
+        first = [list(w) for w in rec.windows]
+        for k in range(1, a.repeat):
+            for w in first:
+                rec.windows.append([(r[0] + k * span, *r[1:]) for r in w])
+                rec.rows += len(w)
     print(f"{a.model}/{a.car} {a.scenario} seed {a.seed}: {check.record.rows} rows in the record")
     if not check.record.rows:
         print("no stage-2 windows: nothing to solve")

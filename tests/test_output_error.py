@@ -428,3 +428,32 @@ def test_a_replay_polled_on_the_way_ends_on_the_same_result(repo_root, tmp_path)
     assert fit["rows"] > 1000  # beyond REFIT_ROWS and a quarter of it: a stale fit was possible
     assert polled.parameters == plain.parameters
     assert polled.supervisor["learners"] == plain.supervisor["learners"]
+
+
+def test_a_background_check_reports_the_last_fit_until_its_solve_lands():
+    """The live service's check (an executor): asking for the fit starts a solve on a copy of the
+    rows and returns the fit before it at once; the new one lands when done, the same as a solve
+    in line; rows added meanwhile wait for the next solve (one at a time)."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    t, U, Z = brush_drive(30.0, seed=8, swing=0.45)
+    args = (K0, SIGMA, PRIOR_T, PRIOR_P, [np.array([80000.0, 80000.0, 2200.0])])
+    inline, _ = check_of(t, U, Z)
+    gate = threading.Event()
+    with ThreadPoolExecutor(max_workers=1) as ex:
+        ex.submit(gate.wait)  # the one worker busy: the solve below queues behind it
+        c = oe.Check(executor=ex)
+        c.record.open()
+        for i in range(0, len(t), 2):
+            c.record.add(t[i], U[i].tolist(), Z[i, 0], Z[i, 1], Z[i, 2])
+        assert c.solve(*args) is None and c.busy and c.solved == 0  # no fit yet, none waited for
+        c.record.add(t[-1] + 0.04, U[-1].tolist(), Z[-1, 0], Z[-1, 1], Z[-1, 2])  # a row after the copy
+        assert c.solve(*args) is None  # one solve at a time: still the old fit
+        gate.set()
+        c.wait()
+        assert not c.busy and c.solved == 1
+        assert c.fit.rows == inline.fit.rows and c.fit.c_alpha == inline.fit.c_alpha  # the copy's rows, solved alike
+        assert c.stale(window_open=False)  # the later row is still to be fitted
+        later = c.solve(*args, now=True)  # in line: no executor round trip
+        assert later is c.fit and c.solved == 2 and later.rows == inline.fit.rows + 1

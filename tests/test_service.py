@@ -330,3 +330,48 @@ def test_a_diverged_filter_and_stale_channels_show_in_health(tmp_path):
     finally:
         tx.shutdown()
         svc.stop()
+
+
+def test_a_slow_batch_check_does_not_stop_the_estimation(tmp_path, monkeypatch):
+    """Stage 2's batch check can take ~20 s of numpy on a full record of a bending tyre: the live
+    service solves it in the background, so frames keep being estimated meanwhile; its fit lands
+    when done, and sync() waits for it."""
+    from vdp.core import output_error
+    from vdp.sim.run import simulate
+
+    gate = threading.Event()
+    started = threading.Event()
+    fit = output_error.Check._fit
+
+    def slow(self, *args):
+        started.set()
+        gate.wait(120)  # as long as the test holds it
+        return fit(self, *args)
+
+    monkeypatch.setattr(output_error.Check, "_fit", slow)
+    settings = make_settings(tmp_path)
+    svc = Service(settings)
+    frames, _ = simulate(settings.profile, "paper", seed=1, noise="realistic", duration=80.0)
+    frames = list(frames)
+    svc.start()
+    wait_up(svc)
+    tx = can.Bus(interface="virtual", channel=svc.bus_cfg.channel, preserve_timestamps=True)
+    try:
+        sent = 0
+        for i in range(0, len(frames), 5000):
+            for msg in frames[i : i + 5000]:
+                tx.send(msg)
+                sent += 1
+            until(lambda n=sent: svc.estimation.fed >= n, f"{sent} frames estimated", limit=120)
+        assert started.is_set()  # a check was asked for, and is held in the background ...
+        check = svc.estimation.pipeline.estimator.s2["ukf"].check
+        assert check.busy and check.fit is None
+        assert svc.estimation.fed == sent and svc.intake.dropped == 0  # ... while every frame was estimated
+        gate.set()
+        pub = svc.sync()
+        assert not check.busy and check.solved >= 1
+        assert pub.result.supervisor["learners"]["ukf"]["stage2"]["output_error_fit"]["rows"] > 0
+    finally:
+        gate.set()
+        tx.shutdown()
+        svc.stop()

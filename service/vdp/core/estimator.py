@@ -202,6 +202,16 @@ class TwoStageEstimator:
         for learner in self.s2.values():
             learner.check.complete = True
 
+    def settle(self) -> None:
+        """Every background batch check ended and none stale (LearnerConfig.background_check): the
+        next snapshot does not depend on when it is taken."""
+        for learner in self.s2.values():
+            learner.settle()
+
+    def checks_solved(self) -> int:
+        """Batch-check fits finished so far (a background one landing changes the snapshot)."""
+        return sum(learner.check.solved for learner in self.s2.values())
+
     def snapshot(self) -> Snapshot:
         return Snapshot(
             parameters=self.parameters("ukf"),

@@ -184,6 +184,9 @@ class LearnerConfig:
     # the UKF's steps compiled (core.kernels: the same numbers, ~N x less CPU); False: numpy
     # (core.filters with the models as written), the reference the tests compare them with
     compiled: bool = True
+    # stage 2's batch check solved in a background thread, the last finished fit reported meanwhile
+    # (the live service: a full record of a bending tyre costs ~20 s of numpy CPU); off: at once
+    background_check: bool = False
 
     @property
     def block(self) -> int:
@@ -1082,7 +1085,8 @@ class Stage2(StageLearner):
         self._excite: RollExcitation | None = None
         self.roll_updates = 0  # of them, those that had a roll-rate measurement
         # the batch check: windows' samples and their output-error fit
-        self.check = output_error.Check(compiled=self.cfg.compiled)
+        ex = output_error.background() if self.cfg.background_check else None
+        self.check = output_error.Check(compiled=self.cfg.compiled, executor=ex)
         super().reset()
         P = self.theta_P
         self.prior_diff_std = math.sqrt(P[0, 0] + P[1, 1] - 2.0 * P[0, 1])  # of C_alpha_f - C_alpha_r
@@ -1226,10 +1230,17 @@ class Stage2(StageLearner):
             )
         return value, std, why
 
-    def batch_fit(self) -> output_error.Fit | None:
+    def settle(self) -> None:
+        """Let a background check end, and solve a stale one now: the next snapshot is then the
+        same whenever it is taken (LearnerConfig.background_check)."""
+        self.check.wait()
+        if self.known is not None and self.cfg.batch_check:
+            self.batch_fit(now=True)
+
+    def batch_fit(self, now: bool = False) -> output_error.Fit | None:
         """The output-error fit of the windows kept (core.output_error), solved again when stale:
         per axle, from the filter's values, with the profile's priors (the mean's, and the
-        axles' half-difference AXLE_SPLIT of it, as _prior)."""
+        axles' half-difference AXLE_SPLIT of it, as _prior).  ``now``: not in the background."""
         c = self.check
         if not c.stale(self.filter is not None):
             return c.fit
@@ -1241,7 +1252,7 @@ class Stage2(StageLearner):
         c_r = theta[1] if self.cfg.per_axle else theta[0]
         n = self.cfg.noise
         sigma = (n.gyro * n.inflate, n.accel * n.inflate)
-        return c.solve(self.known, sigma, t0, P0, [np.array([theta[0], c_r, theta[2]])])
+        return c.solve(self.known, sigma, t0, P0, [np.array([theta[0], c_r, theta[2]])], now=now)
 
     def _ix_prior_rel(self) -> float:
         p = self.priors["I_x"]

@@ -39,8 +39,11 @@ reported for C_alpha, each axle and I_z are the fit's.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
+import threading
 from collections import deque
+from concurrent import futures
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +51,8 @@ import numpy as np
 from . import lateral
 from .batch import damped_step
 from .compiled import kernel
+
+log = logging.getLogger(__name__)
 
 # parameters: ln C_alpha_f, ln C_alpha_r, ln I_z, a_y offset, the swing length, the tyre's
 # shape (b, c), then (v_y0, yaw0) per window
@@ -734,6 +739,16 @@ def compare(name: str, value: float, std: float, fit: Fit, z_max: float) -> tupl
     return (b if beyond is not None else value), wide, why
 
 
+_BACKGROUND: list[futures.Executor] = []
+
+
+def background() -> futures.Executor:
+    """The one thread the live service's checks solve in (:meth:`Check.solve`), made at first use."""
+    if not _BACKGROUND:
+        _BACKGROUND.append(futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="vdp-check"))
+    return _BACKGROUND[0]
+
+
 CHECKED = ("C_alpha", "I_z")  # the published parameters the fit checks
 Z_MAX = 2.0  # the filter's and the fit's values disagree beyond this many combined stds
 REFIT_ROWS = 250  # new rows (10 s of windows) before an open window's fit is solved again
@@ -749,9 +764,13 @@ class Check:
     stage-2 windows (every 75 s with a full record).
     """
 
-    def __init__(self, cap: int = MAX_ROWS, compiled: bool = False):
+    def __init__(self, cap: int = MAX_ROWS, compiled: bool = False, executor=None):
         self.record = Record(cap)
         self.compiled = compiled  # the fit's states by core.kernels (Problem.compiled)
+        self.executor = executor  # a concurrent.futures executor: solves in the background (solve)
+        self._job = None  # the background solve running, if any
+        self._lock = threading.Lock()
+        self.solved = 0  # fits finished (a live service publishes again when one lands)
         self.fit: Fit | None = None
         self._at = 0  # record.added at the last solve
         self._open_at = -1
@@ -768,12 +787,62 @@ class Check:
         every = max(REFIT_ROWS, self.record.rows // 4)
         return new > 0 and (self.fit is None or not window_open or self.complete or new >= every)
 
-    def solve(self, k: lateral.Known, sigma, prior_t, prior_P, starts) -> Fit | None:
+    def solve(self, k: lateral.Known, sigma, prior_t, prior_P, starts, now: bool = False) -> Fit | None:
+        """Fit the rows kept; return the fit.  With an ``executor`` (the live service) and not
+        ``now``, the solve runs there on a copy of the rows and the last finished fit is returned
+        meanwhile: a full record of a car whose tyres bend costs ~20 s of numpy CPU, which must
+        not stop the estimation worker (its queue holds ~8 s of a saturated bus).  One solve at a
+        time; while one runs the check stays stale and asks again later."""
+        job = self._job
+        if job is not None:
+            if now or self.executor is None or self.complete:
+                self.wait()
+            elif not job.done():
+                return self.fit
+            else:
+                self._take(job)  # (ended; its callback may not have run yet)
         self._at = self.record.added
         a = self.record.arrays()
         if a is None:
             self.fit = None
             return None
+        args = (a, k, sigma, prior_t, prior_P, starts)
+        if self.executor is None or now or self.complete:
+            self.fit = self._fit(*args)
+            self.solved += 1
+            return self.fit
+        self._job = self.executor.submit(self._fit, *args)
+        self._job.add_done_callback(self._take)
+        return self.fit
+
+    def _take(self, job) -> None:
+        """A background solve has ended: its fit becomes the check's, once (its callback and
+        :meth:`wait` may both get here)."""
+        with self._lock:
+            if self._job is not job:
+                return
+            self._job = None
+            if job.cancelled():
+                return
+            if job.exception() is not None:  # numeric failures give no fit inside _fit: this is a bug
+                log.error("stage 2's batch check failed in the background: %r", job.exception())
+                return
+            self.fit = job.result()
+            self.solved += 1
+
+    def wait(self) -> None:
+        """Until a background solve has ended and its fit is taken."""
+        job = self._job
+        if job is not None:
+            futures.wait([job])
+            self._take(job)
+
+    @property
+    def busy(self) -> bool:
+        job = self._job
+        return job is not None and not job.done()
+
+    def _fit(self, a, k, sigma, prior_t, prior_P, starts) -> Fit | None:
         t, u, z, bounds = a
         try:
             prob = Problem(t, u, z, bounds, k, sigma)
@@ -791,7 +860,6 @@ class Check:
                 fit = dataclasses.replace(fit, spread=spread(prob, fit, prior_t, prior_P))
         except (np.linalg.LinAlgError, FloatingPointError, ValueError):
             fit = None
-        self.fit = fit
         return fit
 
     def as_dict(self) -> dict | None:

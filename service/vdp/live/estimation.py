@@ -70,6 +70,7 @@ class Estimation:
         self._seq = itertools.count(1)
         self._pub = Published(0, time.time(), pipeline.result(), 0)
         self._dirty = True
+        self._checks = 0  # background batch-check fits seen by the last snapshot
         self._thread: threading.Thread | None = None
         self._resets_seen: dict = {}
         self._diverged: dict[str, tuple[float, str]] = {}  # filter kind -> (monotonic time, what)
@@ -142,7 +143,9 @@ class Estimation:
                 self._dirty = True
             now = time.monotonic()
             if now >= next_pub:
-                if self._dirty:
+                # new frames, or a batch check that finished in the background since (its fit changes
+                # the stds even when the bus has gone quiet)
+                if self._dirty or self._checks_solved() != self._checks:
                     self.publish()
                 next_pub = now + interval
 
@@ -159,8 +162,13 @@ class Estimation:
             self.publish()
             cmd.future.set_result(result)
 
+    def _checks_solved(self) -> int:
+        est = getattr(self.pipeline, "estimator", None)
+        return est.checks_solved() if est is not None else 0
+
     def publish(self) -> None:
         """Take a snapshot (on the worker thread, or before it runs)."""
+        checks = self._checks_solved()  # before the snapshot: a fit landing during it publishes again
         try:
             pub = Published(
                 seq=next(self._seq),
@@ -174,6 +182,7 @@ class Estimation:
             log.exception("taking a snapshot failed")
             return
         self._dirty = False
+        self._checks = checks
         self._note_resets(pub.result.resets)
         self._pub = pub
 

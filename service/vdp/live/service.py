@@ -70,7 +70,9 @@ class Service:
         # numpy's filter steps, not the compiled ones (core.kernels): a live bus brings 50 samples/s,
         # which they keep up with at a few per cent of a core, and numba's LLVM would add ~135 MB
         # to the service's RSS (BENCHMARKS.md, "Compiled estimator").
-        learner = LearnerConfig(per_axle=settings.service.per_axle, compiled=False)
+        # Stage 2's batch check solves in a background thread: numpy's ~20 s for a full record of a
+        # bending tyre would stop this worker, whose queue holds ~8 s of a saturated bus.
+        learner = LearnerConfig(per_axle=settings.service.per_axle, compiled=False, background_check=True)
         cfg = EstimatorConfig(trace_len=600, learner=learner)
         pipe = pipeline if pipeline is not None else Pipeline(self.profile, cfg)
         self.estimation = Estimation(pipe, self.ingest.queue, settings.service.publish_interval)
@@ -174,8 +176,15 @@ class Service:
         return self.ingest.backlog()
 
     def sync(self, timeout: float = 60.0) -> Published:
-        """Wait until every frame queued so far is estimated; return the snapshot after it (tests)."""
-        self._call(lambda p: None, timeout)
+        """Wait until every frame queued so far is estimated and every batch check has ended;
+        return the snapshot after it (tests, and a caller who wants the numbers settled)."""
+
+        def settle(p) -> None:
+            est = getattr(p, "estimator", None)
+            if est is not None:
+                est.settle()
+
+        self._call(settle, timeout)
         return self.latest
 
     def estimates(self) -> dict:
