@@ -203,14 +203,14 @@ class TwoStageEstimator:
             learner.check.complete = True
 
     def settle(self) -> None:
-        """Every background batch check ended and none stale (LearnerConfig.background_check): the
+        """Every background batch check ended and none stale (LearnerConfig.check_executor): the
         next snapshot does not depend on when it is taken."""
         for learner in self.s2.values():
             learner.settle()
 
     def checks_solved(self) -> int:
         """Batch-check fits finished so far (a background one landing changes the snapshot)."""
-        return sum(learner.check.solved for learner in self.s2.values())
+        return sum(learner.check.poll() for learner in self.s2.values())
 
     def snapshot(self) -> Snapshot:
         return Snapshot(

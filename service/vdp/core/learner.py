@@ -184,9 +184,10 @@ class LearnerConfig:
     # the UKF's steps compiled (core.kernels: the same numbers, ~N x less CPU); False: numpy
     # (core.filters with the models as written), the reference the tests compare them with
     compiled: bool = True
-    # stage 2's batch check solved in a background thread, the last finished fit reported meanwhile
-    # (the live service: a full record of a bending tyre costs ~20 s of numpy CPU); off: at once
-    background_check: bool = False
+    # stage 2's batch check solved on this executor (concurrent.futures' submit), the last finished
+    # fit reported meanwhile: the live service's one background thread, since a full record of a
+    # bending tyre costs ~20 s of numpy CPU; None: in line.  The caller owns and shuts it down.
+    check_executor: object | None = field(default=None, compare=False, repr=False)
 
     @property
     def block(self) -> int:
@@ -1085,8 +1086,7 @@ class Stage2(StageLearner):
         self._excite: RollExcitation | None = None
         self.roll_updates = 0  # of them, those that had a roll-rate measurement
         # the batch check: windows' samples and their output-error fit
-        ex = output_error.background() if self.cfg.background_check else None
-        self.check = output_error.Check(compiled=self.cfg.compiled, executor=ex)
+        self.check = output_error.Check(compiled=self.cfg.compiled, executor=self.cfg.check_executor)
         super().reset()
         P = self.theta_P
         self.prior_diff_std = math.sqrt(P[0, 0] + P[1, 1] - 2.0 * P[0, 1])  # of C_alpha_f - C_alpha_r
@@ -1232,7 +1232,7 @@ class Stage2(StageLearner):
 
     def settle(self) -> None:
         """Let a background check end, and solve a stale one now: the next snapshot is then the
-        same whenever it is taken (LearnerConfig.background_check)."""
+        same whenever it is taken (LearnerConfig.check_executor)."""
         self.check.wait()
         if self.known is not None and self.cfg.batch_check:
             self.batch_fit(now=True)

@@ -41,9 +41,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-import threading
 from collections import deque
-from concurrent import futures
 from dataclasses import dataclass
 
 import numpy as np
@@ -739,16 +737,6 @@ def compare(name: str, value: float, std: float, fit: Fit, z_max: float) -> tupl
     return (b if beyond is not None else value), wide, why
 
 
-_BACKGROUND: list[futures.Executor] = []
-
-
-def background() -> futures.Executor:
-    """The one thread the live service's checks solve in (:meth:`Check.solve`), made at first use."""
-    if not _BACKGROUND:
-        _BACKGROUND.append(futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="vdp-check"))
-    return _BACKGROUND[0]
-
-
 CHECKED = ("C_alpha", "I_z")  # the published parameters the fit checks
 Z_MAX = 2.0  # the filter's and the fit's values disagree beyond this many combined stds
 REFIT_ROWS = 250  # new rows (10 s of windows) before an open window's fit is solved again
@@ -767,9 +755,11 @@ class Check:
     def __init__(self, cap: int = MAX_ROWS, compiled: bool = False, executor=None):
         self.record = Record(cap)
         self.compiled = compiled  # the fit's states by core.kernels (Problem.compiled)
-        self.executor = executor  # a concurrent.futures executor: solves in the background (solve)
+        # anything with concurrent.futures' submit(): solves in the background (solve).  The caller
+        # owns it (the live service's one thread): the core starts no thread of its own, and the
+        # job is only ever looked at from the thread that calls this Check
+        self.executor = executor
         self._job = None  # the background solve running, if any
-        self._lock = threading.Lock()
         self.solved = 0  # fits finished (a live service publishes again when one lands)
         self.fit: Fit | None = None
         self._at = 0  # record.added at the last solve
@@ -800,7 +790,7 @@ class Check:
             elif not job.done():
                 return self.fit
             else:
-                self._take(job)  # (ended; its callback may not have run yet)
+                self._take()
         self._at = self.record.added
         a = self.record.arrays()
         if a is None:
@@ -812,30 +802,32 @@ class Check:
             self.solved += 1
             return self.fit
         self._job = self.executor.submit(self._fit, *args)
-        self._job.add_done_callback(self._take)
         return self.fit
 
-    def _take(self, job) -> None:
-        """A background solve has ended: its fit becomes the check's, once (its callback and
-        :meth:`wait` may both get here)."""
-        with self._lock:
-            if self._job is not job:
-                return
-            self._job = None
-            if job.cancelled():
-                return
-            if job.exception() is not None:  # numeric failures give no fit inside _fit: this is a bug
-                log.error("stage 2's batch check failed in the background: %r", job.exception())
-                return
-            self.fit = job.result()
-            self.solved += 1
+    def poll(self) -> int:
+        """Take a background solve's fit if it has ended; return the fits finished so far (the
+        live service publishes again when this grows)."""
+        job = self._job
+        if job is not None and job.done():
+            self._take()
+        return self.solved
+
+    def _take(self) -> None:
+        """The background solve has ended (or is waited for here): its fit becomes the check's."""
+        job, self._job = self._job, None
+        if job.cancelled():
+            return
+        exc = job.exception()  # blocks until it ends
+        if exc is not None:  # numeric failures give no fit inside _fit: this is a bug
+            log.error("stage 2's batch check failed in the background: %r", exc)
+            return
+        self.fit = job.result()
+        self.solved += 1
 
     def wait(self) -> None:
         """Until a background solve has ended and its fit is taken."""
-        job = self._job
-        if job is not None:
-            futures.wait([job])
-            self._take(job)
+        if self._job is not None:
+            self._take()
 
     @property
     def busy(self) -> bool:

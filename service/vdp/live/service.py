@@ -22,6 +22,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 from .. import channels
@@ -72,7 +73,8 @@ class Service:
         # to the service's RSS (BENCHMARKS.md, "Compiled estimator").
         # Stage 2's batch check solves in a background thread: numpy's ~20 s for a full record of a
         # bending tyre would stop this worker, whose queue holds ~8 s of a saturated bus.
-        learner = LearnerConfig(per_axle=settings.service.per_axle, compiled=False, background_check=True)
+        self.checks = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vdp-check")
+        learner = LearnerConfig(per_axle=settings.service.per_axle, compiled=False, check_executor=self.checks)
         cfg = EstimatorConfig(trace_len=600, learner=learner)
         pipe = pipeline if pipeline is not None else Pipeline(self.profile, cfg)
         self.estimation = Estimation(pipe, self.ingest.queue, settings.service.publish_interval)
@@ -119,6 +121,8 @@ class Service:
         if self._keeper is not None:
             self._keeper.join(timeout=10.0)
         self.estimation.stop()
+        # a check still solving is not waited for: its fit would come after the last commit
+        self.checks.shutdown(wait=False, cancel_futures=True)
         self.commit()
         self.ingest.close()
         self.writer.close()
