@@ -5,8 +5,12 @@ r, the closed form is S = var_a + var_c + r and gain var_a / S for a, none for c
 afterwards var_a - var_a^2 / S, cov(a, c) = -var_a var_c / S, var_c unchanged.
 """
 
+import math
+
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vdp.core.filters import EKF, UKF
 
@@ -208,3 +212,28 @@ def test_a_drive_gives_the_same_estimates_as_on_filterpys_steps(profile, monkeyp
         v1 = [x if x is not None else np.nan for kind in r1[2:] for p in kind for x in p]
         v2 = [x if x is not None else np.nan for kind in r2[2:] for p in kind for x in p]
         np.testing.assert_allclose(v1, v2, rtol=1e-5, equal_nan=True)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    n=st.integers(1, 3),
+    seed=st.integers(0, 2**32 - 1),
+    cond=st.floats(1e-6, 1.0),
+)
+def test_stage2s_innovation_test_in_plain_floats_equals_a_numpy_solve(n, seed, cond):
+    """learner.quad_form (the NIS of stage 2's 1-3 rows, without numpy's per-call overhead) is
+    y' S^-1 y as np.linalg.solve gives it, down to a badly conditioned S; None where S is not
+    positive definite."""
+    from vdp.core.learner import quad_form
+
+    rng = np.random.default_rng(seed)
+    Q, _ = np.linalg.qr(rng.normal(size=(n, n)))
+    S = Q @ np.diag(np.linspace(cond, 1.0, n)) @ Q.T * 10.0 ** rng.uniform(-6, 6)
+    S = 0.5 * (S + S.T)
+    y = rng.normal(size=n) * math.sqrt(S[0, 0])
+    want = float(y @ np.linalg.solve(S, y))
+    got = quad_form(y.tolist(), S.tolist())
+    assert got == pytest.approx(want, rel=1e-6 / cond)
+    bad = S.copy()
+    bad[-1, -1] = -abs(bad[-1, -1])  # a negative variance: no covariance
+    assert quad_form(y.tolist(), bad.tolist()) is None

@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 
 from vdp import channels as ch
 from vdp.buffer import Sample
@@ -83,3 +84,24 @@ def test_hysteresis_does_not_flicker_on_brief_dips():
         sup._ax_sq = sup._ax_m**2  # no spread
         assert sup.update(10.0 + k * 0.01, sample(10.0 + k * 0.01, ax=0.0), False) == 1
     assert sup.window_count == n_before
+
+
+def test_the_excitation_averages_follow_uneven_steps():
+    """The EMA gains are kept for the last step length (nearly every step is one tick): steps of
+    other lengths in between still get their own gain, 1 - exp(-dt / tau)."""
+    sup = Supervisor()
+    rng = np.random.default_rng(3)
+    t, ax_m, d_m = 0.0, 0.0, 0.0
+    for k in range(400):
+        dt = 0.02 if k % 7 else float(rng.uniform(0.001, 0.09))
+        t += dt
+        ax, delta = float(rng.normal(0, 2)), float(rng.normal(0, 0.02))
+        sup.update(t, sample(t, ax=ax, delta=delta), True)
+        if k:  # (the first sample's step is taken as 0.01 s)
+            ax_m += (1 - math.exp(-dt / sup.cfg.tau_ax)) * (ax - ax_m)
+            d_m += (1 - math.exp(-dt / sup.cfg.tau_steer)) * (delta - d_m)
+        else:
+            ax_m += (1 - math.exp(-0.01 / sup.cfg.tau_ax)) * ax
+            d_m += (1 - math.exp(-0.01 / sup.cfg.tau_steer)) * delta
+    assert sup._ax_m == pytest.approx(ax_m, rel=1e-12)
+    assert sup._d_m == pytest.approx(d_m, rel=1e-12)
