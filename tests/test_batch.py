@@ -47,8 +47,10 @@ def test_a_disagreeing_drive_fails_the_chi2_test_and_is_flagged_alone():
     assert zs[("odd", "car", "l_f")] > Z_FLAG
     assert all(abs(zs[(f"d{i}", "car", "l_f")]) < Z_FLAG for i in range(4))
     assert veh["scale"] > 1  # the std the scatter supports is larger than the formal one
-    # the combination is of the four that agree
+    # the combination is of the four that agree, and the retest is theirs
     assert veh["drives"] == 4 and veh["value"] == pytest.approx(1.40, abs=1e-9)
+    assert veh["dof_kept"] == 3 and veh["chi2_kept"] == pytest.approx(4 * 0.5**2, rel=1e-9)
+    assert veh["p_value_kept"] > 0.5 and veh["dof"] == 4
 
 
 def test_two_drives_that_disagree_are_both_flagged():
@@ -81,6 +83,7 @@ def test_weighted_of_one_drive_is_that_drive():
 
 def test_manifest_paths_are_relative_to_it_and_a_bad_header_is_one_clear_error(tmp_path):
     m = tmp_path / "m.csv"
+    (tmp_path / "p.toml").write_text("")
     m.write_text("log,vehicle,profile\nruns/a.log,car1,\n/abs/b.log,car2,p.toml\n\n")
     assert read_manifest(str(m)) == [
         (str(tmp_path / "runs" / "a.log"), "car1", None),
@@ -283,6 +286,8 @@ def test_a_log_rerun_under_another_profile_counts_once(tmp_path, repo_root):
     (tmp_path / "manifest.csv").write_text(f"log,vehicle,profile\na.log,car,{copy}\n")
     again = batch(tmp_path, workers=1)
     assert again.returncode == 0 and "left out 1 earlier result" in again.stdout, again.stdout + again.stderr
+    assert len(list((tmp_path / "out" / "parts" / "superseded").glob("*.parquet"))) == 1  # moved aside, not lost
+    assert "left out" not in batch(tmp_path, workers=1).stdout  # said once
     runs = pq.read_table(tmp_path / "out" / "runs.parquet").to_pylist()
     assert len(runs) == 6 and {r["profile"] for r in runs} == {str(copy)}
     veh = pq.read_table(tmp_path / "out" / "vehicles.parquet").to_pylist()
@@ -335,3 +340,46 @@ def test_a_manifest_in_a_log_directory_is_not_taken_for_a_log(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "fleet.csv is a manifest, not a log; left out (give it as --manifest)" in err
     assert "quoted.csv is a manifest" in err
+
+
+def test_a_manifests_missing_profile_names_its_line_and_where_it_was_looked_for(tmp_path):
+    m = tmp_path / "m.csv"
+    m.write_text("log,vehicle,profile\na.log,car,\nb.log,car,nope.toml\n")
+    with pytest.raises(ConfigError, match=r"line 3: profile nope.toml: no such file .*manifest's folder"):
+        read_manifest(str(m))
+
+
+def test_a_log_listed_under_two_vehicles_is_refused(tmp_path, repo_root):
+    """A drive under two names would count for both vehicles: one clear error before any run."""
+    from argparse import Namespace
+
+    from vdp.cli.batch import tasks
+
+    prof = repo_root / "profiles" / "paper.toml"
+    m = tmp_path / "m.csv"
+    m.write_text(f"log,vehicle,profile\na.log,carA,{prof}\nb.log,carA,{prof}\na.log,carB,{prof}\na.log,carA,{prof}\n")
+    args = Namespace(manifest=str(m), logs=[], profile=None, vehicle=None)
+    with pytest.raises(ConfigError, match=r"a\.log is listed 2 times, as vehicle 'carA' .*'carB'.*list it once"):
+        tasks(args)
+    m.write_text(f"log,vehicle,profile\na.log,carA,{prof}\na.log,carA,{prof}\n")  # the very same twice: one task
+    assert len(tasks(args)) == 1
+
+
+def test_a_glob_that_matches_nothing_is_reported_not_passed_over(tmp_path, repo_root):
+    from argparse import Namespace
+
+    from vdp.cli.batch import expand, tasks
+
+    (tmp_path / "a.log").write_text("")
+    missed: list[str] = []
+    assert expand([str(tmp_path / "*.log"), str(tmp_path / "typo*.log")], missed) == [str(tmp_path / "a.log")]
+    assert missed == [f"{tmp_path / 'typo*.log'}: no file matches"]
+    args = Namespace(manifest=None, logs=[str(tmp_path / "typo*.log")], profile=None, vehicle=None)
+    with pytest.raises(ConfigError, match=r"no logs to run: .*typo.*no file matches"):
+        tasks(args, [])
+
+
+def test_simulate_makes_the_folder_it_writes_into(tmp_path):
+    out = tmp_path / "new" / "sub" / "d.log"
+    assert main(["simulate", "--scenario", "stage1", "--duration", "3", "--out", str(out)]) == 0
+    assert out.is_file() and out.with_name("d.truth.json").is_file()

@@ -277,7 +277,8 @@ def combine(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict], dict[tuple[s
     their z are equal: both are flagged, neither is known to be the wrong one.
 
     ``value``/``std`` combine the drives not flagged (both of an inconsistent pair);
-    ``chi2``/``p_value`` test all converged drives.  Returns the vehicle rows and
+    ``chi2``/``p_value`` test all converged drives, ``chi2_kept``/``p_value_kept`` the drives
+    ``value`` combines (the retest after flagging; the same where none was flagged).  Returns the vehicle rows and
     {(log, vehicle, parameter): z of that drive against the unflagged others}.
     """
     from scipy.stats import chi2 as chi2_dist
@@ -306,6 +307,9 @@ def combine(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict], dict[tuple[s
             "consistent": None,
             "scale": math.nan,
             "flagged": [],
+            "chi2_kept": math.nan,
+            "dof_kept": max(len(good) - 1, 0),
+            "p_value_kept": math.nan,
         }
         xs = [float(r["value"]) for r in good]
         ss = [float(r["std"]) for r in good]
@@ -328,6 +332,11 @@ def combine(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict], dict[tuple[s
                 kept.remove(worst)
             for i, r in enumerate(good):
                 zs[(r["log"], vehicle, param)] = _loo_z(xs, ss, kept, i)
+            kx, ks = [xs[i] for i in kept], [ss[i] for i in kept]
+            mean_k, _ = weighted(kx, ks)
+            chi2_k = sum(((x - mean_k) / s) ** 2 for x, s in zip(kx, ks))
+            p_k = float(chi2_dist.sf(chi2_k, len(kept) - 1))
+            row.update(chi2_kept=chi2_k, dof_kept=len(kept) - 1, p_value_kept=p_k)
         if good:
             row["value"], row["std"] = weighted([xs[i] for i in kept], [ss[i] for i in kept])
             row["drives"] = len(kept)

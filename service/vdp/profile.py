@@ -525,7 +525,9 @@ def load_profile(path: str | Path) -> Profile:
     path = Path(path)
     where = str(path)
     if not path.is_file():
-        raise ProfileError(f"{where}: no such profile file (a relative path is read from {Path.cwd()})")
+        what = "a folder, not a profile file" if path.is_dir() else "no such profile file"
+        hint = "" if path.is_absolute() else f" (a relative path is read from {Path.cwd()})"
+        raise ProfileError(f"{where}: {what}{hint}")
     if path.stat().st_size > _MAX_PROFILE:
         raise ProfileError(f"{where}: {path.stat().st_size:,} bytes is not a profile (at most {_MAX_PROFILE:,})")
     try:

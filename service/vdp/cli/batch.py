@@ -62,8 +62,9 @@ def add_parser(sub):
 # -- inputs -------------------------------------------------------------------
 
 
-def expand(inputs: list[str]) -> list[str]:
-    """Log paths from paths, globs and directories (a plain path is kept even if missing)."""
+def expand(inputs: list[str], unmatched: list[str] | None = None) -> list[str]:
+    """Log paths from paths, globs and directories (a plain path is kept even if missing); a glob or
+    folder that gives no log is appended to ``unmatched``."""
     from ..io.logs import FORMATS
 
     def is_log(p: Path) -> bool:
@@ -79,6 +80,8 @@ def expand(inputs: list[str]) -> list[str]:
             hits = sorted(glob.glob(item, recursive=True))
             if not hits:
                 print(f"vdp batch: warning: no file matches {item}", file=sys.stderr)
+                if unmatched is not None:
+                    unmatched.append(f"{item}: no file matches")
             out.extend(h for h in hits if Path(h).is_file())
         elif p.is_dir():
             hits = []
@@ -89,6 +92,8 @@ def expand(inputs: list[str]) -> list[str]:
                     hits.append(str(f))
             if not hits:
                 print(f"vdp batch: warning: no log files ({', '.join(FORMATS)}) in {item}", file=sys.stderr)
+                if unmatched is not None:
+                    unmatched.append(f"{item}: no log files in it")
             out.extend(hits)
         else:
             out.append(item)
@@ -135,13 +140,19 @@ def read_manifest(path: str) -> list[tuple[str, str | None, str | None]]:
         def rel(v: str) -> str:
             return str(base / v) if v and not Path(v).is_absolute() else v
 
-        out.append((rel(rec["log"]), rec.get("vehicle") or None, rel(rec.get("profile", "")) or None))
+        prof = rel(rec.get("profile", "")) or None
+        if prof is not None and not Path(prof).is_file():
+            raise ConfigError(
+                f"{path}: line {n}: profile {rec['profile']}: no such file ({prof}; a relative path is "
+                f"read from the manifest's folder)"
+            )
+        out.append((rel(rec["log"]), rec.get("vehicle") or None, prof))
     if not out:
         raise ConfigError(f"{path}: the manifest lists no logs")
     return out
 
 
-def tasks(args) -> list:
+def tasks(args, unmatched: list[str] | None = None) -> list:
     from ..fleet import Task
     from ..profile import load_profile
     from .replay import default_profile
@@ -149,8 +160,10 @@ def tasks(args) -> list:
     entries: list[tuple[str, str | None, str | None]] = []
     if args.manifest:
         entries += read_manifest(args.manifest)
-    entries += [(p, None, None) for p in expand(args.logs)]
+    entries += [(p, None, None) for p in expand(args.logs, unmatched)]
     if not entries:
+        if unmatched:
+            raise ConfigError(f"no logs to run: {'; '.join(unmatched)}")
         raise ConfigError("no logs given: name log files, globs or directories, or --manifest FILE")
     default = str(Path(args.profile).resolve()) if args.profile else None
     names: dict[str, str] = {}
@@ -167,6 +180,19 @@ def tasks(args) -> list:
         if t.key not in seen:
             seen.add(t.key)
             out.append(t)
+    # a drive is one vehicle's: listed under two vehicles or profiles it would count for both
+    twice: dict[str, list] = {}
+    for t in out:
+        twice.setdefault(t.log, []).append(t)
+    clash = [ts for ts in twice.values() if len(ts) > 1]
+    if clash:
+        ts = clash[0]
+        listed = "; ".join(f"vehicle {t.vehicle!r} with {t.profile}" for t in ts)
+        more = f" (and {len(clash) - 1} more log(s) so)" if len(clash) > 1 else ""
+        raise ConfigError(
+            f"{ts[0].log} is listed {len(ts)} times, as {listed}{more}: a drive belongs to one vehicle "
+            f"and one profile; list it once"
+        )
     return out
 
 
@@ -249,6 +275,9 @@ def write_results(out: Path, parts: dict[str, list[dict]]) -> tuple[int, int]:
             ("consistent", pa.bool_()),
             ("scale", pa.float64()),
             ("flagged", pa.list_(pa.string())),
+            ("chi2_kept", pa.float64()),
+            ("dof_kept", pa.int64()),
+            ("p_value_kept", pa.float64()),
         ]
     )
     _atomic(pq, pa.Table.from_pylist(vehicles, schema=vschema), out / "vehicles.parquet")
@@ -340,6 +369,8 @@ def run(args) -> int:
         import pyarrow  # noqa: F401
     except ModuleNotFoundError:
         raise ConfigError("vdp batch needs pyarrow: pip install 'vdp[fleet]'") from None
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"--workers {args.workers}: give at least 1")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: exists and is not a directory")
@@ -347,7 +378,8 @@ def run(args) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"--out {out}: cannot create it: {exc.strerror or exc}") from None
-    todo = tasks(args)
+    unmatched: list[str] = []
+    todo = tasks(args, unmatched)
     parts = read_parts(out)
     pending = [t for t in todo if args.redo or not done(parts.get(t.key, []), t)]
     skipped = len(todo) - len(pending)
@@ -395,14 +427,32 @@ def run(args) -> int:
     stale = [k for k, rows in parts.items() if rows and rows[0]["log"] in keys and k not in keys[rows[0]["log"]]]
     for k in stale:
         del parts[k]
+        _supersede(out, k)
     if stale:
-        print(f"left out {len(stale)} earlier result(s) of these logs under another profile or vehicle")
+        print(
+            f"left out {len(stale)} earlier result(s) of these logs under another profile or vehicle "
+            f"(kept in {out / 'parts' / 'superseded'})"
+        )
     n_rows, n_veh = write_results(out, parts)
     print(f"wrote {out / 'runs.parquet'} ({n_rows} rows) and {out / 'vehicles.parquet'} ({n_veh} rows)")
     for path, err in failed:
         # the error names the log itself where the reader wrote it ("PATH: no such file")
         print(f"failed: {err}" if err.startswith(f"{path}:") else f"failed: {path}: {err}")
+    for what in unmatched:
+        print(f"failed: {what}")
     if failed:
         print(f"{len(failed)} of {len(pending)} logs failed (recorded in runs.parquet; a rerun tries them again)")
-        return 1
-    return 0
+    if unmatched:
+        print(f"{len(unmatched)} of the inputs gave no log (a typo in a path or glob?)")
+    return 1 if failed or unmatched else 0
+
+
+def _supersede(out: Path, key: str) -> None:
+    """Move a part no longer in the results aside (nothing is deleted; the notice is given once)."""
+    src = out / "parts" / f"{key}.parquet"
+    dst = out / "parts" / "superseded" / src.name
+    try:
+        dst.parent.mkdir(exist_ok=True)
+        os.replace(src, dst)
+    except OSError as exc:
+        log.warning("%s: could not move it aside (%s); it stays where it is", src, exc)

@@ -101,6 +101,12 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("give --out FILE and/or --bus-interface NAME")
     if args.sim_speed < 0:
         raise ConfigError("--sim-speed must be >= 0")
+    for path in (args.out, args.truth):  # a new folder for the log, as vdp batch --out makes its own
+        if path is not None:
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise ConfigError(f"{path}: cannot create its folder {path.parent}: {exc.strerror or exc}") from None
     params = dict(args.param)
     if args.model != "vdp":
         return _run_independent(args)
