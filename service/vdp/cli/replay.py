@@ -83,7 +83,10 @@ def compile_note(warm: bool = False) -> None:
     print("compiling the estimator's filter steps once (about 20 s of CPU; later runs load them from the cache)")
     sys.stdout.flush()
     if warm:
+        from ..io import scan
+
         kernels.warm()
+        scan.warm()  # the bulk reader's parse (a second or two)
 
 
 def default_profile() -> Path:

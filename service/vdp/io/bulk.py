@@ -190,6 +190,9 @@ class BulkSource:
         self.stats = LogStats(unit="line")
         self._keep: frozenset[int] | None = None
         self._off: set[int] = set()  # plans whose block decoding disagreed with the frame decoder
+        # vdp.io.scan, the compiled parse, where numba imports (False: numpy's, _parse); set at the
+        # first block, so that opening a log does not import numba
+        self._scan: Any = None
 
     @property
     def position(self) -> int:
@@ -271,8 +274,11 @@ class BulkSource:
                 out[key].pad = bool(getattr(dec, "_pad", False))
         return out
 
-    def _block(self, buf: bytes, lineno: int, pipe: Any, plans: dict, keep_arr: np.ndarray, state: dict) -> int:
-        st = self.stats
+    @staticmethod
+    def _parse(buf: bytes, lineno: int) -> tuple:
+        """The block's lines parsed with numpy: (lines in the block, then per non-empty line its
+        line number, time stamp, key, data bytes, dlc, channel code and channel name's span), or
+        Irregular.  The reference of the compiled parse (vdp.io.scan), which runs where it can."""
         a = np.frombuffer(buf, np.uint8)
         nl = np.flatnonzero(a == 10)
         n_lines = len(nl)
@@ -289,7 +295,8 @@ class BulkSource:
             starts, ends = starts[nonempty], ends[nonempty]
         lines_no = np.flatnonzero(nonempty) + lineno + 1
         if not len(starts):
-            return lineno + n_lines
+            no = np.zeros(0, np.int64)
+            return n_lines, no, no.astype(float), no, np.zeros((0, 8), np.uint8), no, no.astype(np.uint64), no, no
         if (a == 9).any() or (a == 11).any() or (a == 12).any():
             raise Irregular("tabs or other whitespace between fields")
         # fields: "(ts) channel id#data [R|T]", single spaces
@@ -354,6 +361,23 @@ class BulkSource:
         cb = apad[(s1 + 1)[:, None] + np.arange(8)].astype(np.uint64)
         cb[np.arange(8)[None, :] >= ch_len[:, None]] = 0
         ch_code = (cb << (np.arange(8, dtype=np.uint64) * np.uint64(8))).sum(axis=1)
+        return n_lines, lines_no, ts, key, data, dlc, ch_code, s1 + 1, s2
+
+    def _block(self, buf: bytes, lineno: int, pipe: Any, plans: dict, keep_arr: np.ndarray, state: dict) -> int:
+        st = self.stats
+        if self._scan is None:
+            from . import scan
+
+            self._scan = scan if scan.available() else False
+        if self._scan:
+            code, bad, n_lines, lines_no, ts, key, data, dlc, ch_code, ch_lo, ch_hi = self._scan.lines(buf)
+            if code:
+                raise Irregular(f"{self._scan.MESSAGES[code]} (line {lineno + bad})")
+            lines_no = lines_no + lineno
+        else:
+            n_lines, lines_no, ts, key, data, dlc, ch_code, ch_lo, ch_hi = self._parse(buf, lineno)
+        if not len(ts):
+            return lineno + n_lines
         uniq, inv = np.unique(ch_code, return_inverse=True)
         chans = state["chans"]
         wanted_u, value_u = [], []
@@ -361,7 +385,7 @@ class BulkSource:
             if code not in chans:
                 if len(chans) >= _MAX_CHANNELS:  # garbage: the per-frame reader makes them bad lines
                     raise Irregular(f"more than {_MAX_CHANNELS} distinct channels")
-                name = bytes(buf[s1[first] + 1 : s2[first]]).decode("ascii", "replace")
+                name = bytes(buf[ch_lo[first] : ch_hi[first]]).decode("ascii", "replace")
                 self.stats.channels.add(name)
                 value: Any = int(name) if name.isdigit() else name
                 chans[code] = (value, self._want is None or value in self._want)
