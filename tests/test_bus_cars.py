@@ -146,3 +146,51 @@ def test_hyundai_start_up_saturation_never_reaches_the_estimator():
     for idx, lim in ((channels.YAW, 0.71), (channels.AX, 10.0), (channels.AY, 10.0), (channels.DELTA, 1.0)):
         col = ys[:, idx]
         assert abs(col[col == col]).max() < lim
+
+
+def test_profile_new_does_not_map_an_engine_torque_as_the_wheels(tmp_path):
+    """A torque named for the engine (Toyota's GAS_PEDAL.ETQLVSC, VW's MO_Mom_Ist_Summe, Hyundai's
+    TQI_ACOR) is taken before the gearbox: mapped as drive_torque, stage 1 read the gear ratio as
+    the car's mass (l_f 2.35 m on a 2.65 m wheelbase, a new user's RAV4). The draft names it and
+    leaves it unmapped; a signal whose unit is of another quantity is not mapped either."""
+    import cantools
+
+    from vdp.scaffold import candidates, draft
+
+    dbc = tmp_path / "car.dbc"
+    dbc.write_text(
+        'VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: ECU\n\n'
+        "BO_ 100 GAS_PEDAL: 8 ECU\n"
+        ' SG_ ETQLVSC : 0|16@1- (1,0) [-500|500] "Nm" ECU\n\n'
+        "BO_ 101 STEER_TORQUE_SENSOR: 8 ECU\n"
+        ' SG_ STEER_ANGLE : 0|16@1- (0.1,0) [-500|500] "deg" ECU\n'
+    )
+    cands = candidates(cantools.database.load_file(str(dbc)))
+    got = {c.signal: c for c in cands["drive_torque"]}
+    assert got["ETQLVSC"].engine and not got["STEER_ANGLE"].engine and got["STEER_ANGLE"].wrong_kind
+    text = draft(dbc, cands)
+    mapped = [ln for ln in text.splitlines() if ln.startswith("drive_torque")]
+    assert mapped == []  # nothing mapped as the wheels' torque
+    assert "# drive_torque = " in text and ("times the gear ratio" in text or "not one of a drive_torque" in text)
+    import tomllib
+
+    assert "drive_torque" not in tomllib.loads(text).get("channels", {})  # valid TOML, the line commented
+
+
+def test_the_check_says_a_mass_several_times_too_small_is_a_torque_before_the_gearbox(tmp_path):
+    """An engine torque mapped as the wheels' (here the paper car's torques / 6.5): the mass the
+    torques imply is 6.5 x too small, and the check names the gearbox first, not the mass."""
+    import dataclasses
+
+    from vdp.profilecheck import check_log
+    from vdp.sim.run import write_log
+
+    paper = load_profile(Path(__file__).resolve().parents[1] / "profiles" / "paper.toml")
+    path = tmp_path / "p.log"
+    write_log(Simulation(paper, "paper", seed=2, duration=70.0).frames(), path)
+    ch = dict(paper.channels)
+    for name in ("wheel_torque_front", "wheel_torque_rear"):
+        ch[name] = dataclasses.replace(ch[name], scale=ch[name].scale / 6.5)
+    rep, _ = check_log(path, dataclasses.replace(paper, channels=ch))
+    f = next(f for f in rep.findings if f.subject == "vehicle.mass")
+    assert "before the gearbox" in f.message and "gear ratio" in f.message and "ratio 6." in f.message

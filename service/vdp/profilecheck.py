@@ -366,12 +366,22 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
                 m_fit = m_eff - 2.0 * veh.wheel_inertia / veh.wheel_radius**2
                 rep.measured["mass_fit"] = m_fit
                 if not 0.92 < m_fit / veh.mass < 1.08:
+                    # a mass several times too small: the torque is most likely taken before the gearbox
+                    # (an engine's, whose gear ratio of ~3-15 is missing), not a loaded car
+                    geared = 0.0 < m_fit < veh.mass / 2.5
+                    first = (
+                        f"the drive torque looks like the engine's, before the gearbox (the ratio "
+                        f"{veh.mass / m_fit:.1f} is that of a gear times the final drive): map drive_torque "
+                        f"as it times the gear ratio (docs/PROFILES.md), or check the torque channels' unit"
+                        if geared
+                        else "set the mass as driven (kerb weight plus occupants and load), or check the "
+                        "torque channels' unit and wheel_radius"
+                    )
                     rep.add(
                         "mass",
                         "vehicle.mass",
                         f"vehicle.mass is {veh.mass:g} kg, but the wheel torques and a_x imply {m_fit:.0f} kg "
-                        f"({100 * (veh.mass / m_fit - 1):+.0f} %): set the mass as driven (kerb weight plus "
-                        f"occupants and load), or check the torque channels' unit and wheel_radius",
+                        f"({100 * (veh.mass / m_fit - 1):+.0f} %): {first}",
                         DEPENDS["mass"],
                     )
             else:

@@ -50,6 +50,13 @@ _PATTERNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "wheel_torque_front": ((r"tq|torq", rf"front|vorder|{_B}(fa|va){_E}"), (r"wh(ee)?l|axle|achs",)),
     "wheel_torque_rear": ((r"tq|torq", rf"rear|hinter|{_B}(ra|ha){_E}"), (r"wh(ee)?l|axle|achs",)),
 }
+# a torque named for the engine or motor is taken before the gearbox: at the wheels it is that
+# times the gear ratio (a composite, docs/PROFILES.md), which a plain mapping leaves out
+_ENGINE = re.compile(r"eng|motor|\bmo_|etq|tqi|\bice|crank")  # in the signal's name
+ENGINE_NOTE = (
+    "an engine torque? vdp needs the torque at the wheels: map drive_torque as this times the gear "
+    "ratio (a product, docs/PROFILES.md; profiles/vw_golf_mk7.toml does it)"
+)
 _NOT = re.compile(r"counter|_cnt|checksum|_cs\b|crc|alive|_qf|stat|warn|req|rq|lamp|btn|button|cmd|target|trg|max|min")
 UNIT_GUESS = {  # DBC unit spellings vdp's table does not hold
     "radians/second": "rad/s",
@@ -77,6 +84,8 @@ class Candidate:
     dbc_unit: str
     score: float
     note: str = ""
+    engine: bool = False  # a drive torque named for the engine: before the gearbox (ENGINE_NOTE)
+    wrong_kind: bool = False  # its DBC unit is of another quantity (an angle for a torque)
 
 
 def unit_of(dbc_unit: str | None) -> str | None:
@@ -103,7 +112,12 @@ def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
                 score = 1.0 + sum(1.0 for p in more if re.search(p, name))
                 if unit is not None:
                     score += 2.0 if UNIT_FACTORS[unit][1] in kinds else -3.0
-                found.append(Candidate(m.name, s.name, unit, s.unit or "", score))
+                c = Candidate(m.name, s.name, unit, s.unit or "", score)
+                c.wrong_kind = unit is not None and UNIT_FACTORS[unit][1] not in kinds
+                if ch == "drive_torque" and _ENGINE.search(s.name.lower()):
+                    c.engine = True
+                    c.score -= 2.0
+                found.append(c)
         found.sort(key=lambda c: -c.score)
         out[ch] = found[:top]
     return out
@@ -240,7 +254,13 @@ def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car") ->
         extra = ", steering_wheel = true" if ch == "steering_angle" else ""
         why = f"  # {best.note}" if best.note and not flag else ""
         line = f'{ch} = {{ message = "{best.message}", signal = "{best.signal}", unit = "{unit}"{extra} }}'
-        L.append(("# " if not best.unit else "") + line + (flag or why))
+        if best.engine:  # left out: mapped as it is, stage 1 would read the gearbox's ratio as mass
+            L.append(f"# {line}  # {ENGINE_NOTE}")
+        elif best.wrong_kind:  # a name that matches, a unit that does not (STEER_TORQUE_SENSOR.STEER_ANGLE)
+            L.append(f"# {line}  # its unit '{best.dbc_unit}' is not one of a {ch}: no signal fits; map it yourself")
+        else:
+            L.append(("# " if not best.unit else "") + line + (flag or why))
         for c in cs[1:3]:
-            L.append(f"#   or {c.message}.{c.signal} [{c.dbc_unit or '-'}]" + (f" ({c.note})" if c.note else ""))
+            note = "an engine torque? at the wheels it is this times the gear ratio" if c.engine else c.note
+            L.append(f"#   or {c.message}.{c.signal} [{c.dbc_unit or '-'}]" + (f" ({note})" if note else ""))
     return "\n".join(L) + "\n"
