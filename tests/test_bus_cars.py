@@ -194,3 +194,36 @@ def test_the_check_says_a_mass_several_times_too_small_is_a_torque_before_the_ge
     rep, _ = check_log(path, dataclasses.replace(paper, channels=ch))
     f = next(f for f in rep.findings if f.subject == "vehicle.mass")
     assert "before the gearbox" in f.message and "gear ratio" in f.message and "ratio 6." in f.message
+
+
+def test_profile_new_sets_the_bus_channel_and_pad_short_from_the_log(tmp_path, capsys):
+    """A log like the RAV4's: the same ids on a second bus, and frames shorter than the DBC's
+    length. The draft picks the channel that carries them and pads short frames, saying why;
+    without them a replay decoded the other bus's frames and refused the short ones."""
+    from vdp.cli import main
+    from vdp.sim.run import write_log
+
+    root = Path(__file__).resolve().parents[1]
+    log = tmp_path / "two.log"
+    write_log(Simulation(load_profile(root / "profiles" / "paper.toml"), "paper", seed=2, duration=20.0).frames(), log)
+    lines = log.read_text().splitlines()
+    out = []
+    for i, ln in enumerate(lines):
+        if i % 50 == 7:  # now and then a short frame: its last byte left off
+            ln = ln[:-2]
+        out.append(ln)
+        if i % 10 == 3:  # and some frames again on a second bus
+            out.append(ln.replace(" can0 ", " can1 "))
+    log.write_text("\n".join(out) + "\n")
+    draft = tmp_path / "d.toml"
+    assert main(["profile", "new", "--dbc", str(root / "dbc" / "vdp.dbc"), "--log", str(log), "--out", str(draft)]) == 0
+    text = draft.read_text()
+    assert 'channel = "can0"' in text and "also on can1" in text
+    assert "pad_short = true" in text and "shorter than the DBC's length" in text
+    assert load_profile(draft).bus_channel == "can0"
+    capsys.readouterr()
+    # and a replay without pad_short says on the console which frames it refused, and what to set
+    assert main(["replay", str(log), "--profile", str(root / "profiles" / "paper.toml"), "--no-progress"]) == 0
+    said = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("decoder: ")]
+    assert any("refused: shorter than the DBC says" in ln and "pad_short = true" in ln for ln in said), said
+    assert any("another bus (set [can] channel)" in ln for ln in said), said  # can1's frames among can0's

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -123,8 +123,19 @@ def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
     return out
 
 
-def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, seconds: float = 120.0) -> None:
-    """Re-rank the candidates by what their values do in a log of the car (in place)."""
+@dataclass
+class LogFacts:
+    """What the log says of the [can] section: the bus channel the candidates' messages come on
+    (None: one channel only), and their frames shorter than the DBC's length, per message."""
+
+    channel: str | None = None
+    also: list[str] = field(default_factory=list)  # the other channels that carry them too
+    short: dict[str, int] = field(default_factory=dict)
+
+
+def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, seconds: float = 120.0) -> LogFacts:
+    """Re-rank the candidates by what their values do in a log of the car (in place); return
+    what the log says of its channels and short frames."""
     from .io.logs import open_log
 
     wanted = {(c.message, c.signal) for cs in cands.values() for c in cs}
@@ -134,13 +145,21 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
             by_id[(m.frame_id, m.is_extended_frame)] = m
     series: dict[tuple[str, str], list[tuple[float, float]]] = {k: [] for k in wanted}
     t0 = None
+    per_channel: dict[str, int] = {}  # frames of the candidates' messages by bus channel
+    short: dict[tuple[str, str], int] = {}  # (channel, message) -> frames shorter than the DBC's
     with open_log(log_path) as src:
         for msg in src:
             t0 = msg.timestamp if t0 is None else t0
             if msg.timestamp - t0 > seconds:
                 break
             m = by_id.get((msg.arbitration_id, msg.is_extended_id))
-            if m is None or len(msg.data) != m.length:
+            if m is None:
+                continue
+            chan = str(msg.channel) if msg.channel is not None else ""
+            per_channel[chan] = per_channel.get(chan, 0) + 1
+            if len(msg.data) < m.length:
+                short[(chan, m.name)] = short.get((chan, m.name), 0) + 1
+            if len(msg.data) != m.length:
                 continue
             try:
                 vals = m.decode(bytes(msg.data), decode_choices=False)
@@ -197,9 +216,15 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
                     c.note = c.note or f"looks like a yaw rate (r = {r:+.2f} with steering x speed)"
     for cs in cands.values():
         cs.sort(key=lambda c: -c.score)
+    facts = LogFacts()
+    if len(per_channel) > 1:  # (the same ids on another bus are another unit's frames: keep them out)
+        busiest = max(per_channel, key=per_channel.get)
+        facts.channel, facts.also = busiest, sorted(c for c in per_channel if c != busiest)
+    facts.short = {m: n for (c, m), n in short.items() if facts.channel is None or c == facts.channel}
+    return facts
 
 
-def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car") -> str:
+def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", facts: LogFacts | None = None) -> str:
     """A commented TOML profile: the best candidate per channel mapped, the others as comments."""
     L = [
         f"# Draft profile for {name}, written by `vdp profile new` from {dbc.name}.",
@@ -228,8 +253,19 @@ def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car") ->
         "",
         "[can]",
         f'dbc = "{dbc}"',
-        "",
     ]
+    if facts is not None and facts.channel:
+        L.append(
+            f'channel = "{facts.channel}"  # the log carries these messages on {facts.channel}, and some '
+            f"also on {', '.join(facts.also)}: another bus's frames of the same ids would be decoded too"
+        )
+    if facts is not None and facts.short:
+        worst = max(facts.short, key=facts.short.get)
+        L.append(
+            f"pad_short = true  # {sum(facts.short.values())} frame(s) in the log shorter than the DBC's "
+            f"length ({worst}: {facts.short[worst]}); without this they are refused"
+        )
+    L.append("")
     has_sources = bool(cands.get("drive_torque")) and not cands.get("wheel_torque_front")
     if has_sources:
         L += [

@@ -49,12 +49,11 @@ def run_new(args) -> int:
         raise ConfigError(f"--dbc {args.dbc}: no such file")
     db = dbcfix.load(dbc)
     cands = candidates(db)
-    if args.log:
-        behaviour(db, cands, args.log)
+    facts = behaviour(db, cands, args.log) if args.log else None
     for ch, cs in cands.items():
         best = ", ".join(f"{c.message}.{c.signal} [{c.dbc_unit or '-'}]" for c in cs[:3]) or "none"
         print(f"{ch:20} {best}")
-    Path(args.out).write_text(draft(dbc, cands, args.name), encoding="utf-8")
+    Path(args.out).write_text(draft(dbc, cands, args.name, facts), encoding="utf-8")
     print(f"wrote {args.out}: edit the values marked EDIT, then run vdp profile check LOG --profile {args.out}")
     return 0
 

@@ -222,6 +222,8 @@ def run(args) -> int:
     kept, total = len(result.windows), result.supervisor.get("windows", 0)
     if total > kept:
         print(f"{total} gating windows in all; the JSON and the plot keep the newest {kept}")
+    for line in report.decode_lines(result):
+        print(line)
     bad = lg.source.get("bad_lines", 0)
     if bad:
         print(f"{bad} malformed log line(s) skipped; see the JSON 'log' section for line numbers")
