@@ -186,3 +186,32 @@ def test_the_hints_do_not_repeat_the_reason_the_table_gave():
         "  C_alpha: not valid (reason above); more of the same will not fix it",
         "  I_x: weave at 0.5-1 Hz",
     ]
+
+
+@pytest.mark.parametrize(
+    "name, said",
+    [("d.txt", "vdp cannot replay '.txt' logs; write one of .log"), ("d.db", "vdp cannot replay '.db'")],
+)
+def test_simulate_refuses_a_format_vdp_cannot_read_back_before_writing_anything(tmp_path, capsys, name, said):
+    """python-can writes .txt (a printout) and .db, which no reader of vdp's takes back: a new user
+    simulated into one and then could not replay it."""
+    assert main(["simulate", "--scenario", "stage1", "--duration", "2", "--out", str(tmp_path / name)]) == 2
+    assert said in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []  # no truth file left behind without its log
+
+
+def test_simulate_names_the_wheelbase_for_an_l_f_beyond_it(tmp_path, capsys):
+    assert main(["simulate", "--param", "l_f=13", "--out", str(tmp_path / "d.log")]) == 2
+    err = capsys.readouterr().err
+    assert "must lie inside the wheelbase" in err and "give --param l_f between 0 and" in err
+    assert "Traceback" not in err
+
+
+def test_replay_of_a_folder_or_another_tools_csv_says_what_it_is(tmp_path, capsys, repo_root):
+    prof = str(repo_root / "profiles" / "paper.toml")
+    assert main(["replay", str(tmp_path), "--profile", prof]) == 2
+    assert "is a directory, not a log file; vdp batch replays a folder's logs" in capsys.readouterr().err
+    other = tmp_path / "other.csv"
+    other.write_text("time,id,data\n1.0,0x123,00\n")
+    assert main(["replay", str(other), "--profile", prof]) == 2
+    assert "timestamp,arbitration_id,extended,remote,error,dlc,data" in capsys.readouterr().err

@@ -73,7 +73,9 @@ def stage_lines(result: RunResult) -> list[str]:
                 blocker = result.supervisor["reasons"].get(stage, blocker)
             lines.append(
                 f"stage {stage}: the drive had {e['seconds']:.1f} of {e['of']:.1f} s of "
-                f"{_DRIVE_WORDS[int(stage)]}" + (f"; mostly: {blocker}" if blocker else "")
+                f"{_DRIVE_WORDS[int(stage)]}"
+                + (f"; mostly: {blocker}" if blocker else "")
+                + (" (what the driving offered; the stage cannot use it, above)" if why else "")
             )
     why = result.capabilities.get("I_x")
     if why:

@@ -19,7 +19,7 @@ from .paths import check_output
 def add_parser(sub):
     p = sub.add_parser(
         "profile",
-        help="check a vehicle profile against a log",
+        help="draft a vehicle profile from a DBC (new), or check one against a log (check)",
         description="Check that a profile reads the car's bus the way the physics says it must: "
         "signs, units, steering flag, mass, priors against geometry.",
     )

@@ -34,8 +34,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "write a CAN log and <name>.truth.json beside it, or send live onto a bus.",
     )
     p.add_argument("--scenario", choices=sorted(SCENARIOS), default="paper", help="manoeuvre (default: paper)")
-    p.add_argument("--seed", type=int, default=0, help="random seed; the same seed gives the same bytes")
-    p.add_argument("--noise", choices=NOISE_MODELS, default="realistic", help="sensor noise model")
+    p.add_argument("--seed", type=int, default=0, help="random seed; the same seed gives the same bytes (default: 0)")
+    p.add_argument("--noise", choices=NOISE_MODELS, default="realistic", help="sensor noise model (default: realistic)")
     p.add_argument(
         "--out",
         type=Path,
@@ -101,6 +101,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("give --out FILE and/or --bus-interface NAME")
     if args.sim_speed < 0:
         raise ConfigError("--sim-speed must be >= 0")
+    if args.out is not None:  # before anything is written: a format vdp cannot read back is refused
+        from ..sim.run import check_writable
+
+        check_writable(args.out)
     for path in (args.out, args.truth):  # a new folder for the log, as vdp batch --out makes its own
         if path is not None:
             try:

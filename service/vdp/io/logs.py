@@ -57,6 +57,12 @@ log = logging.getLogger(__name__)
 
 FORMATS = (".log", ".asc", ".blf", ".trc", ".csv", ".mf4")
 _TEXT = {".log", ".asc", ".trc", ".csv"}
+# what a reader expects, said where none of a file's lines is read (another tool's export)
+_LAYOUTS = {
+    ".csv": "; a .csv log is python-can's: a header, then timestamp,arbitration_id,extended,remote,"
+    "error,dlc,data per line (the id in hex, the data in base64); convert another tool's export to it or to candump",
+    ".log": "; a .log is candump -L: '(1700000000.000000) can0 123#0011223344556677' per line",
+}
 _GZ_MAGIC = b"\x1f\x8b"
 _SNIFF = 4096
 _MAX_EXAMPLES = 100
@@ -239,6 +245,8 @@ class LogSource:
         named_gz = bool(suffixes) and suffixes[-1] == ".gz"
         fmt = suffixes[-2] if named_gz and len(suffixes) >= 2 else (suffixes[-1] if suffixes else "")
         if fmt not in FORMATS:
+            if path.is_dir():  # (a folder's name has no suffix: say what it is, not its format)
+                raise LogFormatError(f"{path}: is a directory, not a log file; vdp batch replays a folder's logs")
             raise LogFormatError(
                 f"{path}: unknown log format '{''.join(path.suffixes) or name}'; "
                 f"supported: {', '.join(FORMATS)} (each optionally .gz)"
@@ -508,7 +516,8 @@ class _Reader:
             if st.damaged:
                 first += f"; {st.damage_summary()}"
             what = "" if src.format == ".log" or not st.bad else f"not a valid {src.format} file: "
-            raise LogFormatError(f"{self.path}: {what}no CAN frames in {where}{first}")
+            layout = _LAYOUTS.get(src.format, "") if st.bad else ""
+            raise LogFormatError(f"{self.path}: {what}no CAN frames in {where}{first}{layout}")
         if st.frames == 0:
             self.log.warning(
                 "%s: no frames on channel %s; channels in the log: %s",

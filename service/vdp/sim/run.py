@@ -370,6 +370,26 @@ def _candump_line(msg: can.Message, chan: str) -> str:
     return f"({msg.timestamp:.6f}) {msg.channel or chan} {fid}{sep}{msg.data.hex().upper()}\n"
 
 
+def check_writable(path: str | Path) -> None:
+    """A LogFormatError unless ``path``'s format is one vdp replays and can be written here."""
+    from ..io.logs import FORMATS
+
+    path = Path(path)
+    name = path.name.lower()
+    suffix = "".join(path.suffixes[-2:]).lower() if name.endswith(".gz") else path.suffix.lower()
+    if suffix.removesuffix(".gz") not in FORMATS:
+        # python-can writes some formats (.txt, .db) that no reader of vdp's takes back
+        raise LogFormatError(
+            f"{path}: vdp cannot replay '{suffix or path.name}' logs; write one of "
+            f"{', '.join(FORMATS)} (plain .log is candump -L, the bulk reader's)"
+        )
+    if suffix == ".mf4":
+        try:
+            import asammdf  # noqa: F401
+        except ImportError:
+            raise LogFormatError(f"{path}: python-can writes .mf4 only with asammdf: pip install 'vdp[mf4]'") from None
+
+
 def write_log(frames: Iterator[can.Message], path: str | Path, channel: str = "can0") -> int:
     """Write frames to ``path``; the format follows the suffix.  Returns the frame count.
 
@@ -406,10 +426,13 @@ def write_log(frames: Iterator[can.Message], path: str | Path, channel: str = "c
         finally:
             raw.close()
         return n
+    check_writable(path)
     try:
         writer = can.Logger(str(path))
     except ValueError as exc:
         raise LogFormatError(f"{path}: {exc}") from None
+    except (NotImplementedError, ImportError) as exc:  # .mf4 needs asammdf
+        raise LogFormatError(f"{path}: python-can cannot write it here ({exc}); pip install 'vdp[mf4]'") from None
     with writer:
         for msg in frames:
             writer.on_message_received(msg)

@@ -40,6 +40,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+from ..errors import ConfigError
+
 log = logging.getLogger(__name__)
 
 STATE = ("v_x", "v_y", "yaw_rate", "roll", "roll_rate", "omega_f", "omega_r")
@@ -120,7 +122,10 @@ class Model:
     def __init__(self, params: Params):
         p = params
         if not 0.0 < p.l_f < p.L:
-            raise ValueError(f"l_f={p.l_f} must lie inside the wheelbase L={p.L}")
+            raise ConfigError(
+                f"l_f={p.l_f:g} m must lie inside the wheelbase L={p.L:g} m (the profile's [vehicle] "
+                f"wheelbase): give --param l_f between 0 and {p.L:g}"
+            )
         self.params = p
         self.m, self.g, self.r, self.J = p.m, p.g, p.r, p.J
         self.lf, self.lr = p.l_f, p.l_r
