@@ -136,3 +136,23 @@ def test_store_writer_refuses_another_profiles_store_and_keeps_going(tmp_path):
     assert w.status()["state"] == "refused"
     with pytest.raises(StoreError):
         Store(settings.store.path, "1" * 64, "paper")  # the file is still the other car's
+
+
+def test_a_raw_log_disk_below_its_free_space_floor_is_said_at_start(tmp_path, caplog):
+    """A logger started on a disk that is already nearly full said nothing until frames came;
+    now the start says how much is free, the floor, and what happens."""
+    import logging
+
+    from vdp.live.rawlog import RawLog
+
+    raw = RawLog(tmp_path / "raw", max_bytes=4096, max_files=3, min_free=1 << 60)  # more than any disk
+    with caplog.at_level(logging.WARNING, logger="vdp.live.rawlog"):
+        raw.open()
+    raw.close()
+    assert "less than the" in caplog.text and "min_free_mb" in caplog.text
+    caplog.clear()
+    ok = RawLog(tmp_path / "raw2", max_bytes=4096, max_files=3, min_free=0)
+    with caplog.at_level(logging.WARNING, logger="vdp.live.rawlog"):
+        ok.open()
+    ok.close()
+    assert "min_free_mb" not in caplog.text

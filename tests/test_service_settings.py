@@ -60,9 +60,14 @@ def test_per_axle_reaches_the_live_estimator(tmp_path):
         ('profile = "p.toml"\n[mystery]\n', "unknown section"),
         ('profile = "p.toml"\nbus = 3\n', r"\[bus\]: must be a table"),
         ("profile = \n", "not valid TOML"),
+        # a typo'd interface is refused at start (it was retried for ever, as if the car were off)
+        ('profile = "p.toml"\n[bus]\ninterface = "socketcn"\n', "no interface 'socketcn'.*did you mean 'socketcan'"),
+        ('profile = "p.toml"\n[raw_log]\ndir = "afile"\n', r"\[raw_log\] 'dir' \(--raw-dir\): .*afile is a file"),
+        ('profile = "p.toml"\n[store]\npath = "."\n', r"\[store\] 'path' \(--db\): .* is a folder"),
     ],
 )
 def test_mistakes_name_the_key(tmp_path, text, match):
+    (tmp_path / "afile").write_text("not a folder")
     with pytest.raises(ConfigError, match=match):
         load_settings(write(tmp_path, text))
 
@@ -84,3 +89,17 @@ def test_simulate_settings_are_valid_and_local(tmp_path):
     s = simulate_settings(ROOT / "profiles" / "paper.toml", tmp_path)
     assert s.simulate.enabled and s.bus.interface == "virtual" and s.api.host == "127.0.0.1"
     assert s.store.path.parent == tmp_path and s.raw_log.dir.parent == tmp_path
+
+
+def test_the_raw_logs_lock_is_in_its_folder_and_a_file_in_the_way_is_named(tmp_path):
+    """A logger writing straight to a USB stick's mount point may not write the mount point's
+    parent: the raw log's lock goes in its own folder; a file where a folder must be is named."""
+    from vdp.live.lock import service_lock
+
+    base = load_settings(write(tmp_path, 'profile = "p.toml"\n[raw_log]\ndir = "stick"\n'))
+    with service_lock(base) as lock:
+        assert (tmp_path / "stick" / ".vdp.lock").is_file() and len(lock._fds) == 2
+    (tmp_path / "afile").write_text("")
+    bad = load_settings(write(tmp_path, 'profile = "p.toml"\n[store]\npath = "afile/state.sqlite"\n'))
+    with pytest.raises(ConfigError, match=r"the estimate store needs the folder .*afile, but .*afile is a file"):
+        service_lock(bad).acquire()

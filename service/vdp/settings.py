@@ -165,11 +165,29 @@ def _positive(src: str, table: str, key: str, value: float, allow_zero: bool = F
         raise ConfigError(f"{_where(src, table, key)}: must be {'>= 0' if allow_zero else 'positive'}, got {value}")
 
 
+def _interface(src: str, name: str) -> None:
+    """An interface python-can does not know is a typo, not a bus that is off: refuse it at start
+    (the bus keeper would retry it for ever, as if the car were not on)."""
+    import difflib
+
+    from can.interfaces import VALID_INTERFACES
+
+    if name in VALID_INTERFACES:
+        return
+    near = difflib.get_close_matches(name, sorted(VALID_INTERFACES), n=2)
+    hint = f"; did you mean {' or '.join(repr(n) for n in near)}?" if near else ""
+    raise ConfigError(
+        f"{_where(src, 'bus', 'interface')}: python-can has no interface {name!r} "
+        f"(it has: {', '.join(sorted(VALID_INTERFACES))}){hint}"
+    )
+
+
 def validate(s: Settings) -> Settings:
     """Checks that span keys or ranges; returns ``s`` unchanged."""
     src = s.source
     if not s.bus.interface:
         raise ConfigError(f"{_where(src, 'bus', 'interface')}: must name a python-can interface")
+    _interface(src, s.bus.interface)
     if s.bus.bitrate is not None:
         _positive(src, "bus", "bitrate", s.bus.bitrate)
     if s.bus.receive_own_messages:
@@ -196,6 +214,12 @@ def validate(s: Settings) -> Settings:
         raise ConfigError(f"{_where(src, 'raw_log', 'min_free_mb')}: must be a whole number of MiB >= 0")
     if not s.raw_log.prefix or any(c in s.raw_log.prefix for c in "/\\ -"):
         raise ConfigError(f"{_where(src, 'raw_log', 'prefix')}: must be a plain word without '/', ' ' or '-'")
+    raw = Path(s.raw_log.dir)
+    if s.raw_log.enabled and raw.exists() and not raw.is_dir():
+        raise ConfigError(f"{_where(src, 'raw_log', 'dir')} (--raw-dir): {raw} is a file, not a folder")
+    store = Path(s.store.path)
+    if store.is_dir():
+        raise ConfigError(f"{_where(src, 'store', 'path')} (--db): {store} is a folder; name a database file in it")
     _positive(src, "store", "commit_interval", s.store.commit_interval)
     _positive(src, "store", "history_max_rows", s.store.history_max_rows)
     if s.store.synchronous not in ("full", "normal"):

@@ -30,19 +30,28 @@ def add_parser(sub):
     )
     p.add_argument("--config", type=Path, help="service config TOML (example: deploy/vdp.toml)")
     p.add_argument("--simulate", action="store_true", help="no hardware: run the simulator onto a virtual bus")
-    p.add_argument("--scenario", default="paper", help="--simulate: the scenario (default: paper)")
+    from ..sim.scenario import SCENARIOS
+    from ..sim.sensors import NOISE_MODELS
+
+    p.add_argument(
+        "--scenario", choices=sorted(SCENARIOS), default="paper", help="--simulate: the scenario (default: paper)"
+    )
     p.add_argument(
         "--sim-speed",
         type=float,
         default=20.0,
         help="--simulate: multiple of real time; 0 = as fast as estimation keeps up (default 20)",
     )
-    p.add_argument("--noise", help="--simulate: sensor noise model (default: the simulator's)")
+    p.add_argument("--noise", choices=NOISE_MODELS, help="--simulate: sensor noise model (default: the simulator's)")
     p.add_argument("--seed", type=int, default=1, help="--simulate: random seed (default 1)")
     p.add_argument("--loop", action="store_true", help="--simulate: drive the scenario again and again")
     p.add_argument("--profile", help="--simulate: vehicle profile (default: profiles/paper.toml)")
-    p.add_argument("--db", type=Path, help=f"estimate database (--simulate default: {SIM_DIR}/state.sqlite)")
-    p.add_argument("--raw-dir", type=Path, help=f"raw CAN log directory (--simulate default: {SIM_DIR}/raw)")
+    p.add_argument(
+        "--db", type=Path, help=f"estimate database (--simulate default: {SIM_DIR}/state.sqlite, in the current folder)"
+    )
+    p.add_argument(
+        "--raw-dir", type=Path, help=f"raw CAN log directory (--simulate default: {SIM_DIR}/raw, in the current folder)"
+    )
     p.add_argument("--host", help="address to listen on (default 127.0.0.1; anything else is logged)")
     p.add_argument("--port", type=int, help="TCP port (default 8000; 0 picks a free one)")
     return p

@@ -121,6 +121,16 @@ class RawLog(can.Listener):
         self._retry = RETRY_MIN
         self._prune()
         log.info("raw CAN log: %s (rotating at %d bytes, keeping %d files)", self.dir, self.max_bytes, self.max_files)
+        free = shutil.disk_usage(self.dir).free
+        if free < self.min_free:  # said at start, not first found when the disk is already full
+            log.warning(
+                "raw CAN log: %s has %.1f MiB free, less than the %.1f MiB kept free ([raw_log] min_free_mb): "
+                "the oldest logs there are deleted for room, and logging pauses when none are left; "
+                "give it a larger disk",
+                self.dir,
+                free / 2**20,
+                self.min_free / 2**20,
+            )
 
     def close(self) -> None:
         """Flush and close the open file, and name it like the other closed files."""
