@@ -665,7 +665,8 @@ class Stage1(StageLearner):
             "law": "bending, with slip offsets" if self.shaped else "linear (eq 14)",
             "bend": round(b, 4),
             "bend_cubic": round(float(x[longitudinal.CUBIC]), 4),
-            "mu_brush": round(1.0 / (3.0 * b), 3) if b > 0.0 else None,
+            # (a linear law's bend is its prior's 0 to rounding: 1/(3 b) of it read as mu = 4.5e6)
+            "mu_brush": round(1.0 / (3.0 * b), 3) if self.shaped and b > 0.0 else None,
             "slip_offset_front": round(float(x[longitudinal.S_0F]), 6),
             "slip_offset_rear": round(float(x[longitudinal.S_0R]), 6),
         }
