@@ -17,6 +17,8 @@ import logging
 
 import numpy as np
 
+from .bulk import _HEX, _MAX_EXACT  # the numpy parse's hex table and exactness bound
+
 log = logging.getLogger(__name__)
 
 try:
@@ -45,13 +47,6 @@ MESSAGES = (
 
 _EXT_KEY = 1 << 31  # logs.EXT_KEY: an extended id's key (checked against it by the tests)
 _POW10 = np.array([10.0**k for k in range(19)])  # exact: 10**k is a double up to k = 22
-_MAX_EXACT = 1 << 53
-_HEX = np.full(256, 255, np.uint8)
-for _i, _c in enumerate(b"0123456789"):
-    _HEX[_c] = _i
-for _i, _c in enumerate(b"abcdef"):
-    _HEX[_c] = 10 + _i
-    _HEX[_c - 32] = 10 + _i
 
 
 def _line(a, s, e, hexv, pow10, n, line_no, ts, key, data, dlc, ch_code, ch_lo, ch_hi):
