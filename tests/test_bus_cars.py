@@ -222,6 +222,15 @@ def test_profile_new_sets_the_bus_channel_and_pad_short_from_the_log(tmp_path, c
     assert "pad_short = true" in text and "shorter than the DBC's length" in text
     assert load_profile(draft).bus_channel == "can0"
     capsys.readouterr()
+    # a message that comes only on the other bus: no channel filter, which would drop it
+    split = tmp_path / "split.log"
+    split.write_text("".join(ln.replace(" can0 ", " can1 ") + "\n" if " 0B1#" in ln else ln + "\n" for ln in lines))
+    other = tmp_path / "s.toml"
+    assert (
+        main(["profile", "new", "--dbc", str(root / "dbc" / "vdp.dbc"), "--log", str(split), "--out", str(other)]) == 0
+    )
+    assert "channel =" not in other.read_text() and load_profile(other).bus_channel is None
+    capsys.readouterr()
     # and a replay without pad_short says on the console which frames it refused, and what to set
     assert main(["replay", str(log), "--profile", str(root / "profiles" / "paper.toml"), "--no-progress"]) == 0
     said = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("decoder: ")]

@@ -451,9 +451,13 @@ def test_a_background_check_reports_the_last_fit_until_its_solve_lands():
         c.record.add(t[-1] + 0.04, U[-1].tolist(), Z[-1, 0], Z[-1, 1], Z[-1, 2])  # a row after the copy
         assert c.solve(*args) is None  # one solve at a time: still the old fit
         gate.set()
-        c.wait()
-        assert not c.busy and c.solved == 1
+        job = c._job
+        job.result(timeout=120)  # ended in the background; the fit is taken when the owner polls
+        assert c.fit is None and c.poll() == 1 and not c.busy and c.solved == 1
         assert c.fit.rows == inline.fit.rows and c.fit.c_alpha == inline.fit.c_alpha  # the copy's rows, solved alike
         assert c.stale(window_open=False)  # the later row is still to be fitted
         later = c.solve(*args, now=True)  # in line: no executor round trip
         assert later is c.fit and c.solved == 2 and later.rows == inline.fit.rows + 1
+    # a shut-down executor (a stopping service): the solve runs in line, no error
+    c.record.add(t[-1] + 0.08, U[-1].tolist(), Z[-1, 0], Z[-1, 1], Z[-1, 2])
+    assert c.solve(*args) is c.fit and c.solved == 3 and c.fit.rows == inline.fit.rows + 2

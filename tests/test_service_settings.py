@@ -96,7 +96,7 @@ def test_the_raw_logs_lock_is_in_its_folder_and_a_file_in_the_way_is_named(tmp_p
     parent: the raw log's lock goes in its own folder; a file where a folder must be is named."""
     from vdp.live.lock import service_lock
 
-    base = load_settings(write(tmp_path, 'profile = "p.toml"\n[raw_log]\ndir = "stick"\n'))
+    base = load_settings(write(tmp_path, 'profile = "p.toml"\n[raw_log]\ndir = "stick"\n[store]\npath = "s.sqlite"\n'))
     with service_lock(base) as lock:
         assert (tmp_path / "stick" / ".vdp.lock").is_file() and len(lock._fds) == 2
     (tmp_path / "afile").write_text("")

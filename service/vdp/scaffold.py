@@ -146,6 +146,7 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
     series: dict[tuple[str, str], list[tuple[float, float]]] = {k: [] for k in wanted}
     t0 = None
     per_channel: dict[str, int] = {}  # frames of the candidates' messages by bus channel
+    where: dict[str, set[str]] = {}  # message -> the channels it comes on
     short: dict[tuple[str, str], int] = {}  # (channel, message) -> frames shorter than the DBC's
     with open_log(log_path) as src:
         for msg in src:
@@ -157,6 +158,7 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
                 continue
             chan = str(msg.channel) if msg.channel is not None else ""
             per_channel[chan] = per_channel.get(chan, 0) + 1
+            where.setdefault(m.name, set()).add(chan)
             if len(msg.data) < m.length:
                 short[(chan, m.name)] = short.get((chan, m.name), 0) + 1
             if len(msg.data) != m.length:
@@ -217,9 +219,13 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
     for cs in cands.values():
         cs.sort(key=lambda c: -c.score)
     facts = LogFacts()
-    if len(per_channel) > 1:  # (the same ids on another bus are another unit's frames: keep them out)
+    # the same ids on two buses are another unit's frames: keep to the bus that carries the most,
+    # but only where it carries every message (a filter would drop those that come on another only)
+    if any(len(c) > 1 for c in where.values()):
         busiest = max(per_channel, key=per_channel.get)
-        facts.channel, facts.also = busiest, sorted(c for c in per_channel if c != busiest)
+        if all(busiest in c for c in where.values()):
+            facts.channel = busiest
+            facts.also = sorted({c for cs in where.values() if len(cs) > 1 for c in cs} - {busiest})
     facts.short = {m: n for (c, m), n in short.items() if facts.channel is None or c == facts.channel}
     return facts
 

@@ -1433,9 +1433,13 @@ class Stage2(StageLearner):
         # misses a quick steering reversal (0.1 rad/s, 30 sigma, on the multi-body cars) then no
         # longer throws away the window, whose C_alpha and I_z it does not bear on.
         keep = [i for i in range(len(y)) if i != r] if self.known.roll_by_ay and r is not None else range(len(y))
-        nis = quad_form([y[i] for i in keep], [[S[i][j] for j in keep] for i in keep])
-        if nis is None:
-            return False
+        yk, Sk = [y[i] for i in keep], [[S[i][j] for j in keep] for i in keep]
+        nis = quad_form(yk, Sk)
+        if nis is None:  # S not positive definite (a degenerate filter): numpy's solve, as before
+            try:
+                nis = float(np.linalg.solve(np.array(Sk).reshape(len(yk), len(yk)), np.array(yk)) @ np.array(yk))
+            except np.linalg.LinAlgError:
+                return False
         rows = len(keep)
         a = sum(used[: lateral.Z_AY]) if used[lateral.Z_AY] else None
         e = y[a] / math.sqrt(S[a][a]) if a is not None and S[a][a] > 0 else None

@@ -801,7 +801,11 @@ class Check:
             self.fit = self._fit(*args)
             self.solved += 1
             return self.fit
-        self._job = self.executor.submit(self._fit, *args)
+        try:
+            self._job = self.executor.submit(self._fit, *args)
+        except RuntimeError:  # the executor was shut down (a service stopping): solve in line
+            self.fit = self._fit(*args)
+            self.solved += 1
         return self.fit
 
     def poll(self) -> int:

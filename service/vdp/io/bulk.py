@@ -40,6 +40,7 @@ from ..core.sample import Sample
 from ..result import RunResult
 from .decoder import MAX_UNKNOWN, compile_extractor
 from .logs import _ID_CACHE_MAX, _MAX_CHANNELS, EXT_KEY, LogStats, channel_keys, open_log
+from .scan import _HEX, _MAX_EXACT  # (no numba: the compiled parse is made at its first use)
 from .signals import range_limits as limits  # with the profile's range overrides
 
 log = logging.getLogger(__name__)
@@ -47,14 +48,6 @@ log = logging.getLogger(__name__)
 BLOCK = 1 << 21  # bytes read and parsed at once: memory stays flat whatever the log's length
 _MAX_TS = 1e10  # later stamps are the per-frame reader's to judge
 _JUMP = 3600.0  # s: a forward jump this large is the per-frame reader's to judge
-_MAX_EXACT = float(1 << 53)  # N / 10**k is the correctly rounded decimal only below this
-
-_HEX = np.full(256, 255, np.uint8)
-for _i, _c in enumerate(b"0123456789"):
-    _HEX[_c] = _i
-for _i, _c in enumerate(b"abcdef"):
-    _HEX[_c] = 10 + _i
-    _HEX[_c - 32] = 10 + _i
 _TX = {b"T", b"t"}
 
 
@@ -372,7 +365,8 @@ class BulkSource:
         if self._scan:
             code, bad, n_lines, lines_no, ts, key, data, dlc, ch_code, ch_lo, ch_hi = self._scan.lines(buf)
             if code:
-                raise Irregular(f"{self._scan.MESSAGES[code]} (line {lineno + bad})")
+                where = f"line {lineno + bad}" if bad else f"a block after line {lineno}"
+                raise Irregular(f"{self._scan.MESSAGES[code]} ({where})")
             lines_no = lines_no + lineno
         else:
             n_lines, lines_no, ts, key, data, dlc, ch_code, ch_lo, ch_hi = self._parse(buf, lineno)

@@ -17,14 +17,7 @@ import logging
 
 import numpy as np
 
-from .bulk import _HEX, _MAX_EXACT  # the numpy parse's hex table and exactness bound
-
 log = logging.getLogger(__name__)
-
-try:
-    from numba import njit
-except ImportError:  # pragma: no cover - numba is a dependency; without it bulk parses with numpy
-    njit = None
 
 # what the numpy parse says for each rule a line breaks (bulk.BulkSource._block)
 MESSAGES = (
@@ -47,6 +40,14 @@ MESSAGES = (
 
 _EXT_KEY = 1 << 31  # logs.EXT_KEY: an extended id's key (checked against it by the tests)
 _POW10 = np.array([10.0**k for k in range(19)])  # exact: 10**k is a double up to k = 22
+_MAX_EXACT = float(1 << 53)  # N / 10**k is the correctly rounded decimal only below this
+# hex digit values by byte (255: not a hex digit); numpy's parse (vdp.io.bulk) reads the same table
+_HEX = np.full(256, 255, np.uint8)
+for _i, _c in enumerate(b"0123456789"):
+    _HEX[_c] = _i
+for _i, _c in enumerate(b"abcdef"):
+    _HEX[_c] = 10 + _i
+    _HEX[_c - 32] = 10 + _i
 
 
 def _line(a, s, e, hexv, pow10, n, line_no, ts, key, data, dlc, ch_code, ch_lo, ch_hi):
@@ -187,19 +188,33 @@ def _scan(a, hexv, pow10):
     return err, err_line, cap, line_no[:n], ts[:n], key[:n], data[:n], dlc[:n], ch_code[:n], ch_lo[:n], ch_hi[:n]
 
 
-if njit is not None:  # compiled at first call, then loaded from numba's cache beside this file
-    _line = njit(cache=True, nogil=True, inline="always")(_line)  # (a call per line cost ~40 % of the scan)
-    _scan = njit(cache=True, nogil=True)(_scan)
+_compiled: list = []  # [the compiled _scan], or [None] without numba
+
+
+def _kernel():
+    """The compiled scan, made at first use (or loaded from numba's cache beside this file):
+    ``import vdp.io.bulk`` does not import numba."""
+    global _line  # noqa: PLW0603 (rebound once to its compiled self, which the compiled scan calls)
+    if not _compiled:
+        try:
+            from numba import njit
+        except ImportError:  # numba is a dependency; without it bulk parses with numpy
+            _compiled.append(None)
+        else:
+            # the compiled scan calls the compiled line parser, inlined (a call per line cost ~40 %)
+            _line = njit(cache=True, nogil=True, inline="always")(_line)
+            _compiled.append(njit(cache=True, nogil=True)(_scan))
+    return _compiled[0]
 
 
 def available() -> bool:
     """Whether the compiled parse runs here (numba imports)."""
-    return njit is not None
+    return _kernel() is not None
 
 
 def lines(buf: bytes):
-    """(code, line, lines in the block, arrays...) of :func:`_scan` over ``buf``."""
-    return _scan(np.frombuffer(buf, np.uint8), _HEX, _POW10)
+    """(code, line, lines in the block, arrays...) of :func:`_scan` over ``buf``, compiled."""
+    return _kernel()(np.frombuffer(buf, np.uint8), _HEX, _POW10)
 
 
 def warm() -> None:
