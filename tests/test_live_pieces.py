@@ -156,3 +156,32 @@ def test_a_raw_log_disk_below_its_free_space_floor_is_said_at_start(tmp_path, ca
         ok.open()
     ok.close()
     assert "min_free_mb" not in caplog.text
+
+
+def test_a_raw_log_whose_last_flush_fails_is_still_closed_and_named(tmp_path, monkeypatch):
+    """A full disk at shutdown: the last flush fails mid-line. The file is not left as the open
+    one with half a line (it was, until the next start salvaged it): the unfinished line is cut
+    and the file named as the closed ones."""
+    import errno
+
+    import can
+
+    from vdp.live.rawlog import RawLog
+
+    raw = RawLog(tmp_path / "raw", max_bytes=1 << 20, max_files=3, min_free=0)
+    raw.open()
+    for i in range(50):
+        raw.on_message_received(can.Message(timestamp=1.0 + i, arbitration_id=0x123, data=b"\x01\x02"))
+    raw.flush()
+    with open(raw.current, "ab") as f:
+        f.write(b"(1700000000.5) can0 123#01")  # what a flush cut short by a full disk leaves
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(raw._logger, "stop", full)
+    raw.close()
+    assert not raw.current.exists() and raw.disk_full
+    (closed,) = raw.closed_files()
+    text = closed.read_bytes()
+    assert text.endswith(b"\n") and text.count(b"\n") == 50  # the 50 whole lines, the cut one dropped

@@ -55,6 +55,12 @@ def test_replay_writes_the_documented_json_and_a_plot(drive, repo_root, capsys):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20000
     text = capsys.readouterr().out
     assert "l_f" in text and "truth" in text and "stage 2: the drive had" in text
+    assert "EKF value" in text and "EKF err" in text
+    # without the baseline, no column of dashes for it
+    assert main(["replay", str(log), "--profile", str(repo_root / "profiles" / "paper.toml"), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    head = next(ln for ln in text.splitlines() if ln.startswith("param "))
+    assert "EKF" not in head and "C_K" in text and " - " in next(ln for ln in text.splitlines() if ln.startswith("C_K"))
 
 
 def test_json_never_carries_nan(drive, repo_root):

@@ -425,9 +425,13 @@ class Coverage:
                 f"; {n} frames came on other bus channels ({names}) than the profile's [can] channel "
                 f"'{self.bus_channel}': set it to the channel the car's bus is on, or delete it"
             )
-        if top and (self.other or missing):  # (every message there and nothing else: nothing to add)
+        where = "bus carries" if self.source == "bus" else "log holds"
+        if top and missing:  # the clue to which id a missing message is
             ids = ", ".join(f"{i} ({n})" for i, n in self.other[:8]) or "none"
-            out += f"; the ids the {'bus carries' if self.source == 'bus' else 'log holds'} most: {ids}"
+            out += f"; the ids the {where} most: {ids}"
+        elif top and self.other:  # every message there: the rest is for information, not a fault
+            ids = ", ".join(f"{i} ({n})" for i, n in self.other[:8])
+            out += f" (the {where} other ids too, which the profile does not use: {ids})"
         return out
 
     def as_dict(self) -> dict:

@@ -122,27 +122,29 @@ def _fmt(v, digits=4):
 
 
 def table(result: RunResult, truth: dict | None = None) -> str:
-    """A fixed-width table of the six parameters (UKF), the EKF baseline and, if known, the truth."""
+    """A fixed-width table of the six parameters (UKF), the EKF baseline where it ran and, if
+    known, the truth."""
     params, ekf = result.parameters, result.baseline_ekf or {}
+    has_ekf = bool(ekf)  # (a column of dashes when the baseline did not run only raised questions)
     cmp_ = compare(params, truth) if truth is not None else {}
     cmp_ekf = compare(ekf, truth) if truth is not None and ekf else {}
-    head = f"{'param':8} {'value':>10} {'± std':>10} {'unit':7} {'status':17} {'EKF value':>10}"
+    head = f"{'param':8} {'value':>10} {'± std':>10} {'unit':7} {'status':17}"
+    head += f" {'EKF value':>10}" if has_ekf else ""
     if cmp_:
-        head += f" {'truth':>10} {'UKF err':>8} {'EKF err':>8}"
+        head += f" {'truth':>10} {'UKF err':>8}" + (f" {'EKF err':>8}" if has_ekf else "")
     lines = [head, "-" * len(head)]
     for name in NAMES:
         p = params[name]
         e = ekf.get(name)
         status = p.status + ("!" if p.reason else "")  # a reason follows the table
-        row = (
-            f"{name:8} {_fmt(p.value):>10} {_fmt(p.std, 2):>10} {p.unit:7} "
-            f"{status:17} {_fmt(e.value if e is not None else None):>10}"
-        )
+        unit = "-" if p.unit == "1" else p.unit  # (C_K, a ratio: "1" read as a number)
+        row = f"{name:8} {_fmt(p.value):>10} {_fmt(p.std, 2):>10} {unit:7} {status:17}"
+        row += f" {_fmt(e.value if e is not None else None):>10}" if has_ekf else ""
         if cmp_:
             c, ce = cmp_[name], cmp_ekf.get(name, {})
             err = "-" if c["rel_error"] is None else f"{100 * c['rel_error']:+.2f}%"
             err_e = "-" if ce.get("rel_error") is None else f"{100 * ce['rel_error']:+.2f}%"
-            row += f" {_fmt(c['truth']):>10} {err:>8} {err_e:>8}"
+            row += f" {_fmt(c['truth']):>10} {err:>8}" + (f" {err_e:>8}" if has_ekf else "")
         lines.append(row)
     # why each marked parameter is what it is (a profile-check mismatch, a model mismatch,
     # roll not excited, no roll-rate gyro, a measured l_f ...)

@@ -140,6 +140,15 @@ class RawLog(can.Listener):
                 return
             try:
                 logger.stop()
+            except OSError as exc:  # a full disk: the last flush failed, a line may be cut in half
+                self._fail(exc, closing=True)
+                try:
+                    if self.current.exists():
+                        self._salvage()  # cut the unfinished line, name the file as the others
+                except OSError as again:
+                    self._fail(again, closing=True)
+                return
+            try:
                 if self.current.exists():
                     if self.current.stat().st_size:
                         self._rotate(self.current, self._next_name())
