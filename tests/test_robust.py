@@ -155,6 +155,39 @@ def test_stage1_small_slip_gate_holds_a_wild_h_to_its_sane_range(profile):
     assert np.all(np.isfinite(share)) and share.max() < l1.cfg.small_slip
 
 
+def test_stage1s_check_comes_every_20_blocks_then_every_quarter_of_those_kept(profile, monkeypatch):
+    """A check costs about in proportion to the blocks kept: at every 20 blocks an hour's replay
+    spent 27 % of its CPU there. Every 20 while the record is short, then a quarter of it apart;
+    the data's end checks once more, a full check (the model's error on every block), where any
+    block came since the last."""
+    from vdp.core.estimator import TwoStageEstimator
+    from vdp.core.learner import BATCH_EVERY, Stage1
+
+    l1 = Stage1("ukf", profile.vehicle, profile.priors, LearnerConfig())
+    u, z, R = np.zeros(7), np.zeros(2), np.eye(2)
+    due = []
+    for n in range(1, 1201):
+        l1._blocks.append(u, z, R)
+        l1._since_batch += 1
+        if l1.check_due():
+            due.append(n)
+            l1._since_batch = 0
+    gaps = np.diff([0, *due])
+    assert list(gaps[:4]) == [BATCH_EVERY] * 4  # dense while few blocks are kept
+    assert all(g >= BATCH_EVERY for g in gaps) and gaps[-1] >= 1000 // 4 and len(due) < 20  # was 60
+    l1._since_batch = 0
+    assert not l1.check_due(final=True)  # nothing new since the last
+    l1._since_batch = 1
+    assert l1.check_due(final=True)
+    est = TwoStageEstimator(profile.vehicle, profile.priors)
+    full = []
+    for l in est.s1.values():
+        l._since_batch = 3
+        monkeypatch.setattr(l, "check_batch", lambda full=False, f=full: f.append(full))
+    est.finish()
+    assert full == [True] * len(est.s1)
+
+
 # -- whole drives with priors off -----------------------------------------------------------
 @pytest.mark.slow
 @pytest.mark.parametrize("scale", [0.6, 1.6])

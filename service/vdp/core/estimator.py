@@ -197,10 +197,14 @@ class TwoStageEstimator:
 
     def finish(self) -> None:
         """The data have ended (a log's last frame): the next snapshot is the whole log's, its batch
-        checks solved on every row kept.  Without this a replay polled for results on the way
-        (``vdp replay --series``) would end on a check up to a quarter of its rows old."""
+        checks solved on every row (stage 2) and block (stage 1) kept.  Without this a replay
+        polled for results on the way (``vdp replay --series``) would end on a check up to a
+        quarter of its rows old, and stage 1's on one up to a quarter of its blocks old."""
         for learner in self.s2.values():
             learner.check.complete = True
+        for learner in self.s1.values():  # stage 1's check on every block, as the last ones came sparser
+            if learner.check_due(final=True):
+                learner.check_batch(full=True)
 
     def settle(self) -> None:
         """Every background batch check ended and none stale (LearnerConfig.check_executor): the

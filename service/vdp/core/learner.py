@@ -93,7 +93,12 @@ DIVERGED_NIS = 25.0  # mean NIS per row over Consistency.RECENT updates beyond w
 # solved, and how far (squared Mahalanobis distance, 3 parameters) the filter may sit
 # from it before it is re-seeded there (chi-square, 3 dof, 0.999: 16.3)
 BATCH_BLOCKS = 3000  # 5 min of stage-1 windows in 0.1 s blocks
-BATCH_EVERY = 20  # blocks (2 s of window)
+# blocks between checks: 20 (2 s of window), or a quarter of the blocks kept once that is more
+# (Stage1.check_due).  A check costs about in proportion to the blocks kept, so at every 20 it
+# grew with the square of the drive until the record was full: 27 % of an hour's replay, 2.1 s
+# of CPU (BENCHMARKS.md, "scan").  The early checks, which re-seed a filter started far off,
+# come as often as before; the log's end solves once more on every block (TwoStageEstimator.finish).
+BATCH_EVERY = 20
 BATCH_FAR_EVERY = 4  # every this many checks the prior's mean is a start too (the far start costs the most)
 RESEED_M2 = 16.3
 
@@ -910,13 +915,23 @@ class Stage1(StageLearner):
         self.filter.update(z, _BOTH_AXLES, u, R=R)
         self._blocks.append(u, z, R)
         self._since_batch += 1
-        if self._since_batch >= BATCH_EVERY:
+        if self.check_due():
             self.check_batch()
         if self.samples % self.cfg.save_every < self.cfg.block:
             self._save_good()
 
-    def check_batch(self) -> batch.Fit | None:
-        """Solve the batch problem of the blocks kept; re-seed the filter if it sits off the optimum."""
+    def check_due(self, final: bool = False) -> bool:
+        """Whether the batch check solves now: BATCH_EVERY new blocks, or a quarter of those kept
+        when that is more; ``final`` (the data have ended): any new block."""
+        if final:
+            return self._since_batch > 0
+        return self._since_batch >= max(BATCH_EVERY, len(self._blocks) // 4)
+
+    def check_batch(self, full: bool = False) -> batch.Fit | None:
+        """Solve the batch problem of the blocks kept; re-seed the filter if it sits off the optimum.
+        Every BATCH_FAR_EVERY checks, every check once they come further apart than that many
+        dense ones, and where ``full`` (the data's end): from the prior's mean too, with the
+        tyre-shape test and the model's error (spread) on the blocks as they are now."""
         self._since_batch = 0
         if len(self._blocks) < 2 * BATCH_EVERY or self.filter is None:
             return None
@@ -927,8 +942,12 @@ class Stage1(StageLearner):
         d = b.grad(t0)
         P0 = cov / np.outer(d, d)
         self._checks += 1
+        # where checks come a quarter of the blocks apart (check_due), each is a far one: the model's
+        # error and the shape are then never older than the blocks since the last check
+        sparse = len(self._blocks) // 4 >= BATCH_FAR_EVERY * BATCH_EVERY
+        far = full or sparse or self._checks % BATCH_FAR_EVERY == 1
         starts = [self.filter.x.copy()]
-        if self._checks % BATCH_FAR_EVERY == 1:
+        if far:
             starts.append(t0)
         lin = batch.linear_start(U, Z, k)
         if lin is not None:
@@ -936,7 +955,7 @@ class Stage1(StageLearner):
         fit = self._solve(U, Z, R, t0, P0, starts)
         if fit is None:
             return None
-        if not self.shaped and self._checks % BATCH_FAR_EVERY == 1:
+        if not self.shaped and far:
             shaped = self._test_shape(U, Z, R, prior, fit)
             if shaped is not None:
                 fit, t0, P0 = shaped
@@ -944,7 +963,7 @@ class Stage1(StageLearner):
         self.fit = fit
         if self.mismatch()[1] is None:
             self.spread = None
-        elif self.spread is None or self._checks % BATCH_FAR_EVERY == 1:
+        elif self.spread is None or far:
             # four more solves: the model's error in a drive changes slowly, so not at every check
             self.spread = self._model_error(U, Z, R, t0, P0, fit)
         d = self.filter.x - fit.t
