@@ -11,8 +11,9 @@ the frames carry ids the profile does not use.  Then, on CPU time:
   machine's other load);
 - the front of the pipeline alone (reader, decoder, aligner; the estimator is
   handed nothing), per-frame and bulk;
-- the whole replay, per-frame and bulk, with the UKF alone (as ``vdp batch``
-  runs) and with the EKF baseline beside it (``vdp replay``'s default).
+- the whole replay, per-frame and bulk, with the UKF alone (as ``vdp batch`` and
+  ``vdp replay`` run) and with the EKF baseline beside it (``vdp replay --baseline ekf``),
+  keeping no history of the estimates, as both do without ``--plot`` (``--trace``: keep it).
 
 ``--one MODE`` runs one replay (bulk or per-frame, UKF only) and prints its CPU
 time and the process's peak RSS, for a memory and linearity check per length;
@@ -70,6 +71,12 @@ def main() -> int:
     ap.add_argument(
         "--no-trace", action="store_true", help="with --one: keep no history of the estimates (as vdp batch)"
     )
+    ap.add_argument(
+        "--trace",
+        action="store_true",
+        help="the throughput rows keep the history of the estimates (as vdp replay --plot); by default "
+        "none, as vdp replay without --plot and vdp batch run (before 2026-11-27 these rows kept it)",
+    )
     a = ap.parse_args()
     path = a.log or Path(f"/tmp/vdp-bulk-{a.minutes:g}min.log")
     if not path.exists():
@@ -98,7 +105,7 @@ def main() -> int:
         ("replay UKF+EKF, per-frame", False, True, False),
         ("replay UKF+EKF, bulk", True, True, False),
     ):
-        t, doc = replay(path, bulk, ekf, front)
+        t, doc = replay(path, bulk, ekf, front, trace=a.trace)
         rows.append((label, t, doc))
         print(f"{label:27}: {t:6.1f} s of CPU, {n / t:10,.0f} frames/s, {tb1 / t:5.2f}x the first", flush=True)
     _, tb2 = bare(path)
