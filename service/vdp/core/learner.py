@@ -589,7 +589,7 @@ class StageLearner:
 class _Blocks:
     """The newest ``cap`` blocks' (u, z, R), oldest first, in ring arrays.
 
-    The batch check reads them all every BATCH_EVERY blocks; stacking a deque of 3,000 small
+    The batch check reads them all at every check (Stage1.check_due); stacking a deque of 3,000 small
     arrays took ~4 ms each time, a third of the batch checks' CPU on an hour's replay.
     """
 
