@@ -157,35 +157,42 @@ def test_stage1_small_slip_gate_holds_a_wild_h_to_its_sane_range(profile):
 
 def test_stage1s_check_comes_every_20_blocks_then_every_quarter_of_those_kept(profile, monkeypatch):
     """A check costs about in proportion to the blocks kept: at every 20 blocks an hour's replay
-    spent 27 % of its CPU there. Every 20 while the record is short, then a quarter of it apart;
-    the data's end checks once more, a full check (the model's error on every block), where any
-    block came since the last."""
-    from vdp.core.estimator import TwoStageEstimator
-    from vdp.core.learner import BATCH_EVERY, Stage1
+    spent 27 % of its CPU there. On a whole simulated drive: every 20 blocks while few are kept,
+    then a quarter of them apart but never more than BATCH_EVERY_MAX; a far check every 80
+    blocks as before; and at the log's end once more, a full one, on every block."""
+    from vdp.core.learner import BATCH_EVERY, BATCH_EVERY_MAX, BATCH_FAR_EVERY, Stage1
+    from vdp.pipeline import Pipeline
+    from vdp.sim.run import simulate
 
-    l1 = Stage1("ukf", profile.vehicle, profile.priors, LearnerConfig())
-    u, z, R = np.zeros(7), np.zeros(2), np.eye(2)
-    due = []
-    for n in range(1, 1201):
-        l1._blocks.append(u, z, R)
-        l1._since_batch += 1
-        if l1.check_due():
-            due.append(n)
-            l1._since_batch = 0
-    gaps = np.diff([0, *due])
-    assert list(gaps[:4]) == [BATCH_EVERY] * 4  # dense while few blocks are kept
-    assert all(g >= BATCH_EVERY for g in gaps) and gaps[-1] >= 1000 // 4 and len(due) < 20  # was 60
-    l1._since_batch = 0
-    assert not l1.check_due(final=True)  # nothing new since the last
-    l1._since_batch = 1
-    assert l1.check_due(final=True)
-    est = TwoStageEstimator(profile.vehicle, profile.priors)
-    full = []
-    for l in est.s1.values():
-        l._since_batch = 3
-        monkeypatch.setattr(l, "check_batch", lambda full=False, f=full: f.append(full))
-    est.finish()
-    assert full == [True] * len(est.s1)
+    seen = []  # (blocks kept, full, far) per check of the UKF's stage 1
+    real = Stage1.check_batch
+
+    def spy(self, full=False):
+        if self.kind == "ukf" and len(self._blocks) >= 2 * BATCH_EVERY:
+            far_before = self._since_far
+            out = real(self, full)
+            seen.append((len(self._blocks), full, self._since_far == 0 and far_before > 0))
+            return out
+        return real(self, full)
+
+    monkeypatch.setattr(Stage1, "check_batch", spy)
+    monkeypatch.setattr("vdp.core.learner.BATCH_BLOCKS", 3000)
+    frames, _ = simulate(profile, "city", seed=4, noise="realistic")
+    pipe = Pipeline(profile, EstimatorConfig(baseline=False, trace_len=0))
+    for msg in frames:
+        pipe.feed(msg)
+    n_before_end = len(seen)
+    pipe.estimator.finish()
+    blocks = [b for b, _, _ in seen[:n_before_end]]
+    gaps = np.diff(blocks)
+    assert blocks[-1] > 400, blocks  # enough blocks for the spacing to grow
+    assert all(g == BATCH_EVERY for b, g in zip(blocks, gaps) if b < 4 * BATCH_EVERY)  # dense at first
+    assert max(gaps) > BATCH_EVERY and all(g <= BATCH_EVERY_MAX for g in gaps)  # then sparser, capped
+    assert len(blocks) < blocks[-1] / BATCH_EVERY / 2  # far fewer than one every 20
+    far = [b for b, _, f in seen[:n_before_end] if f]
+    every = BATCH_FAR_EVERY * BATCH_EVERY  # the far check's blocks apart: as when every check was dense
+    assert all(every <= d <= every + BATCH_EVERY_MAX for d in np.diff(far)) and len(far) >= 3, far
+    assert seen[-1][1] and len(seen) == n_before_end + 1  # the end: one full check
 
 
 # -- whole drives with priors off -----------------------------------------------------------

@@ -93,13 +93,17 @@ DIVERGED_NIS = 25.0  # mean NIS per row over Consistency.RECENT updates beyond w
 # solved, and how far (squared Mahalanobis distance, 3 parameters) the filter may sit
 # from it before it is re-seeded there (chi-square, 3 dof, 0.999: 16.3)
 BATCH_BLOCKS = 3000  # 5 min of stage-1 windows in 0.1 s blocks
-# blocks between checks: 20 (2 s of window), or a quarter of the blocks kept once that is more
-# (Stage1.check_due).  A check costs about in proportion to the blocks kept, so at every 20 it
-# grew with the square of the drive until the record was full: 27 % of an hour's replay, 2.1 s
-# of CPU (BENCHMARKS.md, "scan").  The early checks, which re-seed a filter started far off,
-# come as often as before; the log's end solves once more on every block (TwoStageEstimator.finish).
+# blocks between checks: 20 (2 s of window), or a quarter of the blocks kept once that is more,
+# at most BATCH_EVERY_MAX (Stage1.check_due).  A check costs about in proportion to the blocks
+# kept, so at every 20 it grew with the square of the drive until the record was full: 27 % of
+# an hour's replay, 2.1 s of CPU (BENCHMARKS.md, "scan").  The early checks, which re-seed a
+# filter started far off, come as often as before; the cap keeps what a live service commits
+# and hands to stage 2 at most 20 s of window behind the check; the log's end solves once more
+# on every block (TwoStageEstimator.finish).  The far check (the prior's mean as a start, the
+# tyre-shape test, the model's error) comes every BATCH_FAR_EVERY x BATCH_EVERY blocks, as before.
 BATCH_EVERY = 20
-BATCH_FAR_EVERY = 4  # every this many checks the prior's mean is a start too (the far start costs the most)
+BATCH_EVERY_MAX = 200
+BATCH_FAR_EVERY = 4  # every this many dense checks' blocks, a far one (the far start costs the most)
 RESEED_M2 = 16.3
 
 # Stage 2's cornering stiffness per axle (Stage2): the profile's C_alpha prior is the mean's;
@@ -642,6 +646,7 @@ class Stage1(StageLearner):
         self._acc: list = []
         self._blocks = _Blocks(BATCH_BLOCKS)  # (u, z, R) of each block the filter took
         self._since_batch = 0
+        self._since_far = 0  # blocks since the last far check (check_batch)
         self.fit: batch.Fit | None = None
         self.reseeds = 0
         self._checks = 0
@@ -915,6 +920,7 @@ class Stage1(StageLearner):
         self.filter.update(z, _BOTH_AXLES, u, R=R)
         self._blocks.append(u, z, R)
         self._since_batch += 1
+        self._since_far += 1
         if self.check_due():
             self.check_batch()
         if self.samples % self.cfg.save_every < self.cfg.block:
@@ -922,16 +928,16 @@ class Stage1(StageLearner):
 
     def check_due(self, final: bool = False) -> bool:
         """Whether the batch check solves now: BATCH_EVERY new blocks, or a quarter of those kept
-        when that is more; ``final`` (the data have ended): any new block."""
+        when that is more, at most BATCH_EVERY_MAX; ``final`` (the data have ended): any new block."""
         if final:
             return self._since_batch > 0
-        return self._since_batch >= max(BATCH_EVERY, len(self._blocks) // 4)
+        return self._since_batch >= min(max(BATCH_EVERY, len(self._blocks) // 4), BATCH_EVERY_MAX)
 
     def check_batch(self, full: bool = False) -> batch.Fit | None:
         """Solve the batch problem of the blocks kept; re-seed the filter if it sits off the optimum.
-        Every BATCH_FAR_EVERY checks, every check once they come further apart than that many
-        dense ones, and where ``full`` (the data's end): from the prior's mean too, with the
-        tyre-shape test and the model's error (spread) on the blocks as they are now."""
+        The first, then one every BATCH_FAR_EVERY x BATCH_EVERY blocks, and where ``full`` (the
+        data's end) is a far one: from the prior's mean too, with the tyre-shape test and the
+        model's error (spread) on the blocks as they are now."""
         self._since_batch = 0
         if len(self._blocks) < 2 * BATCH_EVERY or self.filter is None:
             return None
@@ -942,10 +948,10 @@ class Stage1(StageLearner):
         d = b.grad(t0)
         P0 = cov / np.outer(d, d)
         self._checks += 1
-        # where checks come a quarter of the blocks apart (check_due), each is a far one: the model's
-        # error and the shape are then never older than the blocks since the last check
-        sparse = len(self._blocks) // 4 >= BATCH_FAR_EVERY * BATCH_EVERY
-        far = full or sparse or self._checks % BATCH_FAR_EVERY == 1
+        # a far check every BATCH_FAR_EVERY dense checks' worth of blocks, whatever the checks' spacing
+        far = full or self._checks == 1 or self._since_far >= BATCH_FAR_EVERY * BATCH_EVERY
+        if far:
+            self._since_far = 0
         starts = [self.filter.x.copy()]
         if far:
             starts.append(t0)
