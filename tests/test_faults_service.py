@@ -216,6 +216,13 @@ def test_a_silent_channel_shows_in_health_and_status(tmp_path):
         ch = client.get("/status").json()["channels"]
         assert ch["yaw_rate"]["stale"] and ch["yaw_rate"]["age"] == pytest.approx(1.0, abs=0.02)
         assert not ch["accel_x"]["stale"]
+        # the whole bus silent beyond [service] silence: every channel stale, its age counted to now
+        # (the ages at the newest frame stay small while nothing comes: /status said "not stale")
+        quiet = svc.settings.service.silence + 7.0
+        svc.ingest.silent_for = lambda: quiet
+        ch = client.get("/status").json()["channels"]
+        assert all(c["stale"] for c in ch.values())
+        assert ch["accel_x"]["age"] == pytest.approx(quiet, abs=0.05)
     finally:
         tx.shutdown()
         svc.stop()

@@ -287,13 +287,24 @@ class Service:
                 },
                 "decode": r.decode,
                 "profile_check": r.profile_check,
-                "channels": r.channels,
+                "channels": self._channels_now(r.channels),
                 "gating": {**r.supervisor, "window": r.current_window, "windows_total": len(r.windows)},
                 "raw_log": parts["raw_log"],
                 "store": store,
                 "simulation": parts["simulation"],
             }
         )
+
+    def _channels_now(self, chans: dict) -> dict:
+        """Each channel as of now once the bus has been silent longer than [service] silence (the
+        health check's "no frames for N s"): every channel stale, its age counted to now.  Ages at
+        the newest frame stay small while nothing comes, and /status said "not stale"."""
+        from ..result import Freshness
+
+        silent = self.ingest.silent_for()
+        if silent is None or silent <= self.settings.service.silence:
+            return chans
+        return {n: Freshness(None if f.age is None else f.age + silent, True) for n, f in chans.items()}
 
     def history(
         self,
