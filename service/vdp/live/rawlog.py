@@ -145,6 +145,7 @@ class RawLog(can.Listener):
                 try:
                     if self.current.exists():
                         self._salvage()  # cut the unfinished line, name the file as the others
+                        self._prune()
                 except OSError as again:
                     self._fail(again, closing=True)
                 return
@@ -272,7 +273,11 @@ class RawLog(can.Listener):
                 cut = tail.rfind(b"\n")
                 keep = (size - len(tail) + cut + 1) if cut >= 0 else (0 if size <= _TAIL else size)
                 f.truncate(keep)
-                log.warning("%s: cut %d bytes of a line left unfinished by a crash", self.current, size - keep)
+                log.warning(
+                    "%s: cut %d bytes of a line left unfinished (a crash, or a write the disk refused)",
+                    self.current,
+                    size - keep,
+                )
             f.flush()
             os.fsync(f.fileno())
         if self.current.stat().st_size == 0:
