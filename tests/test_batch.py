@@ -383,3 +383,31 @@ def test_simulate_makes_the_folder_it_writes_into(tmp_path):
     out = tmp_path / "new" / "sub" / "d.log"
     assert main(["simulate", "--scenario", "stage1", "--duration", "3", "--out", str(out)]) == 0
     assert out.is_file() and out.with_name("d.truth.json").is_file()
+
+
+def test_the_fleet_picture_shows_each_drive_its_combination_and_the_one_that_disagrees(tmp_path):
+    """vdp batch --plot: per vehicle and parameter, each drive ± 2σ, the combination as a band,
+    the flagged drive red, a drive that did not converge hollow (it is not used)."""
+    from matplotlib.colors import to_rgba
+
+    from vdp.report import fleet_figure, fleet_plot
+
+    rows = [run_row(f"d{i}.log", 1.40 + 0.001 * (-1) ** i, 0.002) for i in range(4)]
+    rows.append(run_row("odd.log", 1.43, 0.002))
+    rows.append(run_row("loose.log", 1.2, 0.3, status="not_identifiable"))
+    vehicles, _ = combine(rows)
+    fig = fleet_figure(rows, vehicles)
+    (ax,) = fig.axes
+    marks = {c.lines[0].get_ydata()[0]: c.lines[0] for c in ax.containers}  # y = the drive's row
+    logs = sorted(r["log"] for r in rows)
+    odd, loose, d0 = (marks[logs.index(n)] for n in ("odd.log", "loose.log", "d0.log"))
+    assert to_rgba(odd.get_color()) == to_rgba("tab:red")  # flagged: disagrees with the others
+    assert to_rgba(d0.get_color()) == to_rgba("black") and to_rgba(d0.get_mfc()) == to_rgba("black")
+    assert to_rgba(loose.get_mfc()) == to_rgba("white")  # not converged: hollow
+    band = list(ax.patches)  # the combination ± 2σ
+    assert len(band) == 1
+    x0, x1 = band[0].get_x(), band[0].get_x() + band[0].get_width()
+    (veh,) = vehicles
+    assert x0 == pytest.approx(veh["value"] - 2 * veh["std"]) and x1 == pytest.approx(veh["value"] + 2 * veh["std"])
+    fleet_plot(rows, vehicles, tmp_path / "fleet.png")
+    assert (tmp_path / "fleet.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from .core.params import BY_NAME, NAMES
-from .core.result import Estimate
+from .core.result import CONVERGED, Estimate
 from .errors import ConfigError
 from .result import RunResult, jsonable
 
@@ -407,3 +408,76 @@ def figure(
     fig.suptitle(title or "vdp estimates", fontsize=12)
     fig.tight_layout(rect=(0, 0.04, 1, 0.97))
     return fig
+
+
+def fleet_figure(rows: list[dict], vehicles: list[dict]):
+    """Per vehicle (a row of panels) and parameter (a panel): each drive's value ± 2σ, the
+    combination of its converged drives ± 2σ as a band, a flagged drive (it disagrees with the
+    others, vehicles.parquet's ``flagged``) in red, and the drives not converged as hollow marks
+    (they do not enter).  One picture of what runs.parquet and vehicles.parquet say in numbers."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [n for n in NAMES if any(r.get("parameter") == n for r in rows)]
+    cars = sorted({v["vehicle"] for v in vehicles})
+    comb = {(v["vehicle"], v["parameter"]): v for v in vehicles}
+    n_rows, n_cols = max(len(cars), 1), max(len(names), 1)
+    height = 1.2 + n_rows * (0.6 + 0.3 * _most_drives(rows))
+    fig, axes = plt.subplots(n_rows, n_cols, figsize=(2.6 * n_cols, height), squeeze=False)
+    for i, car in enumerate(cars):
+        logs = sorted({r["log"] for r in rows if r.get("vehicle") == car and r.get("parameter")})
+        for j, name in enumerate(names):
+            ax = axes[i][j]
+            v = comb.get((car, name), {})
+            flagged = set(v.get("flagged") or [])
+            if v.get("value") is not None and math.isfinite(v["value"]):
+                m, sd = v["value"], v["std"]
+                ax.axvspan(m - 2 * sd, m + 2 * sd, color="tab:blue", alpha=0.18, lw=0)
+                ax.axvline(m, color="tab:blue", lw=1)
+            for k, lg in enumerate(logs):
+                r = next((r for r in rows if r["log"] == lg and r.get("parameter") == name), None)
+                if r is None or r.get("value") is None or not math.isfinite(r["value"]):
+                    continue
+                used = r.get("status") == CONVERGED
+                colour = "tab:red" if lg in flagged else ("black" if used else "grey")
+                sd = r["std"] if r.get("std") is not None and math.isfinite(r["std"]) else 0.0
+                face = colour if used else "white"
+                ax.errorbar(r["value"], k, xerr=2 * sd, fmt="o", ms=4, color=colour, mfc=face, capsize=2, lw=1)
+            ax.set_ylim(-0.7, max(len(logs), 1) - 0.3)
+            ax.set_yticks(range(len(logs)))
+            ax.set_yticklabels([Path(lg).name for lg in logs] if j == 0 else [], fontsize=7)
+            ax.tick_params(axis="x", labelsize=7)
+            unit = BY_NAME[name].unit
+            ax.set_title((f"{name} [{unit}]" if unit != "1" else name) if i == 0 else "", fontsize=9)
+            if j == 0:
+                ax.set_ylabel(car, fontsize=9)
+            p = v.get("p_value_kept")  # the consistency test of the drives combined
+            if p is not None and math.isfinite(p):
+                what = "χ² p of the rest" if flagged else "χ² p"
+                ax.text(0.02, 0.98, f"{what} = {p:.2g}", transform=ax.transAxes, fontsize=6, va="top")
+    fig.suptitle(
+        "drives (value ± 2σ; red: flagged as disagreeing; hollow: not converged, not used) and their "
+        "combination (blue ± 2σ)",
+        fontsize=8,
+    )
+    fig.tight_layout()
+    return fig
+
+
+def _most_drives(rows: list[dict]) -> int:
+    per: dict[str, set] = {}
+    for r in rows:
+        if r.get("parameter"):
+            per.setdefault(r["vehicle"], set()).add(r["log"])
+    return max((len(v) for v in per.values()), default=1)
+
+
+def fleet_plot(rows: list[dict], vehicles: list[dict], path: str | Path) -> None:
+    """Write :func:`fleet_figure` to ``path`` (PNG, PDF or SVG by suffix)."""
+    import matplotlib.pyplot as plt
+
+    fig = fleet_figure(rows, vehicles)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -55,6 +55,11 @@ def add_parser(sub):
     )
     g.add_argument("--scheduler", metavar="ADDRESS", help="run on an existing Dask cluster, e.g. tcp://10.0.0.5:8786")
     p.add_argument("--redo", action="store_true", help="run every log again, even those already done")
+    p.add_argument(
+        "--plot",
+        metavar="FILE",
+        help="also draw each vehicle's drives against their combination (PNG, PDF or SVG by suffix)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -242,7 +247,7 @@ def done(rows: list[dict], task) -> bool:
     return stamp is not None and (rows[0]["log_size"], rows[0]["log_mtime_ns"]) == stamp
 
 
-def write_results(out: Path, parts: dict[str, list[dict]]) -> tuple[int, int]:
+def write_results(out: Path, parts: dict[str, list[dict]]) -> tuple[list[dict], list[dict]]:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -281,7 +286,7 @@ def write_results(out: Path, parts: dict[str, list[dict]]) -> tuple[int, int]:
         ]
     )
     _atomic(pq, pa.Table.from_pylist(vehicles, schema=vschema), out / "vehicles.parquet")
-    return len(rows), len(vehicles)
+    return rows, vehicles
 
 
 def _z_flag() -> float:
@@ -371,6 +376,10 @@ def run(args) -> int:
         raise ConfigError("vdp batch needs pyarrow: pip install 'vdp[fleet]'") from None
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers {args.workers}: give at least 1")
+    if args.plot:  # a wrong suffix or folder said before an hour of logs, not after
+        from .paths import check_output
+
+        check_output(args.plot, "--plot", (".png", ".pdf", ".svg"))
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: exists and is not a directory")
@@ -433,8 +442,13 @@ def run(args) -> int:
             f"left out {len(stale)} earlier result(s) of these logs under another profile or vehicle "
             f"(kept in {out / 'parts' / 'superseded'})"
         )
-    n_rows, n_veh = write_results(out, parts)
-    print(f"wrote {out / 'runs.parquet'} ({n_rows} rows) and {out / 'vehicles.parquet'} ({n_veh} rows)")
+    rows, vehicles = write_results(out, parts)
+    print(f"wrote {out / 'runs.parquet'} ({len(rows)} rows) and {out / 'vehicles.parquet'} ({len(vehicles)} rows)")
+    if args.plot:
+        from ..report import fleet_plot
+
+        fleet_plot(rows, vehicles, args.plot)
+        print(f"wrote {args.plot}")
     for path, err in failed:
         # the error names the log itself where the reader wrote it ("PATH: no such file")
         print(f"failed: {err}" if err.startswith(f"{path}:") else f"failed: {path}: {err}")
