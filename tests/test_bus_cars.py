@@ -218,7 +218,7 @@ def test_profile_new_sets_the_bus_channel_and_pad_short_from_the_log(tmp_path, c
     draft = tmp_path / "d.toml"
     assert main(["profile", "new", "--dbc", str(root / "dbc" / "vdp.dbc"), "--log", str(log), "--out", str(draft)]) == 0
     text = draft.read_text()
-    assert 'channel = "can0"' in text and "also on can1" in text
+    assert 'channel = "can0"' in text and "the log has frames on can0, can1" in text
     assert "pad_short = true" in text and "shorter than the DBC's length" in text
     assert load_profile(draft).bus_channel == "can0"
     capsys.readouterr()

@@ -146,6 +146,7 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
     series: dict[tuple[str, str], list[tuple[float, float]]] = {k: [] for k in wanted}
     t0 = None
     per_channel: dict[str, int] = {}  # frames of the candidates' messages by bus channel
+    seen_on: set[str] = set()  # every channel the log has frames on
     where: dict[str, set[str]] = {}  # message -> the channels it comes on
     short: dict[tuple[str, str], int] = {}  # (channel, message) -> frames shorter than the DBC's
     with open_log(log_path) as src:
@@ -153,10 +154,12 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
             t0 = msg.timestamp if t0 is None else t0
             if msg.timestamp - t0 > seconds:
                 break
+            chan = str(msg.channel) if msg.channel is not None else ""
             m = by_id.get((msg.arbitration_id, msg.is_extended_id))
             if m is None:
+                seen_on.add(chan)
                 continue
-            chan = str(msg.channel) if msg.channel is not None else ""
+            seen_on.add(chan)
             per_channel[chan] = per_channel.get(chan, 0) + 1
             where.setdefault(m.name, set()).add(chan)
             if len(msg.data) < m.length:
@@ -219,14 +222,18 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
     for cs in cands.values():
         cs.sort(key=lambda c: -c.score)
     facts = LogFacts()
-    # the same ids on two buses are another unit's frames: keep to the bus that carries the most,
-    # but only where it carries every message (a filter would drop those that come on another only)
-    if any(len(c) > 1 for c in where.values()):
-        busiest = max(per_channel, key=per_channel.get)
-        if all(busiest in c for c in where.values()):
-            facts.channel = busiest
-            facts.also = sorted({c for cs in where.values() if len(cs) > 1 for c in cs} - {busiest})
-    facts.short = {m: n for (c, m), n in short.items() if facts.channel is None or c == facts.channel}
+    # the messages the draft maps (the best candidate of each channel it writes uncommented)
+    mapped = {cs[0].message for cs in cands.values() if cs and cs[0].unit and not cs[0].engine and not cs[0].wrong_kind}
+    on = {m: c for m, c in where.items() if m in mapped}
+    # a log of several buses (a comma device logs four): keep to the one that carries every mapped
+    # message, the most of their frames first; other units' frames of the same ids stay out. Where
+    # no one bus carries them all, no filter: it would drop a message.
+    if len(seen_on) > 1 and on:
+        carry = [c for c in sorted(per_channel, key=lambda c: -per_channel[c]) if all(c in cs for cs in on.values())]
+        if carry:
+            facts.channel = carry[0]
+            facts.also = sorted(seen_on - {carry[0]})
+    facts.short = {m: n for (c, m), n in short.items() if m in mapped and (facts.channel is None or c == facts.channel)}
     return facts
 
 
@@ -262,8 +269,8 @@ def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", fa
     ]
     if facts is not None and facts.channel:
         L.append(
-            f'channel = "{facts.channel}"  # the log carries these messages on {facts.channel}, and some '
-            f"also on {', '.join(facts.also)}: another bus's frames of the same ids would be decoded too"
+            f'channel = "{facts.channel}"  # the log has frames on {", ".join([facts.channel, *facts.also])}; '
+            f"the mapped messages come on {facts.channel}: another bus's frames of the same ids stay out"
         )
     if facts is not None and facts.short:
         worst = max(facts.short, key=facts.short.get)

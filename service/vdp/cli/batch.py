@@ -423,7 +423,7 @@ def run(args) -> int:
                     failed.append((t.log, err))
                 bar.step(bool(err))
             bar.close()
-            print(f"ran {len(pending)} logs in {time.monotonic() - t_run:.1f} s")
+            print(f"ran {len(pending)} log{'s' if len(pending) != 1 else ''} in {time.monotonic() - t_run:.1f} s")
         finally:
             cl.close()
             if cluster is not None:

@@ -277,9 +277,14 @@ def _coaching(result) -> list[str]:
     if not coach:
         return []
     stages = coach["stages"]
+    caps = result.capabilities or {}
+    # a stage this car cannot run has no progress to show: its percentage read as "on its way"
     lines = [
         "progress: "
-        + ", ".join(f"stage {k} {100 * v['progress']:.0f} %" for k, v in stages.items())
+        + ", ".join(
+            f"stage {k} cannot run" if caps.get(str(k)) else f"stage {k} {100 * v['progress']:.0f} %"
+            for k, v in stages.items()
+        )
         + f"; next: {coach['next']}"
     ]
     for name, p in result.parameters.items():

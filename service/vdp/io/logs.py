@@ -247,6 +247,8 @@ class LogSource:
         if fmt not in FORMATS:
             if path.is_dir():  # (a folder's name has no suffix: say what it is, not its format)
                 raise LogFormatError(f"{path}: is a directory, not a log file; vdp batch replays a folder's logs")
+            if not path.exists():  # a mistyped folder or file name: not a question of its format
+                raise LogFormatError(f"{path}: no such file or directory")
             raise LogFormatError(
                 f"{path}: unknown log format '{''.join(path.suffixes) or name}'; "
                 f"supported: {', '.join(FORMATS)} (each optionally .gz)"
