@@ -277,7 +277,7 @@ def _coaching(result) -> list[str]:
     if not coach:
         return []
     stages = coach["stages"]
-    caps = result.capabilities or {}
+    caps = getattr(result, "capabilities", None) or {}
     # a stage this car cannot run has no progress to show: its percentage read as "on its way"
     lines = [
         "progress: "
