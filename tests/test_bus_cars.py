@@ -236,3 +236,32 @@ def test_profile_new_sets_the_bus_channel_and_pad_short_from_the_log(tmp_path, c
     said = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("decoder: ")]
     assert any("refused: shorter than the DBC says" in ln and "pad_short = true" in ln for ln in said), said
     assert any("another bus (set [can] channel)" in ln for ln in said), said  # can1's frames among can0's
+
+
+def test_profile_new_completes_a_coarse_signal_with_its_fine_part(tmp_path):
+    """Toyota's steering angle is STEER_ANGLE in 1.5 deg steps plus STEER_FRACTION (-0.7...0.7 deg
+    in 0.1 deg) of the same message: the draft names the finer part (`fine`), as the shipped RAV4
+    profile does; a signal of another unit, or one spanning more than a step, is not taken."""
+    import cantools
+
+    from vdp.scaffold import candidates, draft
+
+    dbc = tmp_path / "car.dbc"
+    dbc.write_text(
+        'VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: ECU\n\n'
+        "BO_ 37 STEER_ANGLE_SENSOR: 8 ECU\n"
+        ' SG_ STEER_ANGLE : 3|12@0- (1.5,0) [-500|500] "deg" ECU\n'
+        ' SG_ STEER_FRACTION : 39|4@0- (0.1,0) [-0.7|0.7] "deg" ECU\n'
+        ' SG_ STEER_RATE : 35|12@0- (1,0) [-2000|2000] "deg/s" ECU\n\n'
+        "BO_ 38 OTHER_ANGLE: 8 ECU\n"
+        ' SG_ STEER_ANGLE_WHEEL : 0|16@1- (0.5,0) [-500|500] "deg" ECU\n'
+        ' SG_ STEER_OFFSET : 16|8@1- (0.1,0) [-12|12] "deg" ECU\n'
+    )
+    cands = candidates(cantools.database.load_file(str(dbc)))
+    by = {c.signal: c for c in cands["steering_angle"]}
+    assert by["STEER_ANGLE"].fine == "STEER_FRACTION"
+    assert by["STEER_ANGLE_WHEEL"].fine is None  # its 0.1-deg neighbour spans 24 deg, not one 0.5-deg step
+    cands["steering_angle"] = [by["STEER_ANGLE"]]  # (the draft maps its best: that one here)
+    text = draft(dbc, cands)
+    line = next(ln for ln in text.splitlines() if ln.startswith("steering_angle"))
+    assert 'signal = "STEER_ANGLE"' in line and 'fine = "STEER_FRACTION"' in line

@@ -85,6 +85,7 @@ class Candidate:
     score: float
     note: str = ""
     engine: bool = False  # a drive torque named for the engine: before the gearbox (ENGINE_NOTE)
+    fine: str | None = None  # a finer signal of the same message that completes this one (_fine)
     wrong_kind: bool = False  # its DBC unit is of another quantity (an angle for a torque)
 
 
@@ -93,6 +94,23 @@ def unit_of(dbc_unit: str | None) -> str | None:
     if u in UNIT_FACTORS:
         return u
     return UNIT_GUESS.get(u.lower()) or next((k for k in UNIT_FACTORS if k.lower() == u.lower()), None)
+
+
+def _fine(msg, sig) -> str | None:
+    """A signal of the same message that carries what ``sig`` rounds away: the same unit, a finer
+    step, and a range within one of ``sig``'s steps (Toyota's STEER_ANGLE in 1.5 deg steps and
+    STEER_FRACTION, -0.7...0.7 deg in 0.1 deg).  The profile's ``fine`` adds the two."""
+    step = abs(sig.scale or 0.0)
+    if not step or sig.is_float:
+        return None
+    for other in msg.signals:
+        if other is sig or other.is_float or (other.unit or "") != (sig.unit or ""):
+            continue
+        lo, hi = other.minimum, other.maximum
+        finer = 0 < abs(other.scale or 0.0) < step
+        if finer and lo is not None and hi is not None and 0 < hi - lo <= 1.05 * step:
+            return other.name
+    return None
 
 
 def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
@@ -114,6 +132,7 @@ def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
                     score += 2.0 if UNIT_FACTORS[unit][1] in kinds else -3.0
                 c = Candidate(m.name, s.name, unit, s.unit or "", score)
                 c.wrong_kind = unit is not None and UNIT_FACTORS[unit][1] not in kinds
+                c.fine = _fine(m, s)
                 if ch == "drive_torque" and _ENGINE.search(s.name.lower()):
                     c.engine = True
                     c.score -= 2.0
@@ -300,7 +319,8 @@ def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", fa
         best = cs[0]
         unit = best.unit or "EDIT"
         flag = "" if best.unit else f"  # DBC unit '{best.dbc_unit}' unknown to vdp: EDIT unit"
-        extra = ", steering_wheel = true" if ch == "steering_angle" else ""
+        extra = f', fine = "{best.fine}"' if best.fine else ""  # (a coarse value's finer part)
+        extra += ", steering_wheel = true" if ch == "steering_angle" else ""
         why = f"  # {best.note}" if best.note and not flag else ""
         line = f'{ch} = {{ message = "{best.message}", signal = "{best.signal}", unit = "{unit}"{extra} }}'
         if best.engine:  # left out: mapped as it is, stage 1 would read the gearbox's ratio as mass
