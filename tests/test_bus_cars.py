@@ -253,6 +253,8 @@ def test_profile_new_completes_a_coarse_signal_with_its_fine_part(tmp_path):
         ' SG_ STEER_ANGLE : 3|12@0- (1.5,0) [-500|500] "deg" ECU\n'
         ' SG_ STEER_FRACTION : 39|4@0- (0.1,0) [-0.7|0.7] "deg" ECU\n'
         ' SG_ STEER_RATE : 35|12@0- (1,0) [-2000|2000] "deg/s" ECU\n\n'
+        "BO_ 39 BODY_CONTROL_STATE_2: 8 ECU\n"
+        ' SG_ UI_SPEED : 0|16@1+ (1,0) [0|300] "" ECU\n\n'
         "BO_ 38 OTHER_ANGLE: 8 ECU\n"
         ' SG_ STEER_ANGLE_WHEEL : 0|16@1- (0.5,0) [-500|500] "deg" ECU\n'
         ' SG_ STEER_OFFSET : 16|8@1- (0.1,0) [-12|12] "deg" ECU\n'
@@ -261,6 +263,7 @@ def test_profile_new_completes_a_coarse_signal_with_its_fine_part(tmp_path):
     by = {c.signal: c for c in cands["steering_angle"]}
     assert by["STEER_ANGLE"].fine == "STEER_FRACTION"
     assert by["STEER_ANGLE_WHEEL"].fine is None  # its 0.1-deg neighbour spans 24 deg, not one 0.5-deg step
+    assert cands["roll_rate"] == []  # no signal named for a roll: "CONTROL" in a name is not one
     cands["steering_angle"] = [by["STEER_ANGLE"]]  # (the draft maps its best: that one here)
     text = draft(dbc, cands)
     line = next(ln for ln in text.splitlines() if ln.startswith("steering_angle"))

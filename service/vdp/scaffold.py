@@ -42,7 +42,7 @@ _PATTERNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "yaw_rate": ((r"yaw|gier",), (r"rate|_w_|rt|gierrate", r"veh|esp|esc|imu")),
     "accel_x": ((r"lon|laeng|ax\b|accel_?x|long",), (r"acc|_a_|beschl", r"veh|esp|esc|imu")),
     "accel_y": ((r"lat|quer|ay\b|accel_?y",), (r"acc|_a_|beschl", r"veh|esp|esc|imu")),
-    "roll_rate": ((r"rol",), (r"rate|_w_|rt", r"veh|imu")),
+    "roll_rate": ((r"roll|wank",), (r"rate|_w_|rt", r"veh|imu")),  # (not "rol": CONTROL matched)
     "speed": ((r"gps|gnss|nav",), (r"sp(ee)?d|vel|_v_",)),
     "drive_torque": ((r"tq|torq|moment",), (r"wh(ee)?l|whl|prpl|drive|axle|rad", r"tot|actl|ist")),
     "brake_torque": ((r"tq|torq|moment", r"brk|brake|brems"), (r"tot|actl|ist",)),
