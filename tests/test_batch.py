@@ -409,5 +409,9 @@ def test_the_fleet_picture_shows_each_drive_its_combination_and_the_one_that_dis
     x0, x1 = band[0].get_x(), band[0].get_x() + band[0].get_width()
     (veh,) = vehicles
     assert x0 == pytest.approx(veh["value"] - 2 * veh["std"]) and x1 == pytest.approx(veh["value"] + 2 * veh["std"])
+    assert [t.get_text().split(" =")[0] for t in ax.texts] == ["χ² p of the rest"]  # odd.log left out
+    pair = [run_row("a.log", 1.40, 0.002), run_row("b.log", 1.45, 0.002)]  # both flagged, both kept
+    (pax,) = fleet_figure(pair, combine(pair)[0]).axes
+    assert [t.get_text().split(" =")[0] for t in pax.texts] == ["χ² p"]
     fleet_plot(rows, vehicles, tmp_path / "fleet.png")
     assert (tmp_path / "fleet.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

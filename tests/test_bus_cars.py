@@ -253,6 +253,9 @@ def test_profile_new_completes_a_coarse_signal_with_its_fine_part(tmp_path):
         ' SG_ STEER_ANGLE : 3|12@0- (1.5,0) [-500|500] "deg" ECU\n'
         ' SG_ STEER_FRACTION : 39|4@0- (0.1,0) [-0.7|0.7] "deg" ECU\n'
         ' SG_ STEER_RATE : 35|12@0- (1,0) [-2000|2000] "deg/s" ECU\n\n'
+        "BO_ 40 NARROW: 8 ECU\n"
+        ' SG_ STEER_ANGLE_N : 3|12@0- (1.5,0) [-500|500] "deg" ECU\n'
+        ' SG_ STEER_FRACTION_N : 39|4@0- (0.1,0) [-0.3|0.3] "deg" ECU\n\n'
         "BO_ 39 BODY_CONTROL_STATE_2: 8 ECU\n"
         ' SG_ UI_SPEED : 0|16@1+ (1,0) [0|300] "" ECU\n\n'
         "BO_ 38 OTHER_ANGLE: 8 ECU\n"
@@ -262,9 +265,59 @@ def test_profile_new_completes_a_coarse_signal_with_its_fine_part(tmp_path):
     cands = candidates(cantools.database.load_file(str(dbc)))
     by = {c.signal: c for c in cands["steering_angle"]}
     assert by["STEER_ANGLE"].fine == "STEER_FRACTION"
+    assert by["STEER_ANGLE_N"].fine is None  # -0.3...0.3 in 0.1 leaves gaps in 1.5-deg steps (the decoder says so)
     assert by["STEER_ANGLE_WHEEL"].fine is None  # its 0.1-deg neighbour spans 24 deg, not one 0.5-deg step
+    from vdp.scaffold import _PATTERNS
+
+    roll = _PATTERNS["roll_rate"][0][0]  # Ford's VehRol_W_Actl, not CONTROL, sCROLL or ROLLing
+    import re
+
+    hits = {
+        n: bool(re.search(roll, n))
+        for n in ("vehrol_w_actl", "imu.roll_rate", "ui_scroll", "wheel_rolling", "x.control")
+    }
+    assert hits == {
+        "vehrol_w_actl": True,
+        "imu.roll_rate": True,
+        "ui_scroll": False,
+        "wheel_rolling": False,
+        "x.control": False,
+    }
     assert cands["roll_rate"] == []  # no signal named for a roll: "CONTROL" in a name is not one
     cands["steering_angle"] = [by["STEER_ANGLE"]]  # (the draft maps its best: that one here)
     text = draft(dbc, cands)
     line = next(ln for ln in text.splitlines() if ln.startswith("steering_angle"))
     assert 'signal = "STEER_ANGLE"' in line and 'fine = "STEER_FRACTION"' in line
+
+
+def test_the_log_facts_count_only_what_the_draft_maps(tmp_path):
+    """A car with per-axle wheel torques: the draft leaves the brake source out, so a brake
+    message's short frames on another bus neither set pad_short nor keep [can] channel away."""
+    import cantools
+
+    from vdp.scaffold import behaviour, candidates, draft
+
+    dbc = tmp_path / "car.dbc"
+    dbc.write_text(
+        'VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: ECU\n\n'
+        "BO_ 100 AXLE_TQ: 4 ECU\n"
+        ' SG_ TQ_FRONT_AXLE : 0|16@1- (1,0) [-5000|5000] "Nm" ECU\n'
+        ' SG_ TQ_REAR_AXLE : 16|16@1- (1,0) [-5000|5000] "Nm" ECU\n\n'
+        "BO_ 101 BRAKE: 8 ECU\n"
+        ' SG_ BRAKE_TQ_ACTL : 0|16@1- (1,0) [-5000|5000] "Nm" ECU\n'
+    )
+    lines = []
+    for i in range(400):
+        t = 1700000000.0 + 0.01 * i
+        tq = (i % 50) * 10
+        lines.append(f"({t:.6f}) can0 064#{tq:04X}{tq:04X}")  # both axles, full length, on can0
+        lines.append(f"({t + 0.001:.6f}) can1 065#{tq:04X}")  # the brake: short, and on can1 only
+    log = tmp_path / "l.log"
+    log.write_text("\n".join(lines) + "\n")
+    db = cantools.database.load_file(str(dbc))
+    cands = candidates(db)
+    assert cands["wheel_torque_front"] and cands["brake_torque"]
+    facts = behaviour(db, cands, log)
+    assert facts.channel == "can0" and facts.short == {}
+    text = draft(dbc, cands, facts=facts)
+    assert 'channel = "can0"' in text and "pad_short" not in text and "brake_torque =" not in text

@@ -455,7 +455,8 @@ def fleet_figure(rows: list[dict], vehicles: list[dict]):
                 ax.set_ylabel(car, fontsize=9)
             p = v.get("p_value_kept")  # the consistency test of the drives combined
             if p is not None and math.isfinite(p):
-                what = "χ² p of the rest" if flagged else "χ² p"
+                left_out = (v.get("dof") or 0) + 1 - (v.get("drives") or 0)  # (a flagged pair stays in)
+                what = "χ² p of the rest" if left_out > 0 else "χ² p"
                 ax.text(0.02, 0.98, f"{what} = {p:.2g}", transform=ax.transAxes, fontsize=6, va="top")
     fig.suptitle(
         "drives (value ± 2σ; red: flagged as disagreeing; hollow: not converged, not used) and their "

@@ -42,7 +42,8 @@ _PATTERNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "yaw_rate": ((r"yaw|gier",), (r"rate|_w_|rt|gierrate", r"veh|esp|esc|imu")),
     "accel_x": ((r"lon|laeng|ax\b|accel_?x|long",), (r"acc|_a_|beschl", r"veh|esp|esc|imu")),
     "accel_y": ((r"lat|quer|ay\b|accel_?y",), (r"acc|_a_|beschl", r"veh|esp|esc|imu")),
-    "roll_rate": ((r"roll|wank",), (r"rate|_w_|rt", r"veh|imu")),  # (not "rol": CONTROL matched)
+    # "rol" as in Ford's VehRol_W_Actl, not in CONTROL, sCROLL, ROLLing or contROLLER
+    "roll_rate": ((r"(?<!cont)(?<!sc)rol(?!l(?:ing|er))|wank",), (r"rate|_w_|rt", r"veh|imu")),
     "speed": ((r"gps|gnss|nav",), (r"sp(ee)?d|vel|_v_",)),
     "drive_torque": ((r"tq|torq|moment",), (r"wh(ee)?l|whl|prpl|drive|axle|rad", r"tot|actl|ist")),
     "brake_torque": ((r"tq|torq|moment", r"brk|brake|brems"), (r"tot|actl|ist",)),
@@ -97,19 +98,28 @@ def unit_of(dbc_unit: str | None) -> str | None:
 
 
 def _fine(msg, sig) -> str | None:
-    """A signal of the same message that carries what ``sig`` rounds away: the same unit, a finer
-    step, and a range within one of ``sig``'s steps (Toyota's STEER_ANGLE in 1.5 deg steps and
+    """A signal of the same message that carries what ``sig`` rounds away: the same known unit, a
+    finer step, a range about zero within one of ``sig``'s steps, which the decoder accepts as
+    filling every step (io.signals.check_fine: Toyota's STEER_ANGLE in 1.5 deg steps and
     STEER_FRACTION, -0.7...0.7 deg in 0.1 deg).  The profile's ``fine`` adds the two."""
+    from .errors import ProfileError
+    from .io.signals import check_fine
+
     step = abs(sig.scale or 0.0)
-    if not step or sig.is_float:
+    if not step or sig.is_float or unit_of(sig.unit) is None:
         return None
     for other in msg.signals:
         if other is sig or other.is_float or (other.unit or "") != (sig.unit or ""):
             continue
         lo, hi = other.minimum, other.maximum
         finer = 0 < abs(other.scale or 0.0) < step
-        if finer and lo is not None and hi is not None and 0 < hi - lo <= 1.05 * step:
-            return other.name
+        if not (finer and lo is not None and hi is not None and lo < 0 < hi and hi - lo <= 1.05 * step):
+            continue
+        try:
+            check_fine("draft", msg, sig, other)
+        except ProfileError:
+            continue
+        return other.name
     return None
 
 
@@ -242,7 +252,12 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
         cs.sort(key=lambda c: -c.score)
     facts = LogFacts()
     # the messages the draft maps (the best candidate of each channel it writes uncommented)
-    mapped = {cs[0].message for cs in cands.values() if cs and cs[0].unit and not cs[0].engine and not cs[0].wrong_kind}
+    src = _has_sources(cands)
+    mapped = {
+        cs[0].message
+        for ch, cs in cands.items()
+        if cs and _drafted(ch, src) and cs[0].unit and not cs[0].engine and not cs[0].wrong_kind
+    }
     on = {m: c for m, c in where.items() if m in mapped}
     # a log of several buses (a comma device logs four): keep to the one that carries every mapped
     # message, the most of their frames first; other units' frames of the same ids stay out. Where
@@ -254,6 +269,18 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
             facts.also = sorted(seen_on - {carry[0]})
     facts.short = {m: n for (c, m), n in short.items() if m in mapped and (facts.channel is None or c == facts.channel)}
     return facts
+
+
+def _has_sources(cands: dict[str, list[Candidate]]) -> bool:
+    """Whether the draft maps a drive torque and brake sources (no per-axle wheel torques)."""
+    return bool(cands.get("drive_torque")) and not cands.get("wheel_torque_front")
+
+
+def _drafted(ch: str, has_sources: bool) -> bool:
+    """Whether the draft writes channel (or source) ``ch`` at all."""
+    if ch in ("wheel_torque_front", "wheel_torque_rear"):
+        return not has_sources
+    return has_sources if ch in SOURCES else True
 
 
 def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", facts: LogFacts | None = None) -> str:
@@ -298,7 +325,7 @@ def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", fa
             f"length ({worst}: {facts.short[worst]}); without this they are refused"
         )
     L.append("")
-    has_sources = bool(cands.get("drive_torque")) and not cands.get("wheel_torque_front")
+    has_sources = _has_sources(cands)
     if has_sources:
         L += [
             "[drivetrain]               # which axles drive, how the brakes split: EDIT",
@@ -309,9 +336,7 @@ def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", fa
     L.append("[channels]")
     for ch in [*channels.NAMES, *SOURCES]:
         cs = cands.get(ch) or []
-        if ch in ("wheel_torque_front", "wheel_torque_rear") and has_sources:
-            continue
-        if ch in SOURCES and not has_sources:
+        if not _drafted(ch, has_sources):
             continue
         if not cs:
             L.append(f"# {ch}: no candidate in the DBC")

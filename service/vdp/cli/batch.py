@@ -376,10 +376,6 @@ def run(args) -> int:
         raise ConfigError("vdp batch needs pyarrow: pip install 'vdp[fleet]'") from None
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers {args.workers}: give at least 1")
-    if args.plot:  # a wrong suffix or folder said before an hour of logs, not after
-        from .paths import check_output
-
-        check_output(args.plot, "--plot", (".png", ".pdf", ".svg"))
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: exists and is not a directory")
@@ -387,6 +383,10 @@ def run(args) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"--out {out}: cannot create it: {exc.strerror or exc}") from None
+    if args.plot:  # a wrong suffix or folder said before an hour of logs, not after (--out made first)
+        from .paths import check_output
+
+        check_output(args.plot, "--plot", (".png", ".pdf", ".svg"))
     unmatched: list[str] = []
     todo = tasks(args, unmatched)
     parts = read_parts(out)

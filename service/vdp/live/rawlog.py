@@ -144,7 +144,7 @@ class RawLog(can.Listener):
                 self._fail(exc, closing=True)
                 try:
                     if self.current.exists():
-                        self._salvage()  # cut the unfinished line, name the file as the others
+                        self._salvage("whose last write failed")  # cut the unfinished line, name it
                         self._prune()
                 except OSError as again:
                     self._fail(again, closing=True)
@@ -260,8 +260,9 @@ class RawLog(can.Listener):
         self._opened_at = time.time()
         self._prune()
 
-    def _salvage(self) -> None:
-        """A file left open by a crash: cut a partial last line, then close it like any other."""
+    def _salvage(self, why: str = "left open by the last run") -> None:
+        """A file left open by a crash (or by a close whose flush failed): cut a partial last line,
+        then close it like any other."""
         size = self.current.stat().st_size
         if size == 0:
             self.current.unlink()
@@ -287,7 +288,7 @@ class RawLog(can.Listener):
         dst = self._next_name()
         os.replace(self.current, dst)
         _fsync_dir(self.dir)
-        log.info("closed the raw log left open by the last run as %s", dst.name)
+        log.info("closed the raw log %s as %s", why, dst.name)
 
     def closed_files(self) -> list[Path]:
         """Closed files, oldest first."""
