@@ -288,6 +288,10 @@ def test_profile_new_completes_a_coarse_signal_with_its_fine_part(tmp_path):
     text = draft(dbc, cands)
     line = next(ln for ln in text.splitlines() if ln.startswith("steering_angle"))
     assert 'signal = "STEER_ANGLE"' in line and 'fine = "STEER_FRACTION"' in line
+    # and the profile's loader takes the pair (io.signals.check_fine) in a draft that maps it
+    prof = tmp_path / "d.toml"
+    prof.write_text(text.replace('"EDIT"', '"deg"'))
+    assert load_profile(prof).channels["steering_angle"].fine == "STEER_FRACTION"
 
 
 def test_the_log_facts_count_only_what_the_draft_maps(tmp_path):

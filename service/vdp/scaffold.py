@@ -99,27 +99,21 @@ def unit_of(dbc_unit: str | None) -> str | None:
 
 def _fine(msg, sig) -> str | None:
     """A signal of the same message that carries what ``sig`` rounds away: the same known unit, a
-    finer step, a range about zero within one of ``sig``'s steps, which the decoder accepts as
-    filling every step (io.signals.check_fine: Toyota's STEER_ANGLE in 1.5 deg steps and
-    STEER_FRACTION, -0.7...0.7 deg in 0.1 deg).  The profile's ``fine`` adds the two."""
-    from .errors import ProfileError
-    from .io.signals import check_fine
-
+    finer step, and a range about zero that fills one of ``sig``'s steps and no more (range plus
+    its own step at least the coarse step: the rule the profile's loader checks the pair by,
+    io.signals.check_fine; Toyota's STEER_ANGLE in 1.5 deg steps and STEER_FRACTION, -0.7...0.7
+    deg in 0.1 deg).  The profile's ``fine`` adds the two."""
     step = abs(sig.scale or 0.0)
     if not step or sig.is_float or unit_of(sig.unit) is None:
         return None
     for other in msg.signals:
         if other is sig or other.is_float or (other.unit or "") != (sig.unit or ""):
             continue
-        lo, hi = other.minimum, other.maximum
-        finer = 0 < abs(other.scale or 0.0) < step
-        if not (finer and lo is not None and hi is not None and lo < 0 < hi and hi - lo <= 1.05 * step):
+        lo, hi, fine = other.minimum, other.maximum, abs(other.scale or 0.0)
+        if not (0 < fine < step and lo is not None and hi is not None and lo < 0 < hi):
             continue
-        try:
-            check_fine("draft", msg, sig, other)
-        except ProfileError:
-            continue
-        return other.name
+        if step * (1 - 1e-6) <= hi - lo + fine and hi - lo <= 1.05 * step:
+            return other.name
     return None
 
 
