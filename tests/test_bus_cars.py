@@ -148,24 +148,31 @@ def test_hyundai_start_up_saturation_never_reaches_the_estimator():
         assert abs(col[col == col]).max() < lim
 
 
+def tiny_dbc(tmp_path, body: str):
+    """(path, cantools database) of a DBC of the given messages, one node ECU."""
+    import cantools
+
+    dbc = tmp_path / "car.dbc"
+    dbc.write_text('VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: ECU\n\n' + body)
+    return dbc, cantools.database.load_file(str(dbc))
+
+
 def test_profile_new_does_not_map_an_engine_torque_as_the_wheels(tmp_path):
     """A torque named for the engine (Toyota's GAS_PEDAL.ETQLVSC, VW's MO_Mom_Ist_Summe, Hyundai's
     TQI_ACOR) is taken before the gearbox: mapped as drive_torque, stage 1 read the gear ratio as
     the car's mass (l_f 2.35 m on a 2.65 m wheelbase, a new user's RAV4). The draft names it and
     leaves it unmapped; a signal whose unit is of another quantity is not mapped either."""
-    import cantools
 
     from vdp.scaffold import candidates, draft
 
-    dbc = tmp_path / "car.dbc"
-    dbc.write_text(
-        'VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: ECU\n\n'
+    dbc, db = tiny_dbc(
+        tmp_path,
         "BO_ 100 GAS_PEDAL: 8 ECU\n"
         ' SG_ ETQLVSC : 0|16@1- (1,0) [-500|500] "Nm" ECU\n\n'
         "BO_ 101 STEER_TORQUE_SENSOR: 8 ECU\n"
-        ' SG_ STEER_ANGLE : 0|16@1- (0.1,0) [-500|500] "deg" ECU\n'
+        ' SG_ STEER_ANGLE : 0|16@1- (0.1,0) [-500|500] "deg" ECU\n',
     )
-    cands = candidates(cantools.database.load_file(str(dbc)))
+    cands = candidates(db)
     got = {c.signal: c for c in cands["drive_torque"]}
     assert got["ETQLVSC"].engine and not got["STEER_ANGLE"].engine and got["STEER_ANGLE"].wrong_kind
     text = draft(dbc, cands)
@@ -242,13 +249,11 @@ def test_profile_new_completes_a_coarse_signal_with_its_fine_part(tmp_path):
     """Toyota's steering angle is STEER_ANGLE in 1.5 deg steps plus STEER_FRACTION (-0.7...0.7 deg
     in 0.1 deg) of the same message: the draft names the finer part (`fine`), as the shipped RAV4
     profile does; a signal of another unit, or one spanning more than a step, is not taken."""
-    import cantools
 
     from vdp.scaffold import candidates, draft
 
-    dbc = tmp_path / "car.dbc"
-    dbc.write_text(
-        'VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: ECU\n\n'
+    dbc, db = tiny_dbc(
+        tmp_path,
         "BO_ 37 STEER_ANGLE_SENSOR: 8 ECU\n"
         ' SG_ STEER_ANGLE : 3|12@0- (1.5,0) [-500|500] "deg" ECU\n'
         ' SG_ STEER_FRACTION : 39|4@0- (0.1,0) [-0.7|0.7] "deg" ECU\n'
@@ -260,9 +265,9 @@ def test_profile_new_completes_a_coarse_signal_with_its_fine_part(tmp_path):
         ' SG_ UI_SPEED : 0|16@1+ (1,0) [0|300] "" ECU\n\n'
         "BO_ 38 OTHER_ANGLE: 8 ECU\n"
         ' SG_ STEER_ANGLE_WHEEL : 0|16@1- (0.5,0) [-500|500] "deg" ECU\n'
-        ' SG_ STEER_OFFSET : 16|8@1- (0.1,0) [-12|12] "deg" ECU\n'
+        ' SG_ STEER_OFFSET : 16|8@1- (0.1,0) [-12|12] "deg" ECU\n',
     )
-    cands = candidates(cantools.database.load_file(str(dbc)))
+    cands = candidates(db)
     by = {c.signal: c for c in cands["steering_angle"]}
     assert by["STEER_ANGLE"].fine == "STEER_FRACTION"
     assert by["STEER_ANGLE_N"].fine is None  # -0.3...0.3 in 0.1 leaves gaps in 1.5-deg steps (the decoder says so)
@@ -297,18 +302,16 @@ def test_profile_new_completes_a_coarse_signal_with_its_fine_part(tmp_path):
 def test_the_log_facts_count_only_what_the_draft_maps(tmp_path):
     """A car with per-axle wheel torques: the draft leaves the brake source out, so a brake
     message's short frames on another bus neither set pad_short nor keep [can] channel away."""
-    import cantools
 
     from vdp.scaffold import behaviour, candidates, draft
 
-    dbc = tmp_path / "car.dbc"
-    dbc.write_text(
-        'VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: ECU\n\n'
+    dbc, db = tiny_dbc(
+        tmp_path,
         "BO_ 100 AXLE_TQ: 4 ECU\n"
         ' SG_ TQ_FRONT_AXLE : 0|16@1- (1,0) [-5000|5000] "Nm" ECU\n'
         ' SG_ TQ_REAR_AXLE : 16|16@1- (1,0) [-5000|5000] "Nm" ECU\n\n'
         "BO_ 101 BRAKE: 8 ECU\n"
-        ' SG_ BRAKE_TQ_ACTL : 0|16@1- (1,0) [-5000|5000] "Nm" ECU\n'
+        ' SG_ BRAKE_TQ_ACTL : 0|16@1- (1,0) [-5000|5000] "Nm" ECU\n',
     )
     lines = []
     for i in range(400):
@@ -318,7 +321,6 @@ def test_the_log_facts_count_only_what_the_draft_maps(tmp_path):
         lines.append(f"({t + 0.001:.6f}) can1 065#{tq:04X}")  # the brake: short, and on can1 only
     log = tmp_path / "l.log"
     log.write_text("\n".join(lines) + "\n")
-    db = cantools.database.load_file(str(dbc))
     cands = candidates(db)
     assert cands["wheel_torque_front"] and cands["brake_torque"]
     facts = behaviour(db, cands, log)

@@ -193,7 +193,8 @@ def test_the_hints_do_not_repeat_the_reason_the_table_gave():
         "  I_x: weave at 0.5-1 Hz",
     ]
     # a stage this car cannot run shows no percentage (a new user read "stage 2 33 %" as on its way)
-    res = SimpleNamespace(coaching=coaching, parameters={}, capabilities={"1": None, "2": "no yaw-rate gyro"})
+    stages = {"1": {"progress": 1.0, "can_run": True}, "2": {"progress": 0.5, "can_run": False}}
+    res = SimpleNamespace(coaching={**coaching, "stages": stages}, parameters={})
     assert _coaching(res) == ["progress: stage 1 100 %, stage 2 cannot run; next: weave"]
 
 

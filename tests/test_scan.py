@@ -61,6 +61,23 @@ def test_a_simulated_log_parses_to_numpys_arrays_block_by_block(repo_root, tmp_p
     assert lineno > 5000 and len(got[1]) > 100  # every block of a 8-s drive compared
 
 
+def test_a_real_cars_bus_parses_to_numpys_arrays(repo_root):
+    """The RAV4's 15 s (four bus channels, short frames, extended ids of the recording device):
+    the scan's arrays are numpy's, block by block, on a bus vdp did not write."""
+    import gzip
+
+    raw = gzip.decompress((repo_root / "tests" / "data" / "rav4-2018-highway-15s.log.gz").read_bytes())
+    lineno = lo = blocks = 0
+    while lo < len(raw):
+        hi = raw.rfind(b"\n", 0, lo + 200_000) + 1
+        block, lo = raw[lo:hi], hi
+        want, got = numpy_parse(block, lineno), scanned(block, lineno)
+        assert not isinstance(want, str) and same(want, got)
+        lineno += want[0]
+        blocks += 1
+    assert lineno > 30_000 and blocks > 3 and len({int(c) for c in got[6]}) > 1  # several channels
+
+
 LINES = [
     b"(1.000000) can0 123#00",
     b"(1711.250000) vcan1 1ABCDEF0#0102030405060708 R",

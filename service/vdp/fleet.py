@@ -332,14 +332,14 @@ def combine(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict], dict[tuple[s
                 kept.remove(worst)
             for i, r in enumerate(good):
                 zs[(r["log"], vehicle, param)] = _loo_z(xs, ss, kept, i)
-            kx, ks = [xs[i] for i in kept], [ss[i] for i in kept]
-            mean_k, _ = weighted(kx, ks)
-            chi2_k = sum(((x - mean_k) / s) ** 2 for x, s in zip(kx, ks))
-            p_k = float(chi2_dist.sf(chi2_k, len(kept) - 1))
-            row.update(chi2_kept=chi2_k, dof_kept=len(kept) - 1, p_value_kept=p_k)
         if good:
-            row["value"], row["std"] = weighted([xs[i] for i in kept], [ss[i] for i in kept])
+            kx, ks = [xs[i] for i in kept], [ss[i] for i in kept]
+            row["value"], row["std"] = weighted(kx, ks)
             row["drives"] = len(kept)
+            if len(kept) >= 2:  # the retest, of the drives the value combines
+                chi2_k = sum(((x - row["value"]) / s) ** 2 for x, s in zip(kx, ks))
+                p_k = float(chi2_dist.sf(chi2_k, len(kept) - 1))
+                row.update(chi2_kept=chi2_k, dof_kept=len(kept) - 1, p_value_kept=p_k)
         out.append(row)
     return out, zs
 

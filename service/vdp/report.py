@@ -114,6 +114,11 @@ def decode_lines(result: RunResult) -> list[str]:
     return out
 
 
+def _unit(unit: str) -> str:
+    """A unit as printed: "-" for a ratio (C_K's SI unit "1" read as a number)."""
+    return "-" if unit == "1" else unit
+
+
 def _fmt(v, digits=4):
     if v is None:
         return "-"
@@ -138,8 +143,7 @@ def table(result: RunResult, truth: dict | None = None) -> str:
         p = params[name]
         e = ekf.get(name)
         status = p.status + ("!" if p.reason else "")  # a reason follows the table
-        unit = "-" if p.unit == "1" else p.unit  # (C_K, a ratio: "1" read as a number)
-        row = f"{name:8} {_fmt(p.value):>10} {_fmt(p.std, 2):>10} {unit:7} {status:17}"
+        row = f"{name:8} {_fmt(p.value):>10} {_fmt(p.std, 2):>10} {_unit(p.unit):7} {status:17}"
         row += f" {_fmt(e.value if e is not None else None):>10}" if has_ekf else ""
         if cmp_:
             c, ce = cmp_[name], cmp_ekf.get(name, {})
@@ -423,6 +427,7 @@ def fleet_figure(rows: list[dict], vehicles: list[dict]):
     names = [n for n in NAMES if any(r.get("parameter") == n for r in rows)]
     cars = sorted({v["vehicle"] for v in vehicles})
     comb = {(v["vehicle"], v["parameter"]): v for v in vehicles}
+    run = {(r["vehicle"], r["log"], r["parameter"]): r for r in rows if r.get("parameter")}  # (one pass)
     n_rows, n_cols = max(len(cars), 1), max(len(names), 1)
     height = 1.2 + n_rows * (0.6 + 0.3 * _most_drives(rows))
     fig, axes = plt.subplots(n_rows, n_cols, figsize=(2.6 * n_cols, height), squeeze=False)
@@ -437,7 +442,7 @@ def fleet_figure(rows: list[dict], vehicles: list[dict]):
                 ax.axvspan(m - 2 * sd, m + 2 * sd, color="tab:blue", alpha=0.18, lw=0)
                 ax.axvline(m, color="tab:blue", lw=1)
             for k, lg in enumerate(logs):
-                r = next((r for r in rows if r["log"] == lg and r.get("parameter") == name), None)
+                r = run.get((car, lg, name))
                 if r is None or r.get("value") is None or not math.isfinite(r["value"]):
                     continue
                 used = r.get("status") == CONVERGED
@@ -449,8 +454,8 @@ def fleet_figure(rows: list[dict], vehicles: list[dict]):
             ax.set_yticks(range(len(logs)))
             ax.set_yticklabels([Path(lg).name for lg in logs] if j == 0 else [], fontsize=7)
             ax.tick_params(axis="x", labelsize=7)
-            unit = BY_NAME[name].unit
-            ax.set_title((f"{name} [{unit}]" if unit != "1" else name) if i == 0 else "", fontsize=9)
+            unit = _unit(BY_NAME[name].unit)
+            ax.set_title((f"{name} [{unit}]" if unit != "-" else name) if i == 0 else "", fontsize=9)
             if j == 0:
                 ax.set_ylabel(car, fontsize=9)
             p = v.get("p_value_kept")  # the consistency test of the drives combined

@@ -89,6 +89,12 @@ class Candidate:
     fine: str | None = None  # a finer signal of the same message that completes this one (_fine)
     wrong_kind: bool = False  # its DBC unit is of another quantity (an angle for a torque)
 
+    @property
+    def mapped(self) -> bool:
+        """Whether the draft maps it as the channel's best (an uncommented line): a unit vdp knows,
+        of the channel's quantity, and not an engine's torque."""
+        return self.unit is not None and not self.engine and not self.wrong_kind
+
 
 def unit_of(dbc_unit: str | None) -> str | None:
     u = (dbc_unit or "").strip()
@@ -148,11 +154,12 @@ def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
 
 @dataclass
 class LogFacts:
-    """What the log says of the [can] section: the bus channel the candidates' messages come on
-    (None: one channel only), and their frames shorter than the DBC's length, per message."""
+    """What the log says of the [can] section: the bus channel that carries every mapped message
+    where the log has several (None: one channel, or no one carries them all), and the mapped
+    messages' frames there shorter than the DBC's length, per message."""
 
     channel: str | None = None
-    also: list[str] = field(default_factory=list)  # the other channels that carry them too
+    also: list[str] = field(default_factory=list)  # the log's other channels
     short: dict[str, int] = field(default_factory=dict)
 
 
@@ -178,11 +185,10 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
             if msg.timestamp - t0 > seconds:
                 break
             chan = str(msg.channel) if msg.channel is not None else ""
+            seen_on.add(chan)
             m = by_id.get((msg.arbitration_id, msg.is_extended_id))
             if m is None:
-                seen_on.add(chan)
                 continue
-            seen_on.add(chan)
             per_channel[chan] = per_channel.get(chan, 0) + 1
             where.setdefault(m.name, set()).add(chan)
             if len(msg.data) < m.length:
@@ -247,11 +253,7 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
     facts = LogFacts()
     # the messages the draft maps (the best candidate of each channel it writes uncommented)
     src = _has_sources(cands)
-    mapped = {
-        cs[0].message
-        for ch, cs in cands.items()
-        if cs and _drafted(ch, src) and cs[0].unit and not cs[0].engine and not cs[0].wrong_kind
-    }
+    mapped = {cs[0].message for ch, cs in cands.items() if cs and _drafted(ch, src) and cs[0].mapped}
     on = {m: c for m, c in where.items() if m in mapped}
     # a log of several buses (a comma device logs four): keep to the one that carries every mapped
     # message, the most of their frames first; other units' frames of the same ids stay out. Where

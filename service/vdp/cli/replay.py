@@ -277,12 +277,12 @@ def _coaching(result) -> list[str]:
     if not coach:
         return []
     stages = coach["stages"]
-    caps = getattr(result, "capabilities", None) or {}
-    # a stage this car cannot run has no progress to show: its percentage read as "on its way"
+    # a stage this car cannot run (core.progress: can_run) has no progress to show: its
+    # percentage read as "on its way"
     lines = [
         "progress: "
         + ", ".join(
-            f"stage {k} cannot run" if caps.get(str(k)) else f"stage {k} {100 * v['progress']:.0f} %"
+            f"stage {k} {100 * v['progress']:.0f} %" if v.get("can_run", True) else f"stage {k} cannot run"
             for k, v in stages.items()
         )
         + f"; next: {coach['next']}"

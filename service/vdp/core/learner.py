@@ -1462,7 +1462,7 @@ class Stage2(StageLearner):
         nis = quad_form(yk, Sk)
         if nis is None:  # S not positive definite (a degenerate filter): numpy's solve, as before
             try:
-                nis = float(np.linalg.solve(np.array(Sk).reshape(len(yk), len(yk)), np.array(yk)) @ np.array(yk))
+                nis = float(np.linalg.solve(np.array(Sk), np.array(yk)) @ np.array(yk))
             except np.linalg.LinAlgError:
                 return False
         rows = len(keep)

@@ -783,29 +783,26 @@ class Check:
         meanwhile: a full record of a car whose tyres bend costs ~20 s of numpy CPU, which must
         not stop the estimation worker (its queue holds ~8 s of a saturated bus).  One solve at a
         time; while one runs the check stays stale and asks again later."""
+        background = self.executor is not None and not now and not self.complete
         job = self._job
         if job is not None:
-            if now or self.executor is None or self.complete:
-                self.wait()
-            elif not job.done():
+            if background and not job.done():
                 return self.fit
-            else:
-                self._take()
+            self._take()  # (ended, or waited for: in line now)
         self._at = self.record.added
         a = self.record.arrays()
         if a is None:
             self.fit = None
             return None
         args = (a, k, sigma, prior_t, prior_P, starts)
-        if self.executor is None or now or self.complete:
-            self.fit = self._fit(*args)
-            self.solved += 1
-            return self.fit
-        try:
-            self._job = self.executor.submit(self._fit, *args)
-        except RuntimeError:  # the executor was shut down (a service stopping): solve in line
-            self.fit = self._fit(*args)
-            self.solved += 1
+        if background:
+            try:
+                self._job = self.executor.submit(self._fit, *args)
+                return self.fit
+            except RuntimeError:  # the executor was shut down (a service stopping): solve in line
+                pass
+        self.fit = self._fit(*args)
+        self.solved += 1
         return self.fit
 
     def poll(self) -> int:

@@ -106,10 +106,9 @@ class Supervisor:
             self._ax_m += k_ax * (ax - self._ax_m)
             self._ax_sq += k_ax * (ax * ax - self._ax_sq)
         if math.isfinite(d) and math.isfinite(yaw):
-            k = k_steer
-            self._d_m += k * (d - self._d_m)
-            self._d_sq += k * (d * d - self._d_sq)
-            self._yaw_sq += k * (yaw * yaw - self._yaw_sq)
+            self._d_m += k_steer * (d - self._d_m)
+            self._d_sq += k_steer * (d * d - self._d_sq)
+            self._yaw_sq += k_steer * (yaw * yaw - self._yaw_sq)
         c = self.cfg
         speed = s.v_x if math.isfinite(s.v_x) else y[ch.SPEED]
         if not math.isfinite(speed):

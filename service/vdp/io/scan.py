@@ -5,8 +5,8 @@
 decoding and aligning a log costs.  :func:`lines` does the same in one loop over the bytes,
 with the same rules: any line they do not accept makes the whole log the per-frame reader's
 (``Irregular``), so this parser may only be as strict as numpy's or stricter, never laxer.
-``tests/test_bulk.py`` holds the two to the same arrays, line for line, and to the same
-verdicts on irregular lines.
+``tests/test_scan.py`` holds the two to the same arrays, line for line (a simulated log and
+the real RAV4's), and to the same verdicts on irregular lines.
 
 Without numba the numpy parse runs (:func:`available`).
 """
@@ -38,7 +38,9 @@ MESSAGES = (
     len(MESSAGES)
 )
 
-_EXT_KEY = 1 << 31  # logs.EXT_KEY: an extended id's key (checked against it by the tests)
+# logs.EXT_KEY, an extended id's key, as a copy: numba freezes a global into the cached code and
+# invalidates that cache only when this file changes (tests/test_scan.py holds the two equal)
+_EXT_KEY = 1 << 31
 _POW10 = np.array([10.0**k for k in range(19)])  # exact: 10**k is a double up to k = 22
 _MAX_EXACT = float(1 << 53)  # N / 10**k is the correctly rounded decimal only below this
 # hex digit values by byte (255: not a hex digit); numpy's parse (vdp.io.bulk) reads the same table
