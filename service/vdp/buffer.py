@@ -165,6 +165,18 @@ class SampleRing:
         self.values[i] = s.values
         self.count += 1
 
+    def extend(self, T: np.ndarray, Y: np.ndarray) -> None:
+        """Append a block of samples' ticks and values (rows), as append on each would."""
+        n = len(T)
+        if n > self.capacity:  # only the newest fit; they land where append would put them
+            T, Y, skip = T[-self.capacity :], Y[-self.capacity :], n - self.capacity
+        else:
+            skip = 0
+        idx = (np.arange(len(T)) + self.count + skip) % self.capacity
+        self.t[idx] = T
+        self.values[idx] = Y
+        self.count += n
+
     def latest(self, n: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The newest ``n`` samples in time order."""
         m = min(self.count, self.capacity if n is None else min(n, self.capacity))

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .. import channels as ch
+from . import batched
 from .learner import LearnerConfig, Stage1, Stage2
 from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
 from .sample import Sample
@@ -106,6 +107,8 @@ class TwoStageEstimator:
         self._stage = None  # the supervisor's stage at the last sample
         self.handover_t: float | None = None
         self.t: float | None = None
+        self._pass_params: np.ndarray | None = None  # core.batched's, made at the first block
+        self._needs = tuple(np.array(n, dtype=np.int64) for n in (need1, need2))  # (the supervisor's)
 
     # -- learner interface ---------------------------------------------
     def handle(self, t: float, s: Sample) -> Sample:
@@ -114,8 +117,19 @@ class TwoStageEstimator:
         v_x, v_std, ax_bias = self._speed(t, s)
         yaw_bias, roll_bias = self.gyro_bias.update(s, self.cfg.gate)
         s = s.derived(v_x=v_x, v_std=v_std, ax_bias=ax_bias, yaw_bias=yaw_bias, roll_bias=roll_bias)
+        stage = self.supervisor.update(t, s, self.handover_t is not None)
+        self._learn(t, s, stage)
+        # no trace kept (trace_len=0: vdp batch, replay without --plot): no row built either
+        if self.trace.maxlen != 0 and (self._next_trace is None or t >= self._next_trace):
+            self._next_trace = t + self._trace_every
+            self.trace.append(self._trace_row(t, stage))
+            if self.cfg.trace_max is not None and len(self.trace) >= self.cfg.trace_max:
+                self._thin_trace()
+        return s
+
+    def _learn(self, t: float, s: Sample, stage: int | None) -> None:
+        """The learners' part of a sample (``s`` derived, ``stage`` the supervisor's)."""
         done = self.handover_t is not None
-        stage = self.supervisor.update(t, s, done)
         for kind in self.s1:
             l1, l2 = self.s1[kind], self.s2[kind]
             if stage == 1:
@@ -141,13 +155,79 @@ class TwoStageEstimator:
             self.handover_t = t
             log.info("l_f known at t=%.2f s; stage 2 may start", t)
         self._stage = stage
-        # no trace kept (trace_len=0: vdp batch, replay without --plot): no row built either
-        if self.trace.maxlen != 0 and (self._next_trace is None or t >= self._next_trace):
-            self._next_trace = t + self._trace_every
-            self.trace.append(self._trace_row(t, stage))
-            if self.cfg.trace_max is not None and len(self.trace) >= self.cfg.trace_max:
-                self._thin_trace()
-        return s
+
+    # -- a block at a time (a replay) ------------------------------------
+    def batchable(self) -> bool:
+        """Whether :meth:`handle_block` runs the compiled pass: no trace kept (its rows come from
+        every sample), numba there, and the speed filter one it repeats (core.batched)."""
+        return self.trace.maxlen == 0 and batched.batchable(self.speed)
+
+    def handle_block(self, T: np.ndarray, Y: np.ndarray, F: np.ndarray, A: np.ndarray, gap: bool) -> None:
+        """Take aligned samples as arrays (ticks T, values Y, fresh F, ages A by channel; ``gap``:
+        the first follows a gap): what :meth:`handle` on each would do, to the last bit, with
+        the speed filter, gyro offsets and supervisor compiled over the block (core.batched)
+        and only the samples a learner takes visited in Python.  Needs :meth:`batchable`."""
+        n = len(T)
+        if not n:
+            return
+        su = self.supervisor
+        st0 = batched.pack(self.speed, self.gyro_bias, su)
+        blk0, first0 = batched.blockers(su)
+        prev0 = self._stage or 0
+        gaps = np.zeros(n, dtype=bool)
+        gaps[0] = gap
+        done_from = 0 if self.handover_t is not None else n
+        if self._pass_params is None:
+            self._pass_params = batched.params(self.cfg, self.vehicle, self.gyro_bias.tau)
+        kern = batched.kernel()
+        i0 = 0
+        while True:
+            st, blk, first = st0.copy(), blk0.copy(), first0.copy()
+            out = np.empty((n, 5))
+            stage = np.empty(n, dtype=np.int64)
+            codes = kern(T, Y, F, A, gaps, st, self._pass_params, batched.CHANNELS, self._needs[0], self._needs[1],
+                         done_from, blk, first, out, stage)  # fmt: skip
+            handed = self._visit(T, Y, F, A, gaps, out, stage, i0, prev0)
+            if handed is None:
+                break
+            # l_f became known at sample ``handed``: the supervisor sees it from the next on
+            done_from = i0 = handed + 1
+        batched.unpack(st, self.speed, self.gyro_bias, su)
+        batched.set_blockers(su, blk, first)
+        batched.windows(su, T, stage)
+        last = Y[-1].tolist()
+        su._r1 = batched.reason(su, codes[0], last, su.stage1_needs)
+        su._r2 = batched.reason(su, codes[1], last, su.stage2_needs)
+        self.t = float(T[-1])
+        self._stage = int(stage[-1]) or None
+
+    def _visit(self, T, Y, F, A, gaps, out, stage, i0: int, prev0: int) -> int | None:
+        """Run the learners on the samples from ``i0`` that one takes, or that open or close a
+        window, or (l_f not yet known) that :meth:`_learn` checks the hand-over at; the sample
+        where l_f became known, or None."""
+        done = self.handover_t is not None
+        prev = np.empty_like(stage)
+        prev[0] = prev0
+        prev[1:] = stage[:-1]
+        want = (stage != 0) | (stage != prev)
+        if not done:
+            want |= prev == 0
+        want[:i0] = False
+        idx = np.flatnonzero(want)
+        if not len(idx):
+            return None
+        rows = zip(
+            idx.tolist(), T[idx].tolist(), Y[idx].tolist(), F[idx].tolist(), A[idx].tolist(),
+            out[idx].tolist(), stage[idx].tolist(), prev[idx].tolist(),
+        )  # fmt: skip
+        learn = self._learn
+        for i, t, y, f, a, (v_x, v_std, ax_b, yaw_b, roll_b), sg, pv in rows:
+            s = Sample(t, tuple(y), tuple(f), tuple(a), bool(gaps[i]), v_x, v_std, ax_b, yaw_b, roll_b)
+            self._stage = pv or None
+            learn(t, s, sg or None)
+            if not done and self.handover_t is not None:
+                return i
+        return None
 
     def _thin_trace(self) -> None:
         """Keep every other trace row, from the first, and double the spacing of the rows to come."""

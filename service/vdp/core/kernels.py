@@ -828,6 +828,9 @@ def warm() -> None:
     theta = np.array([[6e4, 6e4, 2000.0]])
     for bend in (None, [np.ones((1, n)), np.ones((1, n))]):
         prob._states(theta, np.zeros(1), bend)
+    from . import batched
+
+    batched.warm()  # the estimator's compiled pass over a replay's blocks
 
 
 # -- stage 2's output-error fit (core.output_error.Problem) ---------------------

@@ -30,3 +30,10 @@ class Sample(NamedTuple):
     def derived(self, v_x: float, v_std: float, ax_bias: float, yaw_bias: float, roll_bias: float) -> Sample:
         """A copy with the derived fields set."""
         return Sample(self.t, self.values, self.fresh, self.age, self.gap, v_x, v_std, ax_bias, yaw_bias, roll_bias)
+
+
+def block(T, Y, F, A, gap: bool) -> list[Sample]:
+    """The samples of a block given as arrays (ticks, values, fresh, ages by channel; ``gap``:
+    the first follows a gap), as the aligner builds them one by one."""
+    rows = zip(T.tolist(), Y.tolist(), F.tolist(), A.tolist())
+    return [Sample(t, tuple(y), tuple(f), tuple(a), gap and i == 0) for i, (t, y, f, a) in enumerate(rows)]

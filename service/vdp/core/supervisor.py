@@ -25,6 +25,19 @@ from .. import channels as ch
 
 MAX_WINDOWS = 500  # windows kept for reports and the API
 
+# what keeps a stage's window shut, by code (0: nothing); the compiled block pass (core.batched)
+# returns the codes, so both paths word a reason alike
+SPEED_LOW, STEERING, YAWING, LITTLE_AX, LITTLE_STEER, NOT_CONSTANT, MISSING, WAITING = range(1, 9)
+REASONS = {
+    SPEED_LOW: "speed below {v_min} m/s",
+    STEERING: "steering (|delta| >= 0.62 deg)",
+    YAWING: "yawing (|yaw rate| >= 1 deg/s)",
+    LITTLE_AX: "little longitudinal excitation (a_x varies too little)",
+    LITTLE_STEER: "little steering excitation",
+    NOT_CONSTANT: "speed not constant (|mean a_x| too large)",
+    WAITING: "waiting for stage 1's l_f",
+}
+
 
 @dataclass(frozen=True)
 class GateConfig:
@@ -123,7 +136,7 @@ class Supervisor:
                 b = self.blockers[stage]
                 b[d] = b.get(d, 0.0) + dt
         r1 = self._missing(y, self.stage1_needs) or d1
-        r2 = "waiting for stage 1's l_f" if not stage1_done else self._missing(y, self.stage2_needs) or d2
+        r2 = REASONS[WAITING] if not stage1_done else self._missing(y, self.stage2_needs) or d2
         self._r1, self._r2 = r1, r2
         hard1 = r1 is not None and not r1.startswith("little")
         hard2 = r2 is not None and not r2.startswith("little")
@@ -146,6 +159,10 @@ class Supervisor:
         """Why each stage's window is not open at the last sample ("open" where it is)."""
         return {1: self._r1 or "open", 2: self._r2 or "open"}
 
+    def why(self, code: int) -> str:
+        """The reason of a code (REASONS), in this supervisor's limits."""
+        return REASONS[code].format(v_min=self.cfg.v_min)
+
     def _missing(self, y, needs) -> str | None:
         for i in needs:  # (the usual case, every channel there, without building a list)
             if not math.isfinite(y[i]):
@@ -156,14 +173,14 @@ class Supervisor:
     def _drive1(self, y, speed, c) -> str | None:
         """Why the driving does not suit stage 1 (None: it does); a missing channel is not judged."""
         if not speed > c.v_min:
-            return f"speed below {c.v_min} m/s"
+            return self.why(SPEED_LOW)
         if abs(y[ch.DELTA]) >= c.delta_max_1:
-            return "steering (|delta| >= 0.62 deg)"
+            return REASONS[STEERING]
         if abs(y[ch.YAW]) >= c.yaw_max_1:
-            return "yawing (|yaw rate| >= 1 deg/s)"
+            return REASONS[YAWING]
         # the spread of a_x, not its RMS: a constant offset (grade, bias) excites nothing
         if math.sqrt(max(self._ax_sq - self._ax_m**2, 0.0)) < c.ax_std_min:
-            return "little longitudinal excitation (a_x varies too little)"
+            return REASONS[LITTLE_AX]
         return None
 
     def _drive2(self, y, speed, c) -> str | None:
@@ -171,11 +188,11 @@ class Supervisor:
         # steering first: it is what defines this stage, so it is the blocker worth naming
         d_std = math.sqrt(max(self._d_sq - self._d_m**2, 0.0))
         if d_std < c.delta_std_min_2 and math.sqrt(max(self._yaw_sq, 0.0)) < c.yaw_rms_min_2:
-            return "little steering excitation"
+            return REASONS[LITTLE_STEER]
         if not speed > c.v_min:
-            return f"speed below {c.v_min} m/s"
+            return self.why(SPEED_LOW)
         if abs(self._ax_m) > c.ax_mean_max_2:
-            return "speed not constant (|mean a_x| too large)"
+            return REASONS[NOT_CONSTANT]
         return None
 
     def excitation(self) -> dict:

@@ -36,7 +36,6 @@ import can
 import numpy as np
 
 from .. import channels
-from ..core.sample import Sample
 from ..result import RunResult
 from .decoder import MAX_UNKNOWN, compile_extractor
 from .logs import _ID_CACHE_MAX, _MAX_CHANNELS, EXT_KEY, LogStats, channel_keys, open_log
@@ -512,7 +511,8 @@ class BulkSource:
                     per_channel[idx] = (fi[o], fv[o])
                 else:
                     per_channel[idx] = (fidx, out_vals[:, col])
-        pipe.take(align(pipe.aligner, times, per_channel))
+        for block in align(pipe.aligner, times, per_channel):
+            pipe.take_block(*block)
         pipe.last_bus_time = float(times[-1])
         return None
 
@@ -614,7 +614,9 @@ def _add(names: dict, sig: str, raw: bool, check: bool) -> None:
 
 
 def align(al: Any, t: np.ndarray, per_channel: dict[int, tuple[np.ndarray, np.ndarray]]) -> list:
-    """What ``Aligner.push`` would return over these frames, and the state it would leave.
+    """What ``Aligner.push`` would return over these frames, as blocks of samples (ticks,
+    values, fresh, ages, and whether the first follows a gap: Pipeline.take_block's
+    arguments), and the state it would leave.
 
     ``t``: the decoded frames' bus times in order (never decreasing); ``per_channel``:
     channel -> (frame indices, values) in frame order.  The aligner's rules, as arrays:
@@ -725,10 +727,8 @@ def align(al: Any, t: np.ndarray, per_channel: dict[int, tuple[np.ndarray, np.nd
             keep_v = ve[-depth:].tolist()
             new_t.append([-math.inf] * (depth - len(keep_t)) + keep_t)
             new_v.append([math.nan] * (depth - len(keep_v)) + keep_v)
-        gap = al.gap
-        for i, (tt, row, fr, ag) in enumerate(zip(T.tolist(), vals.tolist(), fresh.tolist(), ages.tolist())):
-            out.append(Sample(tt, tuple(row), tuple(fr), tuple(ag), gap if i == 0 else False))
         if k_ticks:
+            out.append((T, vals, fresh, ages, al.gap))
             al.gap = False
         al._t, al._v, al._emitted = new_t, new_v, new_emitted
         al._n = n_max
