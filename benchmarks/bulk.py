@@ -56,6 +56,7 @@ def replay(path: Path, bulk: bool, ekf: bool, front_only: bool = False, trace: b
         pipe = Pipeline(profile, EstimatorConfig(baseline=ekf, trace_len=None if trace else 0))
         if front_only:
             pipe.estimator.handle = lambda t, s: None
+            pipe.estimator.handle_block = lambda *a: None
         return pipe
 
     t0 = clock()

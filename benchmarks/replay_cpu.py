@@ -94,7 +94,6 @@ def parts(run, full: float) -> None:
     """The replay again with parts of the estimator left out, in the same process (warm)."""
     from vdp.core import learner as lm
     from vdp.core.estimator import TwoStageEstimator
-    from vdp.core.supervisor import Supervisor
 
     def cpu():
         t0 = time.process_time()
@@ -109,14 +108,12 @@ def parts(run, full: float) -> None:
     rows.append(("... and without stage 2", cpu()))
     lm.Stage1.handle = lambda self, t, s: None
     TwoStageEstimator.l_f_known = lambda self: False
-    rows.append(("... and without stage 1 (supervisor, speed, glue left)", cpu()))
-    su = Supervisor.update
-    Supervisor.update = lambda self, t, s, done: None
-    rows.append(("... and without the supervisor", cpu()))
-    handle = TwoStageEstimator.handle
+    rows.append(("... and without stage 1 (compiled pass, glue left)", cpu()))
+    handle, block = TwoStageEstimator.handle, TwoStageEstimator.handle_block
     TwoStageEstimator.handle = lambda self, t, s: s
+    TwoStageEstimator.handle_block = lambda self, *a: None
     rows.append(("front only (reader, decoder, aligner)", cpu()))
-    TwoStageEstimator.handle, Supervisor.update = handle, su
+    TwoStageEstimator.handle, TwoStageEstimator.handle_block = handle, block
     lm.Stage1.check_batch, lm.Stage2.handle, lm.Stage1.handle, TwoStageEstimator.l_f_known = saved
     for label, t in rows:
         print(f"{label:58} {t:6.2f} s of CPU")

@@ -216,17 +216,30 @@ class TwoStageEstimator:
         idx = np.flatnonzero(want)
         if not len(idx):
             return None
-        rows = zip(
-            idx.tolist(), T[idx].tolist(), Y[idx].tolist(), F[idx].tolist(), A[idx].tolist(),
-            out[idx].tolist(), stage[idx].tolist(), prev[idx].tolist(),
-        )  # fmt: skip
+        idx = idx.tolist()
+        stg, pv = stage.tolist(), prev.tolist()
+        # a window of stage 2 is stepped compiled once open (Stage2.steps), one UKF at a time
+        l2 = self.s2["ukf"] if len(self.s2) == 1 else None
+        other = np.flatnonzero(stage != 2)
         learn = self._learn
-        for i, t, y, f, a, (v_x, v_std, ax_b, yaw_b, roll_b), sg, pv in rows:
-            s = Sample(t, tuple(y), tuple(f), tuple(a), bool(gaps[i]), v_x, v_std, ax_b, yaw_b, roll_b)
-            self._stage = pv or None
-            learn(t, s, sg or None)
+        k = 0
+        while k < len(idx):
+            i = idx[k]
+            t = float(T[i])
+            v_x, v_std, ax_b, yaw_b, roll_b = out[i].tolist()
+            s = Sample(t, tuple(Y[i].tolist()), tuple(F[i].tolist()), tuple(A[i].tolist()), bool(gaps[i]),
+                       v_x, v_std, ax_b, yaw_b, roll_b)  # fmt: skip
+            self._stage = pv[i] or None
+            learn(t, s, stg[i] or None)
             if not done and self.handover_t is not None:
                 return i
+            k += 1
+            if stg[i] == 2 and l2 is not None and l2.runnable():
+                q = np.searchsorted(other, i)
+                end = int(other[q]) if q < len(other) else len(stage)
+                if end > i + 1:
+                    # the run's samples up to the first that needs the learner's own step
+                    k += l2.steps(T, Y, out, gaps, i + 1, end) - (i + 1)
         return None
 
     def _thin_trace(self) -> None:

@@ -424,6 +424,227 @@ def lat_update(x, P, sig, Wm, Wc, R, scale, kind, lo, span, z, rows, u, k, consi
     return _gain_step(x, P, sig, hz, z, R, Wm, Wc, consider)
 
 
+# -- stage 2's steps over a run of samples (learner.Stage2.steps) ----------------------
+_roll_step = _jit(lateral.roll_sensitivity_step)
+
+# the learner's scalars (ls) and settings (cfg) arrays, and a Consistency's (learner.Consistency) row
+(L_SAMPLES, L_UPDATES, L_ROLL_UPDATES, L_ROLL_INFO, L_INFO_WINDOW, L_T_LAST, L_N_US) = range(7)
+(C_MAX_GAP, C_EVERY, C_SAVE_EVERY, C_ROLL_DEN, C_DIVERGED, C_ROLL_BY_AY) = range(6)
+(E_PHI, E_W, E_CHI, E_CHI_D, E_T, E_U, E_I, E_C, E_KP, E_MH) = range(10)
+(K_N, K_NIS, K_ROWS, K_E2, K_EE, K_NE, K_E, K_HAS_E, K_COUNT, K_POS) = range(10)
+WINDOW, TOTAL, ROLL_WINDOW, ROLL_TOTAL = range(4)
+
+
+@_jit
+def _nis(y, S, keep, nk):
+    """learner.quad_form of the rows ``keep[:nk]``: y' S^-1 y by a Cholesky factor, its
+    operations in its order; NaN where S is not positive definite (the learner then solves)."""
+    if nk == 2:
+        i0, i1 = keep[0], keep[1]
+        a, b, d = S[i0, i0], S[i0, i1], S[i1, i1]
+        det = a * d - b * b
+        if not (a > 0.0 and det > 0.0):
+            return np.nan
+        y0, y1 = y[i0], y[i1]
+        return (d * y0 * y0 - 2.0 * b * y0 * y1 + a * y1 * y1) / det
+    L = np.zeros((3, 3))
+    w = np.zeros(3)
+    total = 0.0
+    for i in range(nk):
+        for j in range(i + 1):
+            acc = 0.0
+            for q in range(j):
+                acc += L[i, q] * L[j, q]
+            acc = S[keep[i], keep[j]] - acc
+            if i == j:
+                if not acc > 0.0:
+                    return np.nan
+                L[i, i] = math.sqrt(acc)
+            else:
+                L[i, j] = acc / L[j, j]
+        acc = 0.0
+        for q in range(i):
+            acc += L[i, q] * w[q]
+        w[i] = (y[keep[i]] - acc) / L[i, i]
+        total += w[i] * w[i]
+    return total
+
+
+@_jit
+def _cons_add(cons, ring, j, nis, rows, e, has_e):
+    """learner.Consistency.add on row ``j`` of the arrays (its deque of recent values: a ring)."""
+    cons[j, K_N] += 1
+    cons[j, K_NIS] += nis
+    cons[j, K_ROWS] += rows
+    m = ring.shape[1]
+    ring[j, int(cons[j, K_POS])] = nis / max(rows, 1)
+    cons[j, K_POS] = (cons[j, K_POS] + 1) % m
+    cons[j, K_COUNT] = min(cons[j, K_COUNT] + 1, m)
+    if has_e:
+        cons[j, K_E2] += e * e
+        cons[j, K_NE] += 1
+        if cons[j, K_HAS_E] != 0.0:
+            cons[j, K_EE] += e * cons[j, K_E]
+    cons[j, K_E] = e
+    cons[j, K_HAS_E] = 1.0 if has_e else 0.0
+
+
+@_jit
+def _recent(cons, ring, j):
+    """learner.Consistency.recent: the mean of a full ring, summed oldest first (0 until full)."""
+    m = ring.shape[1]
+    if cons[j, K_COUNT] < m:
+        return 0.0
+    total = 0.0
+    pos = int(cons[j, K_POS])
+    for q in range(m):
+        total += ring[j, (pos + q) % m]
+    return total / m
+
+
+@_jit
+def lat_run(T, Y, D, G, a, b, c, x, P, sig, lam_n, Wm, Wc, Q, R, scale, kind, lo, span, k, consider, j, w, nsub,
+            ls, cfg, us, ex, cons, ring, rec):  # fmt: skip
+    """Stage 2's samples a..b-1 of a block, an open window's, as learner.Stage2._step takes them
+    (inputs, roll excitation, the filter's predict and update every cfg[C_EVERY] samples, the
+    record's rows, the innovation tests), until a sample needs the learner's own step: one
+    that ends or restarts the window (a gap, a late or non-finite input), whose step would
+    fail, diverge, save a last-good copy or need another input grid, or that has no
+    measurement.  Nothing of that sample is taken.  Returns (its index, x, P, sig, y, S,
+    record rows written); ``ls``, ``us``, ``ex``, ``cons``, ``ring`` are updated in place.
+    Y: the samples' channel values; D: their derived v_x, v_std, a_x bias, yaw and roll
+    offsets; c: the channel indices (WS_FL, WS_FR, WS_RL, WS_RR, T_R, DELTA, AX, AY, YAW, ROLL, SPEED)."""
+    every = int(cfg[C_EVERY])
+    nr = 0
+    y_out = np.zeros(0)
+    S_out = np.zeros((0, 0))
+    u = np.empty(5)
+    z = np.empty(3)
+    keep = np.empty(3, dtype=np.int64)
+    for i in range(a, b):
+        t = T[i]
+        yv = Y[i]
+        # -- Stage2.inputs
+        w_r = 0.5 * (yv[c[2]] + yv[c[3]])
+        a_x = yv[c[6]]
+        if k.C_K > 0.0 and math.isfinite(w_r) and math.isfinite(yv[c[4]]) and math.isfinite(a_x):
+            f_zr = k.m * k.g * k.l_f / k.L + k.m * a_x * k.h / k.L
+            s_r = (yv[c[4]] / k.r) / (k.C_K * _max(f_zr, 0.05 * k.m * k.g))
+            v_x = w_r * k.r / (1.0 + s_r)
+        elif math.isfinite(D[i, 0]):
+            v_x = D[i, 0]
+        elif math.isfinite(yv[c[10]]):
+            v_x = yv[c[10]]
+        else:
+            v_x = w_r * k.r
+        w_f = 0.5 * (yv[c[0]] + yv[c[1]])
+        if not k.C_K > 0.0:
+            w_f, a_x = 0.0, 0.0
+        u[0], u[1], u[2], u[3], u[4] = yv[c[5]], v_x, w_f, a_x, yv[c[7]]
+        # -- Stage2._step: what ends or restarts the window is the learner's
+        if not math.isfinite(u[0] + u[1] + u[2] + u[3]) or G[i]:
+            return i, x, P, sig, y_out, S_out, nr
+        dt = t - ls[L_T_LAST]
+        if dt <= 0 or dt > cfg[C_MAX_GAP]:
+            return i, x, P, sig, y_out, S_out, nr
+        n_us = int(ls[L_N_US])
+        # the roll excitation of this sample (RollExcitation.step), kept aside until it is taken
+        e_phi, e_w, e_chi, e_chi_d, e_u = ex[E_PHI], ex[E_W], ex[E_CHI], ex[E_CHI_D], ex[E_U]
+        a_y = yv[c[7]]
+        edt = t - ex[E_T]
+        if edt > 0.0 and math.isfinite(a_y):
+            u1 = ex[E_MH] * a_y
+            u0 = u1 if math.isnan(e_u) else e_u
+            e_u = u1
+            e_phi, e_w, e_chi, e_chi_d = _roll_step(e_phi, e_w, e_chi, e_chi_d, u0, u1, ex[E_I], ex[E_C], ex[E_KP], edt)
+        if n_us + 1 <= every:  # between filter steps: the input is kept for the next
+            for q in range(5):
+                us[n_us, q] = u[q]
+            ls[L_N_US] = n_us + 1
+            ls[L_SAMPLES] += 1
+            ex[E_PHI], ex[E_W], ex[E_CHI], ex[E_CHI_D], ex[E_T], ex[E_U] = e_phi, e_w, e_chi, e_chi_d, t, e_u
+            continue
+        samples = ls[L_SAMPLES] + 1
+        if samples % cfg[C_SAVE_EVERY] < every:  # the learner keeps a last-good copy after this step
+            return i, x, P, sig, y_out, S_out, nr
+        # -- Stage2.measurements
+        z[0] = yv[c[8]] - D[i, 3]
+        z[1] = yv[c[9]] - D[i, 4]
+        z[2] = yv[c[7]]
+        nrows = 0
+        for q in range(3):
+            if math.isfinite(z[q]):
+                keep[nrows] = q
+                nrows += 1
+        n_step = max(1, math.ceil(dt / lateral.MAX_SUBSTEP - 1e-9))
+        if nrows == 0 or n_step != nsub:
+            return i, x, P, sig, y_out, S_out, nr
+        for q in range(5):
+            us[n_us, q] = u[q]
+        steps_u = us[: n_us + 1]
+        x1, P1, sig1, status = lat_predict(x, P, lam_n, Wm, Wc, Q, scale, kind, lo, span, dt, steps_u, j, w, nsub, k,
+                                           consider)  # fmt: skip
+        if status != OK:
+            return i, x, P, sig, y_out, S_out, nr
+        rows = keep[:nrows].copy()
+        zs = np.empty(nrows)
+        Rs = np.empty((nrows, nrows))
+        for p in range(nrows):
+            zs[p] = z[rows[p]]
+            for q in range(nrows):
+                Rs[p, q] = R[rows[p], rows[q]]
+        x2, P2, yi, Si, status = lat_update(x1, P1, sig1, Wm, Wc, Rs, scale, kind, lo, span, zs, rows, u, k, consider)
+        if status != OK:
+            return i, x, P, sig, y_out, S_out, nr
+        # -- Stage2._consistency, on copies until the step is taken
+        has_roll = math.isfinite(z[1])
+        r = (1 if math.isfinite(z[0]) else 0) if has_roll else -1  # the roll row's place in y
+        nk = 0
+        kept = np.empty(3, dtype=np.int64)
+        for q in range(nrows):
+            if not (cfg[C_ROLL_BY_AY] != 0.0 and q == r):
+                kept[nk] = q
+                nk += 1
+        nis = _nis(yi, Si, kept, nk) if nk else 0.0
+        if math.isnan(nis):
+            return i, x, P, sig, y_out, S_out, nr
+        ai = -1
+        if math.isfinite(z[2]):
+            ai = (1 if math.isfinite(z[0]) else 0) + (1 if has_roll else 0)
+        has_e = ai >= 0 and Si[ai, ai] > 0
+        e = yi[ai] / math.sqrt(Si[ai, ai]) if has_e else np.nan
+        cons1, ring1 = cons.copy(), ring.copy()
+        if nk:
+            _cons_add(cons1, ring1, WINDOW, nis, nk, e, has_e)
+            _cons_add(cons1, ring1, TOTAL, nis, nk, e, has_e)
+        if r >= 0 and Si[r, r] > 0:
+            e_r = yi[r] / math.sqrt(Si[r, r])
+            _cons_add(cons1, ring1, ROLL_WINDOW, e_r * e_r, 1, e_r, True)
+            _cons_add(cons1, ring1, ROLL_TOTAL, e_r * e_r, 1, e_r, True)
+        if _recent(cons1, ring1, WINDOW) > cfg[C_DIVERGED]:
+            return i, x, P, sig, y_out, S_out, nr
+        # -- the step is taken
+        cons[:, :] = cons1
+        ring[:, :] = ring1
+        ex[E_PHI], ex[E_W], ex[E_CHI], ex[E_CHI_D], ex[E_T], ex[E_U] = e_phi, e_w, e_chi, e_chi_d, t, e_u
+        x, P, sig, y_out, S_out = x2, P2, sig1, yi, Si
+        ls[L_SAMPLES] = samples
+        ls[L_UPDATES] += 1
+        rec[nr, 0], rec[nr, 1], rec[nr, 2], rec[nr, 3], rec[nr, 4] = t, u[0], u[1], u[2], u[3]
+        rec[nr, 5], rec[nr, 6], rec[nr, 7] = z[0], z[2], z[1] if has_roll else np.nan
+        nr += 1
+        if has_roll:
+            ls[L_ROLL_UPDATES] += 1
+            jr = e_chi_d * e_chi_d / cfg[C_ROLL_DEN]
+            ls[L_ROLL_INFO] += jr
+            ls[L_INFO_WINDOW] += jr
+        for q in range(5):
+            us[0, q] = u[q]
+        ls[L_N_US] = 1
+        ls[L_T_LAST] = t
+    return b, x, P, sig, y_out, S_out, nr
+
+
 # -- stage 1: core.longitudinal -------------------------------------------------
 @_jit
 def _lon_hx(x, u, k, out):
@@ -804,6 +1025,12 @@ def warm() -> None:
     u = np.array([[0.02, 15.0, 50.0, 0.1]] * 3)
     f.predict(0.04, u)
     f.update(np.array([0.1, 0.0, 1.5]), np.array([True, False, True]), u[-1])
+    j, w = f._grid(3, 4)
+    Y = np.ones((3, 12))
+    lat_run(np.arange(3) * 0.02, Y, np.zeros((3, 5)), np.zeros(3, dtype=bool), 0, 3, np.arange(11), f._f.x, f._f.P,
+            f._sigmas, f._lam_n, f._Wm, f._Wc, f.Q_rate, f.R, f.scale, f._kind, f._lo, f._span, f._known, f._c, j, w,
+            4, np.zeros(7), np.array([0.05, 2.0, 50.0, 1e-6, 25.0, 1.0]), np.zeros((3, 5)), np.ones(10),
+            np.zeros((4, 10)), np.zeros((4, 50)), np.zeros((3, 8)))  # fmt: skip
     lon = longitudinal.Known(m=1500.0, L=2.7, r=0.3, J=1.0)
     b1 = Bounds(longitudinal.N_X, log=(longitudinal.H, longitudinal.C_K), logit={longitudinal.L_F: (0.0, 2.7)})
     x1 = b1.from_si(np.array([1.3, 0.55, 10.0, 0.0, 0.0, 0.0, 0.0]))

@@ -282,6 +282,22 @@ def _roll_map(i_x, h: float, k: Known):
     return (t11, t12, t21, t22), (p1, p2), (q1, q2)
 
 
+def roll_sensitivity_step(phi, w, chi, chi_d, u0, u1, i, c, kp, dt):
+    """One trapezoidal step of eq (9), I_x phi'' + c_phi phi' + kp phi = u (u = m h a_y from
+    ``u0`` to ``u1``, kp = k_phi - m g h), and of chi = d phi / d ln I_x, which obeys the same
+    equation forced by -I_x phi'': (phi, phi', chi, chi') after ``dt``.  The trapezoid is
+    A-stable (the roll's fast pole is stiff).  Plain floats, compiled as written by core.kernels."""
+    e = 0.5 * dt
+    det = 1.0 + e * c / i + e * e * kp / i
+    acc0 = (u0 - c * w - kp * phi) / i
+    # (I - e A) x1 = (I + e A) x0 + e b (u0 + u1), A = [[0, 1], [-kp / i, -c / i]], b = [0, 1 / i]
+    r0, r1 = phi + e * w, w - e * (kp * phi + c * w) / i + e * (u0 + u1) / i
+    phi1, w1 = ((1.0 + e * c / i) * r0 + e * r1) / det, (r1 - e * kp / i * r0) / det
+    acc1 = (u1 - c * w1 - kp * phi1) / i
+    r0, r1 = chi + e * chi_d, chi_d - e * (kp * chi + c * chi_d) / i - e * (acc0 + acc1)
+    return phi1, w1, ((1.0 + e * c / i) * r0 + e * r1) / det, (r1 - e * kp / i * r0) / det
+
+
 def fx(x, dt, u, k: Known, substeps: int | None = None):
     """Discrete transition: midpoint sub-steps for (v_y, yaw), trapezoidal for roll.
 

@@ -337,18 +337,9 @@ class RollExcitation:
         u1 = self.mh * a_y
         u0 = u1 if self.u is None else self.u
         self.u = u1
-        i, c, kp, e = self.i, self.c, self.kp, 0.5 * dt
-        det = 1.0 + e * c / i + e * e * kp / i
-        phi, w = self.phi, self.w
-        acc0 = (u0 - c * w - kp * phi) / i
-        # (I - e A) x1 = (I + e A) x0 + e b (u0 + u1), A = [[0, 1], [-kp / i, -c / i]], b = [0, 1 / i]
-        r0, r1 = phi + e * w, w - e * (kp * phi + c * w) / i + e * (u0 + u1) / i
-        phi1, w1 = ((1.0 + e * c / i) * r0 + e * r1) / det, (r1 - e * kp / i * r0) / det
-        acc1 = (u1 - c * w1 - kp * phi1) / i
-        x, v = self.chi, self.chi_d
-        r0, r1 = x + e * v, v - e * (kp * x + c * v) / i - e * (acc0 + acc1)
-        self.chi, self.chi_d = ((1.0 + e * c / i) * r0 + e * r1) / det, (r1 - e * kp / i * r0) / det
-        self.phi, self.w = phi1, w1
+        self.phi, self.w, self.chi, self.chi_d = lateral.roll_sensitivity_step(
+            self.phi, self.w, self.chi, self.chi_d, u0, u1, self.i, self.c, self.kp, dt
+        )
 
 
 def _verdict(c: Consistency, size: str, colour: str, kind: str) -> tuple[float, str | None]:
@@ -984,6 +975,12 @@ class Stage1(StageLearner):
         return fit
 
 
+# the channels core.kernels.lat_run reads, in its order
+_STEP_CHANNELS = np.array(
+    [ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR, ch.T_R, ch.DELTA, ch.AX, ch.AY, ch.YAW, ch.ROLL, ch.SPEED]
+)
+
+
 class Stage2(StageLearner):
     """Single track with roll: C_alpha per axle, I_z, I_x with v_y, yaw rate, phi, phi_dot as states.
 
@@ -1492,6 +1489,67 @@ class Stage2(StageLearner):
             self._settle.clear()
             return True
         return False
+
+    def runnable(self) -> bool:
+        """Whether :meth:`steps` can take samples now: an open compiled window, its axles' split
+        freed (while held, each step may free it: :meth:`_free_split`, in Python)."""
+        cls = kernel("LateralUKF") if self.filter is not None else None
+        return (
+            cls is not None and isinstance(self.filter, cls) and self._excite is not None
+            and self.t_last is not None and not self.split_held
+        )  # fmt: skip
+
+    def steps(self, T, Y, D, G, a: int, b: int) -> int:
+        """Take samples a..b-1 of a block (ticks T, values Y, derived D: v_x, v_std, a_x bias, yaw
+        and roll offsets; G: gap flags) in the open window as :meth:`_step` would, compiled
+        (core.kernels.lat_run), up to the first that needs :meth:`_step` itself (the window ends
+        or restarts, a step fails, diverges or saves a last-good copy): its index, b when none
+        did.  Needs :meth:`runnable`."""
+        kern = kernel("lat_run")
+        f, fs, ex, cfg, n = self.filter, self.filter._f, self._excite, self.cfg, self.cfg.noise
+        every = cfg.stage2_every
+        nsub = max(1, math.ceil(every * cfg.tick / lateral.MAX_SUBSTEP - 1e-9))
+        j, w = f._grid(every + 1, nsub)
+        ls = np.array([self.samples, self.updates, self.roll_updates, self.roll_info, self._info_window, self.t_last,
+                       len(self._us)], dtype=float)  # fmt: skip
+        us = np.zeros((every + 1, lateral.N_U))
+        us[: len(self._us)] = self._us
+        exa = np.array([ex.phi, ex.w, ex.chi, ex.chi_d, ex.t, math.nan if ex.u is None else ex.u, ex.i, ex.c, ex.kp,
+                        ex.mh])  # fmt: skip
+        conses = (self.window, self.total, self.roll_window, self.roll_total)
+        cons = np.zeros((4, 10))
+        ring = np.zeros((4, Consistency.RECENT))
+        for q, c in enumerate(conses):
+            cons[q] = (c.n, c.nis, c.rows, c.e2, c.ee, c.ne, 0.0 if c._e is None else c._e, c._e is not None,
+                       len(c._recent), len(c._recent) % Consistency.RECENT)  # fmt: skip
+            ring[q, : len(c._recent)] = c._recent
+        settings = np.array([cfg.max_gap, every, cfg.save_every, (n.gyro * n.inflate) ** 2, DIVERGED_NIS,
+                             float(self.known.roll_by_ay)])  # fmt: skip
+        rec = np.empty(((b - a) // every + 1, 8))
+        r, fs.x, fs.P, sig, y, S, nr = kern(
+            T, Y, D, G, a, b, _STEP_CHANNELS, fs.x, fs.P, f._sigmas, f._lam_n, f._Wm, f._Wc, f.Q_rate, f.R, f.scale,
+            f._kind, f._lo, f._span, f._known, f._c, j, w, nsub, ls, settings, us, exa, cons, ring, rec,
+        )  # fmt: skip
+        f._sigmas = sig
+        if nr:
+            fs.y, fs.S = y, S
+            add = self.check.record.add
+            for row in rec[:nr].tolist():
+                add(row[0], row[1:5], row[5], row[6], row[7])
+        samples, self.updates, self.roll_updates, self.roll_info, self._info_window, self.t_last, n_us = ls.tolist()
+        self.samples, self.updates, self.roll_updates = int(samples), int(self.updates), int(self.roll_updates)
+        self._us = us[: int(n_us)].tolist()
+        ex.phi, ex.w, ex.chi, ex.chi_d, ex.t, u = exa[:6].tolist()
+        ex.u = None if math.isnan(u) else u
+        for q, c in enumerate(conses):
+            row = cons[q].tolist()
+            c.n, c.nis, c.rows, c.e2, c.ee, c.ne = int(row[0]), row[1], int(row[2]), row[3], row[4], int(row[5])
+            c._e = row[6] if row[7] else None
+            count, pos = int(row[8]), int(row[9])
+            vals = ring[q].tolist()
+            c._recent = deque((vals[pos:] + vals[:pos]) if count == Consistency.RECENT else vals[:count],
+                              maxlen=Consistency.RECENT)  # fmt: skip
+        return int(r)
 
     def _step(self, t, s):
         if self.known is None:
