@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from vdp.buffer import SampleRing
 from vdp.core import batched, learner
 from vdp.core.estimator import EstimatorConfig, TwoStageEstimator
-from vdp.core.learner import Stage2
+from vdp.core.learner import Stage1, Stage2
 from vdp.core.sample import Sample
 from vdp.io import bulk
 from vdp.io.bulk import replay_log
@@ -47,6 +47,15 @@ def supervisor_state(pipe):
     )  # fmt: skip
 
 
+def stage1_state(l1):
+    f = l1.filter
+    return (
+        l1.samples, l1.gated, l1.reseeds, l1._since_batch, l1._since_far, l1.t_last, l1._acc,
+        [a.tolist() for a in l1._blocks.arrays()], repr(l1.fit), repr(l1._good), l1.theta.tolist(),
+        None if f is None else (f._f.x.tolist(), f._f.P.tolist(), None if f._f.y is None else f._f.y.tolist()),
+    )  # fmt: skip
+
+
 def stage2_state(l2):
     f = l2.filter
     cons = [(c.n, c.nis, c.rows, c.e2, c.ee, c.ne, c._e, list(c._recent))
@@ -65,25 +74,33 @@ def state(pipe):
     """What a replay leaves that a reader or a live service could see."""
     e = pipe.estimator
     sp, gy = e.speed, e.gyro_bias
-    return (
-        stage2_state(e.s2["ukf"]),
-        supervisor_state(pipe),
-        (sp.v, sp.p_vv, sp.p_vb, sp.p_bb, sp.bias, sp.t, sp.a_prev), (gy.yaw, gy.roll, gy.n, gy.t),
-        e.handover_t, e.t, e._stage, pipe.samples, pipe.ring.count, pipe.ring.t.tolist(), pipe.ring.values.tolist(),
-    )  # fmt: skip
+    return {
+        "stage2": stage2_state(e.s2["ukf"]),
+        "supervisor": supervisor_state(pipe),
+        "stage1": stage1_state(e.s1["ukf"]),
+        "speed": (sp.v, sp.p_vv, sp.p_vb, sp.p_bb, sp.bias, sp.t, sp.a_prev),
+        "gyro": (gy.yaw, gy.roll, gy.n, gy.t),
+        "handover_t": e.handover_t,
+        "clock": (e.t, e._stage),
+        "samples": pipe.samples,
+        "ring": (pipe.ring.count, pipe.ring.t.tolist(), pipe.ring.values.tolist()),
+    }
 
 
 def replay_both(path, profile, monkeypatch):
     """(per sample, a block at a time): (document, state) of each, and how many blocks went by
     the compiled pass with the hand-over inside one."""
     cfg = EstimatorConfig(baseline=False, trace_len=0)
-    handed, calls, stepped = [], [], []
-    visit, steps = TwoStageEstimator._visit, Stage2.steps
+    handed, calls, stepped = [], [], {1: [], 2: []}
+    visit, steps1, steps2 = TwoStageEstimator._visit, Stage1.steps, Stage2.steps
 
-    def spy_steps(self, T, Y, D, G, a, b):
-        r = steps(self, T, Y, D, G, a, b)
-        stepped.append(r - a)
-        return r
+    def spy(steps, stage):
+        def spy_steps(self, T, Y, D, G, a, b):
+            r = steps(self, T, Y, D, G, a, b)
+            stepped[stage].append(r - a)
+            return r
+
+        return spy_steps
 
     def spy_visit(self, *a):
         i = visit(self, *a)
@@ -97,7 +114,8 @@ def replay_both(path, profile, monkeypatch):
     handle = TwoStageEstimator.handle
     monkeypatch.setattr(TwoStageEstimator, "_visit", spy_visit)
     monkeypatch.setattr(TwoStageEstimator, "handle", spy_handle)
-    monkeypatch.setattr(Stage2, "steps", spy_steps)
+    monkeypatch.setattr(Stage1, "steps", spy(steps1, 1))
+    monkeypatch.setattr(Stage2, "steps", spy(steps2, 2))
     out = []
     for is_bulk in (False, True):
         calls.clear()
@@ -107,9 +125,12 @@ def replay_both(path, profile, monkeypatch):
             doc["log"].pop(k)
         out.append((doc, state(pipe), len(calls)))
     (a, sa, na), (b, sb, nb) = out
-    assert na == sa[-4] and nb == 0  # the reference took every sample one by one, the block path none
-    if sa[0][1]:  # stage 2 stepped: most of its samples by the compiled steps
-        assert sum(stepped) > 0.8 * sa[0][0]
+    assert na == sa["samples"] and nb == 0  # the reference took every sample one by one, the block path none
+    if sa["stage2"][1]:  # stage 2 stepped: most of its samples by the compiled steps
+        assert sum(stepped[2]) > 0.8 * sa["stage2"][0]
+    s1 = pipe.estimator.s1["ukf"]
+    if s1.samples > 500 and sa["handover_t"] is not None:  # stage 1 after the hand-over: by the compiled steps too
+        assert sum(stepped[1]) > 0.5 * s1.samples
     return (a, sa), (b, sb), [i for i in handed if i is not None]
 
 
@@ -120,7 +141,7 @@ def test_block_pass_gives_the_per_sample_result(drive, paper, monkeypatch):
     assert a["parameters"]["l_f"]["status"] == "converged"
     assert a["parameters"]["C_alpha"]["value"] is not None  # stage 2 ran
     assert len(handed) == 1 and handed[0] > 0  # l_f became known inside a block: the pass ran again
-    assert len(sa[1][1]) > 4  # windows of both stages
+    assert len(sa["supervisor"][1]) > 4  # windows of both stages
 
 
 def test_windows_that_diverge_and_last_good_copies_inside_the_compiled_steps(drive, paper, monkeypatch):
@@ -128,7 +149,7 @@ def test_windows_that_diverge_and_last_good_copies_inside_the_compiled_steps(dri
     stop before such a sample and leave nothing of it taken.  Made frequent here."""
     monkeypatch.setattr(learner, "DIVERGED_NIS", 0.1)
     (a, sa), (b, sb), _ = replay_both(drive, paper, monkeypatch)
-    assert sa[0][5] > 3  # windows restarted
+    assert sa["stage2"][5] > 3  # windows restarted
     assert b == a and sb == sa
 
 
@@ -147,7 +168,7 @@ def test_a_gap_a_wheel_reference_and_a_profile_l_f(drive, paper, repo_root, tmp_
     # l_f measured: the hand-over at the first sample, stage 2 from the start
     known = dataclasses.replace(paper, vehicle=dataclasses.replace(paper.vehicle, l_f=1.4, l_f_std=0.01))
     (a, sa), (b, sb), _ = replay_both(drive, known, monkeypatch)
-    assert b == a and sb == sa and sa[3] is not None
+    assert b == a and sb == sa and sa["handover_t"] is not None
 
     # no GNSS: the free-rolling axle is the speed reference (a wheel_ref speed filter).  The golf's
     # log goes through the per-frame decoder, so its samples are handed to the estimator directly

@@ -218,9 +218,11 @@ class TwoStageEstimator:
             return None
         idx = idx.tolist()
         stg, pv = stage.tolist(), prev.tolist()
-        # a window of stage 2 is stepped compiled once open (Stage2.steps), one UKF at a time
-        l2 = self.s2["ukf"] if len(self.s2) == 1 else None
-        other = np.flatnonzero(stage != 2)
+        # a window is stepped compiled once its filter is open (Stage1.steps, Stage2.steps), one UKF at a
+        # time; stage 1's once l_f is known (before, each of its samples may hand over)
+        one = len(self.s1) == 1
+        runs = {1: self.s1["ukf"] if one and done else None, 2: self.s2["ukf"] if one else None}
+        ends = {sg: np.flatnonzero(stage != sg) for sg, l in runs.items() if l is not None}
         learn = self._learn
         k = 0
         while k < len(idx):
@@ -234,12 +236,14 @@ class TwoStageEstimator:
             if not done and self.handover_t is not None:
                 return i
             k += 1
-            if stg[i] == 2 and l2 is not None and l2.runnable():
+            run = runs.get(stg[i])
+            if run is not None and run.runnable():
+                other = ends[stg[i]]
                 q = np.searchsorted(other, i)
                 end = int(other[q]) if q < len(other) else len(stage)
                 if end > i + 1:
                     # the run's samples up to the first that needs the learner's own step
-                    k += l2.steps(T, Y, out, gaps, i + 1, end) - (i + 1)
+                    k += run.steps(T, Y, out, gaps, i + 1, end) - (i + 1)
         return None
 
     def _thin_trace(self) -> None:

@@ -895,20 +895,40 @@ class Stage1(StageLearner):
         ts = np.array([a[0] for a in self._acc])
         us = np.array([a[1] for a in self._acc])
         zs = np.array([a[2] for a in self._acc])
+        dt = ts[-1] - ts[0] + (ts[-1] - ts[0]) / (len(ts) - 1)  # the block's span (as core.kernels.lon_run)
+        if self.filter is None:
+            self.filter = self._start_filter()
+        if self._compiled():  # the block's whole step in one compiled call (core.kernels.lon_block)
+            self._acc = []
+            f = self.filter
+            what, status, x, P, sig, y, S, u, z, R = kernel("lon_block")(
+                f._f.x, f._f.P, f._lam_n, f._Wm, f._Wc, f.Q_rate, f.scale, f._kind, f._lo, f._span, f._known,
+                ts, us, zs, dt, self._R0(), self._block_settings(),
+            )  # fmt: skip
+            if what == _GATED:
+                self.gated += 1
+                return
+            if what != _TAKEN:
+                f._f.x, f._f.P, f._sigmas = x, P, sig  # (predicted, where the update failed)
+                kernel("_raise")("predict" if what == _PREDICT_FAILED else "update", status)
+            f._f.x, f._f.P, f._sigmas, f._f.y, f._f.S = x, P, sig, y, S
+            self._taken(u, z, R)
+            return
         u, z = us.mean(axis=0), zs.mean(axis=0)
         # wheel accelerations: least-squares slope over the block, centred like the means
         k = ts - ts.mean()
         u[longitudinal.U_WDF], u[longitudinal.U_WDR] = (k @ (zs - z)) / (k @ k)
-        dt = ts[-1] - ts[0] + (ts[-1] - ts[0]) / (len(ts) - 1)
         self._acc = []
-        if self.filter is None:
-            self.filter = self._start_filter()
         if self._load_share(u).max() > self.cfg.small_slip or self._spun(u, z):
             self.gated += 1
             return
         self.filter.predict(dt, u)
         R = self._R(u)
         self.filter.update(z, _BOTH_AXLES, u, R=R)
+        self._taken(u, z, R)
+
+    def _taken(self, u, z, R) -> None:
+        """A block the filter took: kept for the batch check, which runs when due."""
         self._blocks.append(u, z, R)
         self._since_batch += 1
         self._since_far += 1
@@ -916,6 +936,57 @@ class Stage1(StageLearner):
             self.check_batch()
         if self.samples % self.cfg.save_every < self.cfg.block:
             self._save_good()
+
+    def _compiled(self) -> bool:
+        """Whether the filter is the compiled UKF (its blocks stepped by core.kernels.lon_block)."""
+        cls = kernel("LongitudinalUKF") if self.filter is not None else None
+        return cls is not None and isinstance(self.filter, cls)
+
+    def _block_settings(self) -> np.ndarray:
+        """lon_block's settings: the gates' limits, h's sane range and the speed error's factor (_R)."""
+        c, h = self.cfg, BY_NAME["h"]
+        corr = c.speed_corr / math.sqrt(c.block * c.tick / 0.01)
+        spin = math.nan if c.spin_rate is None else c.spin_rate
+        return np.array([c.small_slip, spin, c.spin_slip, h.lo, h.hi, corr])
+
+    def runnable(self) -> bool:
+        """Whether :meth:`steps` can take samples now (the compiled UKF, started)."""
+        return self._compiled()
+
+    def steps(self, T, Y, D, G, a: int, b: int) -> int:
+        """Take samples a..b-1 of a block (ticks T, values Y, derived D: v_x, v_std, a_x bias;
+        G: gap flags) in a window as :meth:`_step` would, compiled (core.kernels.lon_run), up
+        to the first that needs :meth:`_step` itself (its block's step fails, or the batch
+        check or a last-good copy comes after it): its index, b when none did.  Needs
+        :meth:`runnable`."""
+        f, c = self.filter, self.cfg
+        block = c.block
+        ls = np.array([self.samples, math.nan if self.t_last is None else self.t_last, len(self._acc),
+                       self._since_batch, self._since_far, self.gated, len(self._blocks)], dtype=float)  # fmt: skip
+        acc = np.zeros((block, 10))
+        for q, (t, u, z) in enumerate(self._acc):
+            acc[q, 0], acc[q, 1:8], acc[q, 8:] = t, u, z
+        settings = np.array(
+            [c.max_gap, block, c.save_every, BATCH_EVERY, BATCH_EVERY_MAX, self._blocks.cap], dtype=float
+        )
+        m = (b - a) // block + 1
+        out_u, out_z, out_r = np.empty((m, longitudinal.N_U)), np.empty((m, 2)), np.empty((m, 2, 2))
+        r, f._f.x, f._f.P, f._sigmas, y, S, nb = kernel("lon_run")(
+            T, Y, D, G, a, b, _BLOCK_CHANNELS, f._f.x, f._f.P, f._sigmas, f._lam_n, f._Wm, f._Wc, f.Q_rate, f.scale,
+            f._kind, f._lo, f._span, f._known, self._R0(), self._block_settings(), ls, settings, acc, out_u, out_z,
+            out_r,
+        )  # fmt: skip
+        if nb:
+            f._f.y, f._f.S = y, S
+            for q in range(nb):
+                self._blocks.append(out_u[q], out_z[q], out_r[q])
+        samples, t_last, n_acc, since_batch, since_far, gated, _ = ls.tolist()
+        self.samples, self._since_batch, self._since_far, self.gated = (
+            int(samples), int(since_batch), int(since_far), int(gated)
+        )  # fmt: skip
+        self.t_last = None if math.isnan(t_last) else t_last
+        self._acc = [(row[0], row[1:8], row[8:]) for row in acc[: int(n_acc)].tolist()]
+        return int(r)
 
     def check_due(self, final: bool = False) -> bool:
         """Whether the batch check solves now: BATCH_EVERY new blocks, or a quarter of those kept
@@ -975,6 +1046,9 @@ class Stage1(StageLearner):
         return fit
 
 
+# the channels core.kernels.lon_run reads, in its order, and what lon_block did with a block
+_BLOCK_CHANNELS = np.array([ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR, ch.T_F, ch.T_R, ch.AX])
+_TAKEN, _GATED, _PREDICT_FAILED, _UPDATE_FAILED = range(4)  # (core.kernels' TAKEN, ...: tests/test_batched.py)
 # the channels core.kernels.lat_run reads, in its order
 _STEP_CHANNELS = np.array(
     [ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR, ch.T_R, ch.DELTA, ch.AX, ch.AY, ch.YAW, ch.ROLL, ch.SPEED]
@@ -1602,7 +1676,8 @@ class Stage2(StageLearner):
         self.check.record.add(t, us[-1], z[lateral.Z_YAW], z[lateral.Z_AY], roll)
         if mask[lateral.Z_ROLL] and self._excite is not None:
             n = self.cfg.noise
-            j = self._excite.chi_d**2 / (n.gyro * n.inflate) ** 2  # the roll row's R
+            chi_d = self._excite.chi_d  # (squared as a product: core.kernels.lat_run multiplies too)
+            j = chi_d * chi_d / (n.gyro * n.inflate) ** 2  # the roll row's R
             self.roll_info += j
             self._info_window += j
         self._us = [u]

@@ -120,19 +120,22 @@ class SpeedFilter:
             a_mean = 0.5 * (a_x + self.a_prev) if math.isfinite(self.a_prev) else a_x
             self.v += dt * (a_mean - self.bias)
             # P = F P F^T + Q with F = [[1, -dt], [0, 1]]
-            p_vv = self.p_vv - 2 * dt * self.p_vb + dt * dt * self.p_bb + (c.accel_noise * dt) ** 2
+            # (squares as products, not **: pow can differ from x * x in the last bit, and the
+            # compiled block pass, core.batched, multiplies)
+            an = c.accel_noise * dt
+            p_vv = self.p_vv - 2 * dt * self.p_vb + dt * dt * self.p_bb + an * an
             p_vb = self.p_vb - dt * self.p_bb
             self.p_vv, self.p_vb = p_vv, p_vb
-            self.p_bb += c.bias_walk**2 * dt
+            self.p_bb += c.bias_walk * c.bias_walk * dt
             self.t = t
         self.a_prev = a_x
         if gnss is None or not math.isfinite(gnss):
             return
         if not self.ready:
-            self.v, self.p_vv, self.p_vb = gnss, r**2, 0.0
+            self.v, self.p_vv, self.p_vb = gnss, r * r, 0.0
             self.t = t
             return
-        s = self.p_vv + r**2
+        s = self.p_vv + r * r
         k_v, k_b = self.p_vv / s, self.p_vb / s
         e = gnss - self.v
         self.v += k_v * e

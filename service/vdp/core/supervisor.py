@@ -179,14 +179,14 @@ class Supervisor:
         if abs(y[ch.YAW]) >= c.yaw_max_1:
             return REASONS[YAWING]
         # the spread of a_x, not its RMS: a constant offset (grade, bias) excites nothing
-        if math.sqrt(max(self._ax_sq - self._ax_m**2, 0.0)) < c.ax_std_min:
+        if math.sqrt(max(self._ax_sq - self._ax_m * self._ax_m, 0.0)) < c.ax_std_min:
             return REASONS[LITTLE_AX]
         return None
 
     def _drive2(self, y, speed, c) -> str | None:
         """Why the driving does not suit stage 2 (None: it does)."""
         # steering first: it is what defines this stage, so it is the blocker worth naming
-        d_std = math.sqrt(max(self._d_sq - self._d_m**2, 0.0))
+        d_std = math.sqrt(max(self._d_sq - self._d_m * self._d_m, 0.0))
         if d_std < c.delta_std_min_2 and math.sqrt(max(self._yaw_sq, 0.0)) < c.yaw_rms_min_2:
             return REASONS[LITTLE_STEER]
         if not speed > c.v_min:
