@@ -10,6 +10,13 @@ so it gives their numbers to the last bit; ``tests/test_batched.py`` holds the t
 the same estimates, supervisor state and windows, and the speed filter's and the supervisor's
 own tests run on the classes, the reference.  A change to either must be followed here.
 
+The learners' own steps over an open window's run of samples are compiled as well
+(``core.kernels.lat_run`` and ``lon_run``, called by ``learner.Stage2.steps`` and
+``Stage1.steps``): each stops before the first sample that needs the learner's Python step
+(a window that ends, restarts or diverges, a failed step, a batch check or a last-good copy
+due), so the rare paths are written once.  With both, an hour of a busy bus replays in ~2.8 s
+of CPU where it took ~5.8 s sample by sample (BENCHMARKS.md, "A replay a block at a time").
+
 The state crosses over as one float array (:func:`pack`, :func:`unpack`): the Python objects
 stay the state's owners, so a live service and a replay can hand a drive to each other.
 Without numba (or with a coarse GNSS's rounding-error filter) the estimator runs per sample.

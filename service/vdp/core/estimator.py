@@ -165,8 +165,9 @@ class TwoStageEstimator:
     def handle_block(self, T: np.ndarray, Y: np.ndarray, F: np.ndarray, A: np.ndarray, gap: bool) -> None:
         """Take aligned samples as arrays (ticks T, values Y, fresh F, ages A by channel; ``gap``:
         the first follows a gap): what :meth:`handle` on each would do, to the last bit, with
-        the speed filter, gyro offsets and supervisor compiled over the block (core.batched)
-        and only the samples a learner takes visited in Python.  Needs :meth:`batchable`."""
+        the speed filter, gyro offsets and supervisor compiled over the block (core.batched),
+        only the samples a learner takes visited in Python, and an open window's run of them
+        stepped compiled (Stage1.steps, Stage2.steps).  Needs :meth:`batchable`."""
         n = len(T)
         if not n:
             return
@@ -203,8 +204,10 @@ class TwoStageEstimator:
 
     def _visit(self, T, Y, F, A, gaps, out, stage, i0: int, prev0: int) -> int | None:
         """Run the learners on the samples from ``i0`` that one takes, or that open or close a
-        window, or (l_f not yet known) that :meth:`_learn` checks the hand-over at; the sample
-        where l_f became known, or None."""
+        window, or (l_f not yet known) that :meth:`_learn` checks the hand-over at: each by
+        :meth:`_learn`, or a run of them in an open window by the learner's compiled steps up
+        to the first that needs :meth:`_learn`.  Returns the sample where l_f became known, or
+        None."""
         done = self.handover_t is not None
         prev = np.empty_like(stage)
         prev[0] = prev0
