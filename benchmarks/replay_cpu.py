@@ -102,6 +102,7 @@ def parts(run, full: float) -> None:
 
     saved = (lm.Stage1.check_batch, lm.Stage2.handle, lm.Stage1.handle, TwoStageEstimator.l_f_known)
     rows = [("whole replay (again, warm)", cpu())]
+
     def no_check(self, full=False):  # (the blocks' count restarts, as after a check: none is due for 20 more)
         self._since_batch = 0
 
