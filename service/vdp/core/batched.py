@@ -19,7 +19,8 @@ of CPU where it took ~5.8 s sample by sample (BENCHMARKS.md, "A replay a block a
 
 The state crosses over as one float array (:func:`pack`, :func:`unpack`): the Python objects
 stay the state's owners, so a live service and a replay can hand a drive to each other.
-Without numba (or with a coarse GNSS's rounding-error filter) the estimator runs per sample.
+Without numba, with the compiled steps off (LearnerConfig.compiled) or with a coarse GNSS's
+rounding-error filter, the estimator runs per sample.
 """
 
 from __future__ import annotations
@@ -243,18 +244,15 @@ _compiled: list = []  # [the compiled _prepass], or [None] without numba
 
 
 def kernel():
-    """The compiled pass, made at first use (or loaded from numba's cache beside this file);
-    None without numba."""
+    """The compiled pass (core.batched_compiled, made at first use or loaded from numba's cache
+    beside this file); None without numba."""
     if not _compiled:
         try:
-            from numba import njit
+            from .batched_compiled import prepass
         except ImportError:
-            _compiled.append(None)
-        else:
-            g = globals()
-            for name in ("_speed_reset", "_speed_step", "_hyst", "_missing", "_hard", "_blocked"):
-                g[name] = njit(cache=True, nogil=True, inline="always")(g[name])
-            _compiled.append(njit(cache=True, nogil=True)(_prepass))
+            prepass = None
+        if not _compiled:  # (another thread may have set it meanwhile: the same function)
+            _compiled.append(prepass)
     return _compiled[0]
 
 

@@ -159,8 +159,9 @@ class TwoStageEstimator:
     # -- a block at a time (a replay) ------------------------------------
     def batchable(self) -> bool:
         """Whether :meth:`handle_block` runs the compiled pass: no trace kept (its rows come from
-        every sample), numba there, and the speed filter one it repeats (core.batched)."""
-        return self.trace.maxlen == 0 and batched.batchable(self.speed)
+        every sample), the compiled steps wanted (LearnerConfig.compiled: off, numpy's reference
+        runs everything) and numba there, and the speed filter one it repeats (core.batched)."""
+        return self.trace.maxlen == 0 and self.cfg.learner.compiled and batched.batchable(self.speed)
 
     def handle_block(self, T: np.ndarray, Y: np.ndarray, F: np.ndarray, A: np.ndarray, gap: bool) -> None:
         """Take aligned samples as arrays (ticks T, values Y, fresh F, ages A by channel; ``gap``:

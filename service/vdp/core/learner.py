@@ -287,7 +287,12 @@ class Consistency:
     def recent(self) -> float:
         """Mean NIS per row over the last RECENT updates (0 until there are that many)."""
         q = self._recent
-        return sum(q) / len(q) if len(q) == q.maxlen else 0.0
+        if len(q) < q.maxlen:
+            return 0.0
+        total = 0.0
+        for v in q:  # in order, plainly (Python 3.12's sum compensates; core.kernels._recent adds as here)
+            total += v
+        return total / len(q)
 
     @property
     def ratio(self) -> float | None:

@@ -14,6 +14,7 @@ Without numba the numpy parse runs (:func:`available`).
 from __future__ import annotations
 
 import logging
+import threading
 
 import numpy as np
 
@@ -191,21 +192,25 @@ def _scan(a, hexv, pow10):
 
 
 _compiled: list = []  # [the compiled _scan], or [None] without numba
+_making = threading.Lock()  # replays starting at once in one process (a Dask worker's threads) compile once
 
 
 def _kernel():
     """The compiled scan, made at first use (or loaded from numba's cache beside this file):
     ``import vdp.io.bulk`` does not import numba."""
     global _line  # noqa: PLW0603 (rebound once to its compiled self, which the compiled scan calls)
-    if not _compiled:
-        try:
-            from numba import njit
-        except ImportError:  # numba is a dependency; without it bulk parses with numpy
-            _compiled.append(None)
-        else:
-            # the compiled scan calls the compiled line parser, inlined (a call per line cost ~40 %)
-            _line = njit(cache=True, nogil=True, inline="always")(_line)
-            _compiled.append(njit(cache=True, nogil=True)(_scan))
+    if _compiled:
+        return _compiled[0]
+    with _making:  # numba refuses to compile an already compiled _line a second time
+        if not _compiled:
+            try:
+                from numba import njit
+            except ImportError:  # numba is a dependency; without it bulk parses with numpy
+                _compiled.append(None)
+            else:
+                # the compiled scan calls the compiled line parser, inlined (a call per line cost ~40 %)
+                _line = njit(cache=True, nogil=True, inline="always")(_line)
+                _compiled.append(njit(cache=True, nogil=True)(_scan))
     return _compiled[0]
 
 
