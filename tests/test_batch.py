@@ -415,3 +415,17 @@ def test_the_fleet_picture_shows_each_drive_its_combination_and_the_one_that_dis
     assert [t.get_text().split(" =")[0] for t in pax.texts] == ["χ² p"]
     fleet_plot(rows, vehicles, tmp_path / "fleet.png")
     assert (tmp_path / "fleet.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_vehicle_of_hundreds_of_drives_keeps_the_fleet_picture_readable():
+    """Beyond NAMED_DRIVES a vehicle's drives are still each drawn, but no longer named a row each,
+    and the figure stops growing (300 drives had made it ~90 inches tall)."""
+    from vdp.report import NAMED_DRIVES, fleet_figure
+
+    few = [run_row(f"d{i:03d}.log", 1.40 + 0.001 * (i % 3), 0.002) for i in range(NAMED_DRIVES)]
+    many = [run_row(f"d{i:03d}.log", 1.40 + 0.001 * (i % 3), 0.002) for i in range(300)]
+    (ax_few,), (ax_many,) = (fleet_figure(r, combine(r)[0]).axes for r in (few, many))
+    assert len(ax_many.containers) == 300 and len(ax_few.containers) == NAMED_DRIVES  # every drive drawn
+    assert ax_many.figure.get_figheight() == ax_few.figure.get_figheight() < 15
+    assert [t.get_text() for t in ax_few.get_yticklabels()][:2] == ["d000.log", "d001.log"]
+    assert ax_many.get_yticklabels() == [] and "300 drives" in ax_many.get_ylabel()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import textwrap
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -414,6 +415,9 @@ def figure(
     return fig
 
 
+NAMED_DRIVES = 40  # drives per vehicle that fleet_figure names a row each
+
+
 def fleet_figure(rows: list[dict], vehicles: list[dict]):
     """Per vehicle (a row of panels) and parameter (a panel): each drive's value ± 2σ, the
     combination of its converged drives ± 2σ as a band, a flagged drive (it disagrees with the
@@ -423,16 +427,21 @@ def fleet_figure(rows: list[dict], vehicles: list[dict]):
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     names = [n for n in NAMES if any(r.get("parameter") == n for r in rows)]
     cars = sorted({v["vehicle"] for v in vehicles})
     comb = {(v["vehicle"], v["parameter"]): v for v in vehicles}
     run = {(r["vehicle"], r["log"], r["parameter"]): r for r in rows if r.get("parameter")}  # (one pass)
     n_rows, n_cols = max(len(cars), 1), max(len(names), 1)
-    height = 1.2 + n_rows * (0.6 + 0.3 * _most_drives(rows))
+    # a row per drive, named, up to NAMED_DRIVES; a vehicle with more gets smaller marks, its count
+    # for a label and no more height (hundreds of drives had made a picture metres tall)
+    height = 1.2 + n_rows * (0.6 + 0.3 * min(_most_drives(rows), NAMED_DRIVES))
     fig, axes = plt.subplots(n_rows, n_cols, figsize=(2.6 * n_cols, height), squeeze=False)
     for i, car in enumerate(cars):
         logs = sorted({r["log"] for r in rows if r.get("vehicle") == car and r.get("parameter")})
+        many = len(logs) > NAMED_DRIVES
+        ms, cap, lw = (2, 0, 0.6) if many else (4, 2, 1)
         for j, name in enumerate(names):
             ax = axes[i][j]
             v = comb.get((car, name), {})
@@ -449,25 +458,26 @@ def fleet_figure(rows: list[dict], vehicles: list[dict]):
                 colour = "tab:red" if lg in flagged else ("black" if used else "grey")
                 sd = r["std"] if r.get("std") is not None and math.isfinite(r["std"]) else 0.0
                 face = colour if used else "white"
-                ax.errorbar(r["value"], k, xerr=2 * sd, fmt="o", ms=4, color=colour, mfc=face, capsize=2, lw=1)
+                ax.errorbar(r["value"], k, xerr=2 * sd, fmt="o", ms=ms, color=colour, mfc=face, capsize=cap, lw=lw)
             ax.set_ylim(-0.7, max(len(logs), 1) - 0.3)
-            ax.set_yticks(range(len(logs)))
-            ax.set_yticklabels([Path(lg).name for lg in logs] if j == 0 else [], fontsize=7)
+            ax.set_yticks([] if many else range(len(logs)))
+            ax.set_yticklabels([] if many or j else [Path(lg).name for lg in logs], fontsize=7)
             ax.tick_params(axis="x", labelsize=7)
+            ax.xaxis.set_major_locator(MaxNLocator(3))  # (a narrow panel's ticks ran into each other)
             unit = _unit(BY_NAME[name].unit)
             ax.set_title((f"{name} [{unit}]" if unit != "-" else name) if i == 0 else "", fontsize=9)
             if j == 0:
-                ax.set_ylabel(car, fontsize=9)
+                ax.set_ylabel(f"{car}\n{len(logs)} drives, in name order" if many else car, fontsize=9)
             p = v.get("p_value_kept")  # the consistency test of the drives combined
             if p is not None and math.isfinite(p):
                 left_out = (v.get("dof") or 0) + 1 - (v.get("drives") or 0)  # (a flagged pair stays in)
                 what = "χ² p of the rest" if left_out > 0 else "χ² p"
                 ax.text(0.02, 0.98, f"{what} = {p:.2g}", transform=ax.transAxes, fontsize=6, va="top")
-    fig.suptitle(
+    title = (
         "drives (value ± 2σ; red: flagged as disagreeing; hollow: not converged, not used) and their "
-        "combination (blue ± 2σ)",
-        fontsize=8,
+        "combination (blue ± 2σ)"
     )
+    fig.suptitle(textwrap.fill(title, 40 * n_cols), fontsize=8)  # (wrapped to a narrow figure's width)
     fig.tight_layout()
     return fig
 
