@@ -53,6 +53,7 @@ def mistakes(P):
             "steering_angle",
         ),
         "wheel speeds /3.6 (m/s read as km/h)": (ws, "wheel_speed"),
+        "GNSS speed x3.6 (km/h read as m/s)": (_chan(P, "speed", scale=3.6), "speed"),
         "mass 13 % low": (
             dataclasses.replace(P, vehicle=dataclasses.replace(P.vehicle, mass=0.87 * P.vehicle.mass)),
             "vehicle.mass",

@@ -80,6 +80,15 @@ def test_wheel_speeds_in_the_wrong_unit(drive):
     assert set(f.params) == set(PARAMETERS)
 
 
+@pytest.mark.parametrize("scale, why", [(3.6, "km/h read as m/s"), (1 / 2.23694, "m/s read as mph")])
+def test_ground_speed_in_the_wrong_unit(drive, scale, why):
+    """The GNSS speed, not the wheels, named: a_x agrees with the wheels' dv/dt.  (It had been
+    "fix the wheel speeds' unit" and "check the unit of accel_x", and a_y and the steering ratio.)"""
+    f = one(check_log(drive, chan(PAPER, "speed", scale=scale))[0])
+    assert f.subject == "speed" and why in f.message and "fix the unit or scale of speed" in f.message
+    assert set(f.params) == set(PARAMETERS)
+
+
 def test_mass_13_percent_low(drive):
     p = dataclasses.replace(PAPER, vehicle=dataclasses.replace(PAPER.vehicle, mass=0.87 * PAPER.vehicle.mass))
     f = one(check_log(drive, p)[0])

@@ -132,6 +132,22 @@ def _smooth(x: np.ndarray, n: int) -> np.ndarray:
     return np.convolve(x, k, mode="same")
 
 
+def _ax_per_dv_dt(v: np.ndarray, ax: np.ndarray, t: np.ndarray, win: int, min_n: int) -> tuple[float, float] | None:
+    """(a_x per dv/dt of the speed ``v``, their correlation), or None where the drive has too little
+    acceleration or braking to say.  Both sides are noisy (dv/dt of a quantised speed too), so a
+    least-squares slope would be biased low: the ratio of the spreads with the correlation's sign
+    (reduced major axis); means removed, for the road's grade and the sensor's offset.  ``ax``
+    smoothed as ``v`` is, over ``win`` samples."""
+    dv = np.gradient(_smooth(v, win), t)
+    ok = np.isfinite(dv) & np.isfinite(ax) & (v > 1.0)
+    ok[:win] = ok[-win:] = False
+    strong = ok & (np.abs(dv) > 0.3)
+    if strong.sum() < min_n or not np.std(dv[ok]) > 0.2:
+        return None
+    rho = float(np.corrcoef(dv[ok], ax[ok])[0, 1])
+    return math.copysign(float(np.std(ax[ok]) / np.std(dv[ok])), rho), rho
+
+
 def _fit(x: np.ndarray, y: np.ndarray) -> float:
     """Least-squares slope of y = k x through the origin."""
     d = float(np.dot(x, x))
@@ -189,16 +205,40 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
             ratio = float(np.median(v_wheel[ok] / v_ref[ok]))
             rep.measured["wheel_speed_scale"] = ratio
             if not 0.94 < ratio < 1.06:  # slip and tyre growth stay within a few per cent
-                why = _factor_name(ratio)
-                rep.add(
-                    "wheel_speed_scale",
-                    "wheel_speed",
-                    f"the wheel speeds times wheel_radius come out {ratio:.3g}x the ground speed"
-                    + (
-                        f" ({why}): fix the wheel speeds' unit" if why else ": check their unit, scale and wheel_radius"
-                    ),
-                    DEPENDS["wheel_speed"],
-                )
+                # which of the two is wrong: the one a_x (dv/dt) disagrees with
+                ax = _smooth(y[:, ch.AX], win) if "accel_x" in have else None
+                fits = {
+                    name: k is not None and abs(k[1]) >= 0.5 and 0.8 < k[0] < 1.25
+                    for name, k in (
+                        ("wheels", None if ax is None else _ax_per_dv_dt(v_wheel, ax, t, win, min_n)),
+                        ("ground", None if ax is None else _ax_per_dv_dt(v_ref, ax, t, win, min_n)),
+                    )
+                }
+                if fits["wheels"] and not fits["ground"]:
+                    why = _factor_name(1.0 / ratio)
+                    rep.add(
+                        "speed_scale",
+                        "speed",
+                        f"the ground speed comes out {1.0 / ratio:.3g}x the wheel speeds times wheel_radius"
+                        + (f" ({why})" if why else "")
+                        + ", and a_x agrees with the wheels: fix the unit or scale of speed",
+                        DEPENDS["speed"],
+                    )
+                    v_ref = None  # the checks below go by the wheels
+                else:
+                    why = _factor_name(ratio)
+                    rep.add(
+                        "wheel_speed_scale",
+                        "wheel_speed",
+                        f"the wheel speeds times wheel_radius come out {ratio:.3g}x the ground speed"
+                        + (
+                            f" ({why}): fix the wheel speeds' unit"
+                            if why
+                            else ": check their unit, scale and wheel_radius"
+                        )
+                        + ("" if fits["ground"] else " (or the ground speed's: a_x does not tell which)"),
+                        DEPENDS["wheel_speed"],
+                    )
         else:
             rep.skipped["wheel_speed_scale"] = "no driving above 3 m/s with both wheel and ground speed"
     v = v_ref if v_ref is not None else v_wheel
@@ -209,17 +249,9 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
     # 2. a_x against dv/dt (of the wheels when their scale is right: a coarse GNSS steps)
     if v is not None and "accel_x" in have:
         v_d = v_wheel if v_wheel is not None and not wheel_bad else v
-        dv = np.gradient(_smooth(v_d, win), t)
-        ax = _smooth(y[:, ch.AX], win)
-        ok = np.isfinite(dv) & np.isfinite(ax) & (v > 1.0)
-        ok[:win] = ok[-win:] = False
-        strong = ok & (np.abs(dv) > 0.3)
-        if strong.sum() >= min_n and np.std(dv[ok]) > 0.2:
-            # Both sides are noisy (dv/dt of a quantised speed too), so a least-squares slope
-            # would be biased low: take the ratio of the spreads with the correlation's sign
-            # (reduced major axis); means removed, for the road's grade and the sensor's offset.
-            rho = float(np.corrcoef(dv[ok], ax[ok])[0, 1])
-            k = math.copysign(float(np.std(ax[ok]) / np.std(dv[ok])), rho)
+        fit = _ax_per_dv_dt(v_d, _smooth(y[:, ch.AX], win), t, win, min_n)
+        if fit is not None:
+            k, rho = fit
             rep.measured["accel_x_dv_dt_correlation"] = rho
             rep.measured["accel_x_per_dv_dt"] = k
             if abs(rho) < 0.5:
