@@ -647,8 +647,8 @@ def lat_run(T, Y, D, G, a, b, c, x, P, sig, lam_n, Wm, Wc, Q, R, scale, kind, lo
 
 # -- stage 1: core.longitudinal -------------------------------------------------
 @_jit
-def _lon_hx(x, u, k, out):
-    """longitudinal.hx of one SI state (eqs 3, 13, 14 with the bend and the offsets)."""
+def _lon_slips(x, u, k):
+    """longitudinal.slips of one SI state: eqs (3) and (14) with the bend and the offsets."""
     l_f, h = x[longitudinal.L_F], x[longitudinal.H]
     a_x = u[longitudinal.U_AX]
     mg = k.m * k.g
@@ -665,8 +665,13 @@ def _lon_hx(x, u, k, out):
         b, c, s0f, s0r = 0.0, 0.0, 0.0, 0.0
     u_f, u_r = f_xf / f_zf, f_xr / f_zr
     a_f, a_r = abs(u_f), abs(u_r)
-    s_f = s0f + u_f / c_k * (1.0 + b * a_f + c * a_f * a_f)
-    s_r = s0r + u_r / c_k * (1.0 + b * a_r + c * a_r * a_r)
+    return s0f + u_f / c_k * (1.0 + b * a_f + c * a_f * a_f), s0r + u_r / c_k * (1.0 + b * a_r + c * a_r * a_r)
+
+
+@_jit
+def _lon_hx(x, u, k, out):
+    """longitudinal.hx of one SI state: eq (13) on the slips."""
+    s_f, s_r = _lon_slips(x, u, k)
     v = u[longitudinal.U_VX]
     out[0] = v * (1.0 + s_f) / k.r
     out[1] = v * (1.0 + s_r) / k.r
@@ -675,25 +680,6 @@ def _lon_hx(x, u, k, out):
 # stage 1's block (learner.Stage1._step), compiled: its settings array, and what became of the block
 (B_SMALL_SLIP, B_SPIN_RATE, B_SPIN_SLIP, B_H_LO, B_H_HI, B_CORR) = range(6)
 TAKEN, GATED, PREDICT_FAILED, UPDATE_FAILED = range(4)
-
-
-@_jit
-def _lon_slips(x, u, k):
-    """longitudinal.slips of one SI state (as _lon_hx)."""
-    l_f, h = x[longitudinal.L_F], x[longitudinal.H]
-    a_x = u[longitudinal.U_AX]
-    mg = k.m * k.g
-    shift = k.m * a_x * h / k.L
-    lo_ = MIN_LOAD * mg
-    f_zf = max(mg * (k.L - l_f) / k.L - shift, lo_)
-    f_zr = max(mg * l_f / k.L + shift, lo_)
-    f_xf = (u[longitudinal.U_TF] - k.J * u[longitudinal.U_WDF]) / k.r
-    f_xr = (u[longitudinal.U_TR] - k.J * u[longitudinal.U_WDR]) / k.r
-    c_k = max(x[longitudinal.C_K], 1e-3)
-    b, c, s0f, s0r = x[longitudinal.BEND], x[longitudinal.CUBIC], x[longitudinal.S_0F], x[longitudinal.S_0R]
-    u_f, u_r = f_xf / f_zf, f_xr / f_zr
-    a_f, a_r = abs(u_f), abs(u_r)
-    return s0f + u_f / c_k * (1.0 + b * a_f + c * a_f * a_f), s0r + u_r / c_k * (1.0 + b * a_r + c * a_r * a_r)
 
 
 @_jit
