@@ -15,12 +15,13 @@ pytest.importorskip("distributed", reason="vdp batch needs the 'fleet' extra")
 from vdp.cli import main  # noqa: E402
 from vdp.cli.batch import read_manifest  # noqa: E402
 from vdp.errors import ConfigError  # noqa: E402
-from vdp.fleet import Z_FLAG, combine, weighted  # noqa: E402
+from vdp.fleet import COMMON, Z_FLAG, combine, combined, weighted  # noqa: E402
 from vdp.sim.run import simulate, write_log  # noqa: E402
 
 
-def run_row(log, value, std, vehicle="car", parameter="l_f", status="converged"):
-    return {"log": log, "vehicle": vehicle, "parameter": parameter, "value": value, "std": std, "status": status}
+def run_row(log, value, std, vehicle="car", parameter="l_f", status="converged", valid=True, frames=None):
+    return {"log": log, "vehicle": vehicle, "parameter": parameter, "value": value, "std": std, "status": status,
+            "valid": valid, "frames": frames, "duration_s": None if frames is None else frames / 600.0}  # fmt: skip
 
 
 # -- the combiner ----------------------------------------------------------------
@@ -32,7 +33,9 @@ def test_combination_is_the_inverse_variance_mean_and_agreeing_drives_pass():
     w = [1 / 0.002**2, 1 / 0.003**2, 1 / 0.002**2]
     mean = (1.40 * w[0] + 1.403 * w[1] + 1.398 * w[2]) / sum(w)
     assert veh["value"] == pytest.approx(mean, rel=1e-12)
-    assert veh["std"] == pytest.approx(sum(w) ** -0.5, rel=1e-12)
+    # the std: the independent part shrinks with the drives, the part common to all (COMMON) does not
+    c, shared = COMMON, (0.002 * w[0] + 0.003 * w[1] + 0.002 * w[2]) / sum(w)
+    assert veh["std"] == pytest.approx(math.sqrt((1 - c * c) / sum(w) + (c * shared) ** 2), rel=1e-12)
     assert veh["drives"] == 3 and veh["dof"] == 2
     assert veh["consistent"] and veh["flagged"] == []
     assert all(abs(z) < Z_FLAG for z in zs.values()) and len(zs) == 3
@@ -76,6 +79,50 @@ def test_only_converged_drives_enter_and_vehicles_are_kept_apart():
 
 def test_weighted_of_one_drive_is_that_drive():
     assert weighted([2.0], [0.5]) == (2.0, 0.5)
+    assert combined([2.0], [0.5]) == pytest.approx((2.0, 0.5), rel=1e-15)
+
+
+def test_many_drives_do_not_shrink_the_std_below_what_they_share():
+    """Drives of one car share the model's error, the profile's constants and the priors: n drives
+    of std s combine to s sqrt((1 - c^2) / n + c^2), never below c s (independent: s / sqrt(n))."""
+    for n in (2, 12, 400):
+        rows = [run_row(f"d{i}", 1.40 + 0.001 * (i % 2), 0.002) for i in range(n)]
+        (veh,), _ = combine(rows)
+        assert veh["std"] == pytest.approx(0.002 * math.sqrt((1 - COMMON**2) / n + COMMON**2), rel=1e-9)
+        assert veh["std"] > COMMON * 0.002 and veh["std"] > 0.002 / math.sqrt(n)
+
+
+def test_drives_not_valid_are_left_out_and_counted():
+    """A converged drive vdp called not valid (a model mismatch, a profile the check found wrong)
+    does not enter the combination; vehicles.parquet counts it."""
+    rows = [run_row("a", 1.40, 0.002), run_row("b", 1.30, 0.002, valid=False), run_row("c", 1.25, 0.004, valid=False)]
+    (veh,), _ = combine(rows)
+    assert veh["drives"] == 1 and veh["value"] == 1.40 and veh["not_valid"] == 2 and veh["runs"] == 3
+    (none,), _ = combine(rows[1:])
+    assert none["drives"] == 0 and math.isnan(none["value"]) and none["not_valid"] == 2
+
+
+def test_a_copy_of_a_log_counts_once():
+    """A backup or a .gz of the same log replays to the very same result: one drive, not two."""
+    rows = [run_row("a.log", 1.401, 0.002, frames=60000), run_row("b.log", 1.399, 0.002, frames=61000)]
+    rows += [run_row("a-backup.log", 1.401, 0.002, frames=60000), run_row("a.log.gz", 1.401, 0.002, frames=60000)]
+    (veh,), _ = combine(rows)
+    assert veh["drives"] == 2 and veh["copies"] == ["a-backup.log", "a.log.gz"]
+    assert veh["std"] == pytest.approx(combined([1.401, 1.399], [0.002, 0.002])[1], rel=1e-12)
+    from vdp.cli.batch import combination_notes
+
+    notes = combination_notes([veh])
+    assert notes == ["car: 2 log(s) gave the very result of another and were counted once (a-backup.log, a.log.gz)"]
+
+
+def test_a_manifest_column_misspelt_is_refused(tmp_path):
+    m = tmp_path / "m.csv"
+    m.write_text("log,car,profile\na.log,carA,\n")
+    with pytest.raises(ConfigError, match=r"unknown manifest column\(s\) 'car'.*columns are log,vehicle,profile"):
+        read_manifest(str(m))
+    m.write_text("log,Vehicle\na.log,carA\n")
+    with pytest.raises(ConfigError, match=r"'Vehicle' \(did you mean 'vehicle'\?\)"):
+        read_manifest(str(m))
 
 
 # -- inputs ------------------------------------------------------------------------
@@ -429,3 +476,21 @@ def test_a_vehicle_of_hundreds_of_drives_keeps_the_fleet_picture_readable():
     assert ax_many.figure.get_figheight() == ax_few.figure.get_figheight() < 15
     assert [t.get_text() for t in ax_few.get_yticklabels()][:2] == ["d000.log", "d001.log"]
     assert ax_many.get_yticklabels() == [] and "300 drives" in ax_many.get_ylabel()
+
+
+def test_one_vehicle_under_two_profiles_is_named(tmp_path, repo_root, capsys):
+    """Two cars under one vehicle name would be combined as one: said on stderr (a copy of the
+    same profile file is not another profile)."""
+    from argparse import Namespace
+
+    from vdp.cli.batch import tasks
+
+    paper = repo_root / "profiles" / "paper.toml"
+    (tmp_path / "copy.toml").write_bytes(paper.read_bytes())
+    m = tmp_path / "m.csv"
+    m.write_text(f"log,vehicle,profile\na.log,car,{paper}\nb.log,car,copy.toml\n")
+    args = Namespace(manifest=str(m), logs=[], profile=None, vehicle=None)
+    assert len(tasks(args)) == 2 and "profiles" not in capsys.readouterr().err
+    m.write_text(f"log,vehicle,profile\na.log,car,{paper}\nb.log,car,{repo_root / 'profiles' / 'toyota_rav4.toml'}\n")
+    assert len(tasks(args)) == 2
+    assert "vehicle 'car' has drives under 2 profiles" in capsys.readouterr().err

@@ -225,3 +225,18 @@ def test_replay_of_a_folder_or_another_tools_csv_says_what_it_is(tmp_path, capsy
     other.write_text("time,id,data\n1.0,0x123,00\n")
     assert main(["replay", str(other), "--profile", prof]) == 2
     assert "timestamp,arbitration_id,extended,remote,error,dlc,data" in capsys.readouterr().err
+
+
+def test_a_closed_pipe_does_not_cost_the_files(drive, repo_root):
+    """`vdp replay LOG --json F | head -1`: head closes the pipe before the table is printed; the
+    JSON was written all the same (it had been written after the table, and lost with exit 0)."""
+    import subprocess
+    import sys
+
+    d, log = drive
+    out = d / "piped.json"
+    vdp = f"{sys.executable} -c 'import sys; from vdp.cli import main; sys.exit(main(sys.argv[1:]))'"
+    cmd = f"{vdp} replay {log} --profile {repo_root / 'profiles' / 'paper.toml'} --json {out} --no-progress | head -1"
+    run = subprocess.run(["bash", "-c", cmd], capture_output=True, text=True, timeout=300)
+    assert run.stdout.count("\n") == 1 and out.is_file(), run.stderr[-2000:]
+    assert json.loads(out.read_text())["parameters"]["l_f"]["value"] is not None

@@ -29,6 +29,12 @@ log = logging.getLogger(__name__)
 
 PARAMETERS = NAMES
 Z_FLAG = 3.0  # |z| of a drive against the others' combination that flags it as disagreeing
+# The share of each drive's std that is common to all drives of a car, and so does not average
+# out: the model's error, the profile's constants and the priors are the same in every drive.
+# On vdp's own simulator, 12 paper drives of one car scattered by ~0.6 of their stds around a
+# value ~0.6 of a std off the truth; independent drives would scatter by 1 (BENCHMARKS.md,
+# "Combining a car's drives").  Without it 12 drives' combination was 2.1-2.6 of its std off.
+COMMON = 0.7
 P_CONSISTENT = 0.01  # chi^2 p-value below which a vehicle's drives are called inconsistent
 
 # what a status means when the parameter has no number worth using (the README's table)
@@ -245,17 +251,29 @@ def _num(v: Any) -> float:
 
 
 def weighted(values: list[float], stds: list[float]) -> tuple[float, float]:
-    """Inverse-variance weighted mean and its std."""
+    """Inverse-variance weighted mean and its std (the drives taken as independent)."""
     w = [1.0 / (s * s) for s in stds]
     sw = sum(w)
     return sum(wi * x for wi, x in zip(w, values)) / sw, math.sqrt(1.0 / sw)
 
 
+def combined(values: list[float], stds: list[float], common: float = COMMON) -> tuple[float, float]:
+    """The drives' inverse-variance weighted mean, and its std with ``common`` of each drive's
+    std shared by all (fully correlated, so it does not shrink with more drives):
+    var = (1 - c^2) / sum(w) + c^2 (sum(w s) / sum(w))^2, w = 1 / s^2.  One drive keeps its std."""
+    mean, sd = weighted(values, stds)
+    w = [1.0 / (s * s) for s in stds]
+    shared = sum(wi * s for wi, s in zip(w, stds)) / sum(w)
+    return mean, math.sqrt((1.0 - common * common) * sd * sd + (common * shared) ** 2)
+
+
 def usable(row: Mapping[str, Any]) -> bool:
-    """A drive's parameter enters the combination only if vdp called it converged."""
+    """A drive's parameter enters the combination only if vdp called it converged and valid
+    (not a model mismatch, a profile the self-check found wrong, ...)."""
     v, s = row.get("value"), row.get("std")
     return (
         row.get("status") == CONVERGED
+        and bool(row.get("valid"))
         and v is not None
         and s is not None
         and math.isfinite(v)
@@ -292,7 +310,7 @@ def combine(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict], dict[tuple[s
     zs: dict[tuple[str, str, str], float] = {}
     order = {p: i for i, p in enumerate(PARAMETERS)}
     for (vehicle, param), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], order.get(kv[0][1], 99))):
-        good = [r for r in rs if usable(r)]
+        good, copies = _distinct([r for r in rs if usable(r)])
         row: dict[str, Any] = {
             "vehicle": vehicle,
             "parameter": param,
@@ -310,6 +328,9 @@ def combine(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict], dict[tuple[s
             "chi2_kept": math.nan,
             "dof_kept": max(len(good) - 1, 0),
             "p_value_kept": math.nan,
+            # converged, but vdp said not valid (its reason in runs.parquet): left out
+            "not_valid": sum(1 for r in rs if r.get("status") == CONVERGED and not r.get("valid")),
+            "copies": copies,  # logs that are another log's very drive (the same result): counted once
         }
         xs = [float(r["value"]) for r in good]
         ss = [float(r["std"]) for r in good]
@@ -334,7 +355,7 @@ def combine(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict], dict[tuple[s
                 zs[(r["log"], vehicle, param)] = _loo_z(xs, ss, kept, i)
         if good:
             kx, ks = [xs[i] for i in kept], [ss[i] for i in kept]
-            row["value"], row["std"] = weighted(kx, ks)
+            row["value"], row["std"] = combined(kx, ks)
             row["drives"] = len(kept)
             if len(kept) >= 2:  # the retest, of the drives the value combines
                 chi2_k = sum(((x - row["value"]) / s) ** 2 for x, s in zip(kx, ks))
@@ -342,6 +363,24 @@ def combine(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict], dict[tuple[s
                 row.update(chi2_kept=chi2_k, dof_kept=len(kept) - 1, p_value_kept=p_k)
         out.append(row)
     return out, zs
+
+
+def _distinct(rows: list[Mapping[str, Any]]) -> tuple[list[Mapping[str, Any]], list[str]]:
+    """The drives once each, and the logs left out as copies of one before them.  A replay is
+    exact, so a copy of a log (a backup, its .gz) gives the very same value, std, frames and bus
+    time; counted twice it would shrink the combination's std as if it were a second drive."""
+    seen: set[tuple] = set()
+    out, copies = [], []
+    for r in rows:
+        key = (r.get("value"), r.get("std"), r.get("frames"), r.get("duration_s"))
+        if not r.get("frames"):  # (a row without its log's facts: nothing to tell a copy by)
+            out.append(r)
+        elif key in seen:
+            copies.append(r["log"])
+        else:
+            seen.add(key)
+            out.append(r)
+    return out, copies
 
 
 def _loo_z(xs: list[float], ss: list[float], kept: list[int], i: int) -> float:

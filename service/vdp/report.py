@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from .core.params import BY_NAME, NAMES
-from .core.result import CONVERGED, Estimate
+from .core.result import Estimate
 from .errors import ConfigError
 from .result import RunResult, jsonable
 
@@ -429,6 +429,8 @@ def fleet_figure(rows: list[dict], vehicles: list[dict]):
     import matplotlib.pyplot as plt
     from matplotlib.ticker import MaxNLocator
 
+    from .fleet import usable
+
     names = [n for n in NAMES if any(r.get("parameter") == n for r in rows)]
     cars = sorted({v["vehicle"] for v in vehicles})
     comb = {(v["vehicle"], v["parameter"]): v for v in vehicles}
@@ -445,7 +447,7 @@ def fleet_figure(rows: list[dict], vehicles: list[dict]):
         for j, name in enumerate(names):
             ax = axes[i][j]
             v = comb.get((car, name), {})
-            flagged = set(v.get("flagged") or [])
+            flagged, copies = set(v.get("flagged") or []), set(v.get("copies") or [])
             if v.get("value") is not None and math.isfinite(v["value"]):
                 m, sd = v["value"], v["std"]
                 ax.axvspan(m - 2 * sd, m + 2 * sd, color="tab:blue", alpha=0.18, lw=0)
@@ -454,7 +456,7 @@ def fleet_figure(rows: list[dict], vehicles: list[dict]):
                 r = run.get((car, lg, name))
                 if r is None or r.get("value") is None or not math.isfinite(r["value"]):
                     continue
-                used = r.get("status") == CONVERGED
+                used = usable(r) and lg not in copies  # (as the combination takes it: fleet.combine)
                 colour = "tab:red" if lg in flagged else ("black" if used else "grey")
                 sd = r["std"] if r.get("std") is not None and math.isfinite(r["std"]) else 0.0
                 face = colour if used else "white"
@@ -474,7 +476,7 @@ def fleet_figure(rows: list[dict], vehicles: list[dict]):
                 what = "χ² p of the rest" if left_out > 0 else "χ² p"
                 ax.text(0.02, 0.98, f"{what} = {p:.2g}", transform=ax.transAxes, fontsize=6, va="top")
     title = (
-        "drives (value ± 2σ; red: flagged as disagreeing; hollow: not converged, not used) and their "
+        "drives (value ± 2σ; red: flagged as disagreeing; hollow: not converged or not valid, not used) and their "
         "combination (blue ± 2σ)"
     )
     fig.suptitle(textwrap.fill(title, 40 * n_cols), fontsize=8)  # (wrapped to a narrow figure's width)

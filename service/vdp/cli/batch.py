@@ -12,6 +12,7 @@ parameter) are written from every part in DIR.
 from __future__ import annotations
 
 import csv
+import difflib
 import glob
 import logging
 import os
@@ -117,6 +118,9 @@ def _is_manifest(path: Path) -> bool:
     return "log" in (c.strip().lower() for c in head)
 
 
+MANIFEST_COLUMNS = ("log", "vehicle", "profile")
+
+
 def read_manifest(path: str) -> list[tuple[str, str | None, str | None]]:
     """(log, vehicle or None, profile or None) per manifest line."""
     where = Path(path)
@@ -132,6 +136,14 @@ def read_manifest(path: str) -> list[tuple[str, str | None, str | None]]:
         raise ConfigError(
             f"{path}: the manifest needs a header line with the columns log,vehicle,profile "
             f"(found: {','.join(cols) or 'nothing'})"
+        )
+    unknown = [c for c in cols if c not in MANIFEST_COLUMNS]
+    if unknown:
+        near = {c: difflib.get_close_matches(c.lower(), MANIFEST_COLUMNS, 1, 0.5) for c in unknown}
+        said = ", ".join(f"'{c}'" + (f" (did you mean '{near[c][0]}'?)" if near[c] else "") for c in unknown)
+        raise ConfigError(
+            f"{path}: unknown manifest column(s) {said}: the columns are {','.join(MANIFEST_COLUMNS)} (vehicle and "
+            f"profile may be left out: the profile's name is the vehicle, and profiles/paper.toml the profile)"
         )
     base = where.resolve().parent
     out = []
@@ -198,6 +210,23 @@ def tasks(args, unmatched: list[str] | None = None) -> list:
             f"{ts[0].log} is listed {len(ts)} times, as {listed}{more}: a drive belongs to one vehicle "
             f"and one profile; list it once"
         )
+    # one vehicle's drives under several profiles: its combination mixes them (a revised profile
+    # of the same car, or two cars under one name: only the user knows)
+    profiles: dict[str, dict[bytes, str]] = {}  # vehicle -> the profiles' texts (copies of one are one)
+    for t in out:
+        try:
+            text = Path(t.profile).read_bytes()
+        except OSError:
+            text = t.profile.encode()
+        profiles.setdefault(t.vehicle, {}).setdefault(text, t.profile)
+    for vehicle, by_text in sorted(profiles.items()):
+        ps = by_text.values()
+        if len(ps) > 1:
+            print(
+                f"vdp batch: vehicle {vehicle!r} has drives under {len(ps)} profiles ({', '.join(sorted(ps))}); "
+                f"they are combined as one car: name each car's vehicle apart if they are not",
+                file=sys.stderr,
+            )
     return out
 
 
@@ -283,6 +312,8 @@ def write_results(out: Path, parts: dict[str, list[dict]]) -> tuple[list[dict], 
             ("chi2_kept", pa.float64()),
             ("dof_kept", pa.int64()),
             ("p_value_kept", pa.float64()),
+            ("not_valid", pa.int64()),
+            ("copies", pa.list_(pa.string())),
         ]
     )
     _atomic(pq, pa.Table.from_pylist(vehicles, schema=vschema), out / "vehicles.parquet")
@@ -444,6 +475,8 @@ def run(args) -> int:
         )
     rows, vehicles = write_results(out, parts)
     print(f"wrote {out / 'runs.parquet'} ({len(rows)} rows) and {out / 'vehicles.parquet'} ({len(vehicles)} rows)")
+    for line in combination_notes(vehicles):
+        print(line)
     if args.plot:
         from ..report import fleet_plot
 
@@ -459,6 +492,26 @@ def run(args) -> int:
     if unmatched:
         print(f"{len(unmatched)} of the inputs gave no log (a typo in a path or glob?)")
     return 1 if failed or unmatched else 0
+
+
+def combination_notes(vehicles: list[dict]) -> list[str]:
+    """What a reader of vehicles.parquet should know of a vehicle's combination: copies of a log
+    counted once, and converged drives left out as not valid."""
+    out = []
+    copies: dict[str, set[str]] = {}
+    for v in vehicles:
+        copies.setdefault(v["vehicle"], set()).update(v.get("copies") or [])
+    for car, logs in sorted(copies.items()):
+        if logs:
+            names = ", ".join(sorted(logs)[:3]) + (", ..." if len(logs) > 3 else "")
+            out.append(f"{car}: {len(logs)} log(s) gave the very result of another and were counted once ({names})")
+    for v in vehicles:
+        if v.get("not_valid"):
+            out.append(
+                f"{v['vehicle']} {v['parameter']}: {v['not_valid']} converged drive(s) left out as not valid "
+                f"(their reason is in runs.parquet){'; no valid drive to combine' if not v['drives'] else ''}"
+            )
+    return out
 
 
 def _supersede(out: Path, key: str) -> None:

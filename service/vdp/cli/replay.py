@@ -209,6 +209,38 @@ def run(args) -> int:
         baseline_ekf=None if result.baseline_ekf is None else profilecheck.mark_invalid(result.baseline_ekf, check),
     )
 
+    # the files first: a table piped into head (a closed pipe) must not cost the user them
+    wrote: list[str] = []
+    if args.json_out:
+        doc = report.document(result, truth)
+        doc["vehicle"] = _constants(profile)
+        doc["profile_check"] = {**check.as_dict(), "coverage": cov.as_dict()}
+        report.write_json(doc, args.json_out)
+        wrote.append(f"wrote {args.json_out}")
+    t0 = result.log.start_time
+    if recorder is not None:
+        recorder.finish(result)
+        cols, rows = recorder.table(t0)
+        write_table(args.series, cols, rows)
+        wrote.append(f"wrote {args.series} ({len(rows)} rows)")
+    if tap is not None:
+        a = tap.array(t0)
+        write_table(args.channels, tap.columns(), a)
+        wrote.append(f"wrote {args.channels} ({len(a)} samples)")
+    if args.plot:
+        doc = result.estimates_dict()  # windows on the trace's time axis (since the log's start)
+        report.plot(
+            result.trace_since_start(),
+            doc["windows"],
+            args.plot,
+            truth,
+            title=f"{Path(args.log).name}: {profile.vehicle.name}",
+            params=doc["parameters"],
+            priors=profile.priors,
+            capabilities=doc.get("capabilities"),
+        )
+        wrote.append(f"wrote {args.plot}")
+
     lg = result.log
     print(
         f"{args.log}: {lg.frames} frames, {lg.duration_s:.1f} s of bus time, "
@@ -230,35 +262,8 @@ def run(args) -> int:
     damage = lg.source.get("damage") or {}
     if damage.get("places"):
         print(f"{args.log}: {damage['summary']}; see the JSON 'log' section")
-    if args.json_out:
-        doc = report.document(result, truth)
-        doc["vehicle"] = _constants(profile)
-        doc["profile_check"] = {**check.as_dict(), "coverage": cov.as_dict()}
-        report.write_json(doc, args.json_out)
-        print(f"wrote {args.json_out}")
-    t0 = lg.start_time
-    if recorder is not None:
-        recorder.finish(result)
-        cols, rows = recorder.table(t0)
-        write_table(args.series, cols, rows)
-        print(f"wrote {args.series} ({len(rows)} rows)")
-    if tap is not None:
-        a = tap.array(t0)
-        write_table(args.channels, tap.columns(), a)
-        print(f"wrote {args.channels} ({len(a)} samples)")
-    if args.plot:
-        doc = result.estimates_dict()  # windows on the trace's time axis (since the log's start)
-        report.plot(
-            result.trace_since_start(),
-            doc["windows"],
-            args.plot,
-            truth,
-            title=f"{Path(args.log).name}: {profile.vehicle.name}",
-            params=doc["parameters"],
-            priors=profile.priors,
-            capabilities=doc.get("capabilities"),
-        )
-        print(f"wrote {args.plot}")
+    for line in wrote:
+        print(line)
     return 0
 
 
