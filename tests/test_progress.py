@@ -81,6 +81,16 @@ def test_a_stage_this_car_cannot_run_says_why():
     assert not out["stages"]["2"]["can_run"]
 
 
+def test_a_parameter_this_car_cannot_learn_is_not_counted_as_learnt():
+    """I_x without a roll-rate gyro leaves stage 2's progress to C_alpha and I_z: a stage 2 that never
+    ran reads 0 %, not 33 % (the RAV4's replay had said 33 %); once they converge, 100 %."""
+    caps = {"1": None, "2": None, "I_x": "no roll-rate gyro (the profile maps no roll_rate)"}
+    out = progress.assess(snap(caps=caps), PRIORS, 0.02)
+    assert out["stages"]["2"]["progress"] == 0.0 and out["stages"]["2"]["can_run"]
+    done = {n: {"status": "converged", "std": 0.001 * PRIORS[n].value} for n in ("C_alpha", "I_z")}
+    assert progress.assess(snap(caps=caps, **done), PRIORS, 0.02)["stages"]["2"]["progress"] == 1.0
+
+
 @pytest.mark.slow
 def test_progress_grows_while_the_paper_drive_goes_on(tmp_path, repo_root):
     profile = load_profile(repo_root / "profiles" / "paper.toml")

@@ -163,3 +163,14 @@ def test_full_minute_decodes_and_claims_nothing(tmp_path, capsys):
     # 93 frames lost their trailing zero bytes in comma2k19's arrays: the profile pads them (pad_short)
     assert set(dec["errors_by_kind"]) == {"unknown_id"} and 0 < dec["padded"] <= 100
     check_no_claims(text, res)
+
+
+def test_a_fleet_row_gives_the_reason_the_car_cannot_learn_a_parameter():
+    """runs.parquet's reason for the RAV4's I_x is its missing roll-rate gyro, as the replay says,
+    not "its stage had no window" (which asks for more driving that cannot help)."""
+    from vdp import fleet
+
+    res = fleet.replay_log(str(TRIMMED), str(PROFILE))
+    rows = {r["parameter"]: r for r in fleet.rows_from_result(res, fleet.Task(str(TRIMMED), "rav4", str(PROFILE)))}
+    assert rows["I_x"]["status"] == "not_run" and "no roll-rate gyro" in rows["I_x"]["reason"]
+    assert "no per-axle wheel torque" in rows["h"]["reason"]  # its stage cannot run on this car

@@ -210,8 +210,9 @@ def rows_from_result(res: Any, task: Task, stamp: tuple[int, int] | None = None)
             continue
         reason = e.reason
         if reason is None:
-            why_not = res.capabilities.get(str(e.stage)) if e.status == NOT_RUN else None  # the car cannot run it
-            reason = why_not or REASONS.get(e.status)
+            # the car cannot estimate it (I_x without a roll-rate gyro) or cannot run its stage
+            caps = res.capabilities if e.status == NOT_RUN else {}
+            reason = caps.get(name) or caps.get(str(e.stage)) or REASONS.get(e.status)
         row: dict[str, Any] = dict.fromkeys(RUN_COLUMNS)
         row.update(
             log=task.log,

@@ -345,12 +345,15 @@ def figure(
             ax.set_ylabel(f"{_SYMBOL[name]} [{spec.unit.replace('*', '·')}]")
             ax.grid(alpha=0.3)
             if not ran:
-                cannot = (capabilities or {}).get(str(stage))
-                why = (
-                    f"stage {stage} cannot run on this car:\n{_wrap(cannot)}"
-                    if cannot
-                    else f"stage {stage} had no window"
-                )
+                caps = capabilities or {}
+                own = caps.get(name)  # a parameter its stage runs without (I_x without a roll-rate gyro)
+                cannot = caps.get(str(stage))
+                if own:
+                    why = f"{name} is not estimated on this car:\n{_wrap(own)}"
+                elif cannot:
+                    why = f"stage {stage} cannot run on this car:\n{_wrap(cannot)}"
+                else:
+                    why = f"stage {stage} had no window"
                 ax.text(
                     0.5,
                     0.5,

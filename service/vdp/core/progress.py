@@ -150,19 +150,21 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
             out["parameters"][name]["hint"] += f"; {hard}"
     for stage, names in STAGE_PARAMS.items():
         per = out["parameters"]
-        # the mean over the stage's parameters; one the data was judged unable to pin no longer
-        # holds its stage back (the estimator calls the stage done then, too), nor one this car
-        # cannot learn (I_x without a roll-rate gyro), nor one whose model cannot explain the data
-        # ("model mismatch: ...": more of the same driving will not fix it, its hint says)
+        # the mean over the stage's parameters this car can learn (I_x without a roll-rate gyro is
+        # not one: counted as done, it had shown a stage that never ran at 33 %); one the data was
+        # judged unable to pin no longer holds its stage back (the estimator calls the stage done
+        # then, too), nor one whose model cannot explain the data ("model mismatch: ...": more of
+        # the same driving will not fix it, its hint says)
         counted = [
             1.0
-            if params.get(n, {}).get("status") == NOT_IDENTIFIABLE or caps.get(n) or _mismatch(params.get(n) or {})
+            if params.get(n, {}).get("status") == NOT_IDENTIFIABLE or _mismatch(params.get(n) or {})
             else per[n]["progress"]
             for n in names
+            if not caps.get(n)
         ]
         ex = excitation.get(str(stage)) or {}
         out["stages"][str(stage)] = {
-            "progress": round(sum(counted) / len(counted), 3),
+            "progress": round(sum(counted) / len(counted), 3) if counted else 1.0,
             "can_run": not caps.get(str(stage)),
             "why_not": caps.get(str(stage)),
             "gate": reasons.get(str(stage)),
