@@ -166,3 +166,30 @@ def test_the_real_command_exits_non_zero_without_a_traceback(tmp_path):
     )
     assert r.returncode == 2 and r.stdout == ""
     assert r.stderr.strip().splitlines() == [f"vdp replay: error: {p}: file is empty"], r.stderr
+
+
+def test_a_damaged_frame_line_in_an_asc_log_is_counted_and_strict_stops_at_it(logs, capsys):
+    """A Vector ASC frame line python-can cannot read is a bad line (counted, its number given,
+    --strict stops at it), not one of the events ASC holds besides frames, which are passed over
+    as before (statistics, error frames, comments).  It had been passed over without a word."""
+    import can
+
+    d = logs["dir"]
+    asc = d / "drive.asc"
+    with can.ASCWriter(str(asc)) as w:
+        for m in Simulation(PROFILE, "stage1", 3, "realistic", duration=4.0).frames():
+            w.on_message_received(m)
+    lines = asc.read_text().splitlines()
+    frames = [i for i, ln in enumerate(lines) if " Rx " in ln or " Tx " in ln]
+    k = frames[len(frames) // 2]
+    lines[k] = lines[k][: lines[k].index("x ") + 2] + " garbage!!"  # the id and direction kept
+    lines.insert(frames[10], "   0.010000 1  Statistic: D 0 R 0 XD 0 XR 0 E 0 O 0 B 0.00%")
+    lines.insert(frames[11], "// a comment")
+    bad = d / "bad.asc"
+    bad.write_text("\n".join(lines) + "\n")
+    assert replay(bad, d / "asc.json") == 0
+    log = json.loads((d / "asc.json").read_text())["log"]
+    assert log["bad_lines"] == 1 and log["bad_examples"][0]["line"] == k + 3  # (two lines inserted before it)
+    capsys.readouterr()
+    assert replay(bad, d / "asc-strict.json", "--strict") == 2
+    assert f"line {k + 3}: unreadable .asc line" in one_line_error(capsys)
