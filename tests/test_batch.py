@@ -33,9 +33,10 @@ def test_combination_is_the_inverse_variance_mean_and_agreeing_drives_pass():
     w = [1 / 0.002**2, 1 / 0.003**2, 1 / 0.002**2]
     mean = (1.40 * w[0] + 1.403 * w[1] + 1.398 * w[2]) / sum(w)
     assert veh["value"] == pytest.approx(mean, rel=1e-12)
-    # the std: the independent part shrinks with the drives, the part common to all (COMMON) does not
-    c, shared = COMMON, (0.002 * w[0] + 0.003 * w[1] + 0.002 * w[2]) / sum(w)
-    assert veh["std"] == pytest.approx(math.sqrt((1 - c * c) / sum(w) + (c * shared) ** 2), rel=1e-12)
+    # the std: the independent part shrinks with the drives, the error they share (COMMON of the best
+    # drive's std) does not
+    c = COMMON
+    assert veh["std"] == pytest.approx(math.sqrt((1 - c * c) / sum(w) + (c * 0.002) ** 2), rel=1e-12)
     assert veh["drives"] == 3 and veh["dof"] == 2
     assert veh["consistent"] and veh["flagged"] == []
     assert all(abs(z) < Z_FLAG for z in zs.values()) and len(zs) == 3
@@ -90,6 +91,12 @@ def test_many_drives_do_not_shrink_the_std_below_what_they_share():
         (veh,), _ = combine(rows)
         assert veh["std"] == pytest.approx(0.002 * math.sqrt((1 - COMMON**2) / n + COMMON**2), rel=1e-9)
         assert veh["std"] > COMMON * 0.002 and veh["std"] > 0.002 / math.sqrt(n)
+    # a drive added, however noisy, never widens the combination (nor leaves it wider than the best drive)
+    stds = [0.002]
+    for s in (0.004, 0.004, 0.004, 0.01, 0.0025):
+        before = combined([1.4] * len(stds), stds)[1]
+        stds.append(s)
+        assert combined([1.4] * len(stds), stds)[1] <= before <= 0.002
 
 
 def test_drives_not_valid_are_left_out_and_counted():
@@ -113,6 +120,10 @@ def test_a_copy_of_a_log_counts_once():
 
     notes = combination_notes([veh])
     assert notes == ["car: 2 log(s) gave the very result of another and were counted once (a-backup.log, a.log.gz)"]
+    # a copy of a drive vdp called not valid is one not-valid drive, not two
+    bad = [run_row("n.log", 1.3, 0.002, valid=False, frames=9), run_row("n.log.gz", 1.3, 0.002, valid=False, frames=9)]
+    (veh,), _ = combine(rows + bad)
+    assert veh["not_valid"] == 1 and veh["copies"] == ["a-backup.log", "a.log.gz", "n.log.gz"]
 
 
 def test_a_manifest_column_misspelt_is_refused(tmp_path):
@@ -120,9 +131,14 @@ def test_a_manifest_column_misspelt_is_refused(tmp_path):
     m.write_text("log,car,profile\na.log,carA,\n")
     with pytest.raises(ConfigError, match=r"unknown manifest column\(s\) 'car'.*columns are log,vehicle,profile"):
         read_manifest(str(m))
-    m.write_text("log,Vehicle\na.log,carA\n")
-    with pytest.raises(ConfigError, match=r"'Vehicle' \(did you mean 'vehicle'\?\)"):
+    m.write_text("log,vehicle_name\na.log,carA\n")
+    with pytest.raises(ConfigError, match=r"'vehicle_name' \(did you mean 'vehicle'\?\)"):
         read_manifest(str(m))
+    # as spreadsheets write them: names in any case, a trailing comma; a note beside all three columns
+    m.write_text("Log,Vehicle,Profile,\na.log,carA,,\n")
+    assert read_manifest(str(m)) == [(str(tmp_path / "a.log"), "carA", None)]
+    m.write_text("log,vehicle,profile,notes\na.log,carA,,rainy\n")
+    assert read_manifest(str(m)) == [(str(tmp_path / "a.log"), "carA", None)]
 
 
 # -- inputs ------------------------------------------------------------------------

@@ -259,13 +259,14 @@ def weighted(values: list[float], stds: list[float]) -> tuple[float, float]:
 
 
 def combined(values: list[float], stds: list[float], common: float = COMMON) -> tuple[float, float]:
-    """The drives' inverse-variance weighted mean, and its std with ``common`` of each drive's
-    std shared by all (fully correlated, so it does not shrink with more drives):
-    var = (1 - c^2) / sum(w) + c^2 (sum(w s) / sum(w))^2, w = 1 / s^2.  One drive keeps its std."""
+    """The drives' inverse-variance weighted mean, and its std with an error shared by all of
+    them (it does not shrink with more drives) of ``common`` times the best drive's std:
+    var = (1 - c^2) / sum(w) + c^2 min(s)^2, w = 1 / s^2.  One drive keeps its std, n equal
+    drives give s sqrt((1 - c^2) / n + c^2), and a drive added never widens it (a shared part
+    c s_i per drive would have: a noisy drive's share outweighed the information it adds)."""
     mean, sd = weighted(values, stds)
-    w = [1.0 / (s * s) for s in stds]
-    shared = sum(wi * s for wi, s in zip(w, stds)) / sum(w)
-    return mean, math.sqrt((1.0 - common * common) * sd * sd + (common * shared) ** 2)
+    best = min(stds)
+    return mean, math.sqrt((1.0 - common * common) * sd * sd + (common * best) ** 2)
 
 
 def usable(row: Mapping[str, Any]) -> bool:
@@ -284,12 +285,17 @@ def usable(row: Mapping[str, Any]) -> bool:
 
 
 def combine(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict], dict[tuple[str, str, str], float]]:
-    """Per vehicle x parameter: the combination of its converged drives, and each drive's z.
+    """Per vehicle x parameter: the combination of its converged and valid drives (a copy of a
+    log counted once), and each drive's z.
 
-    The drives are taken as independent measurements of one true value; then
-    chi^2 = sum((x_i - mean)^2 / s_i^2) over all of them follows chi^2 with n-1
-    degrees of freedom, and a small p-value says they do not agree within their
-    stds.  Which drive disagrees: each is compared with the combination of the
+    The value is their inverse-variance weighted mean; its std keeps an error all drives
+    share (:func:`combined`).  The consistency test takes the drives' full stds, as if their
+    errors were independent: chi^2 = sum((x_i - mean)^2 / s_i^2) over all of them against
+    chi^2 with n-1 degrees of freedom, a small p-value saying they do not agree within their
+    stds.  A shared error cancels from these differences, so the test is conservative (on
+    drives whose errors share 0.7 of their std it would call inconsistent, or flag, about
+    half as often as its nominal rate): it names a drive only when even independent errors
+    cannot explain it.  Which drive disagrees: each is compared with the combination of the
     others, z_i = (x_i - mean_-i) / sqrt(s_i^2 + s_-i^2); the worst one beyond
     Z_FLAG is flagged and left out, and the rest are tested again (one bad drive
     pulls the others' means, so all are not judged at once).  With two drives left
@@ -311,7 +317,9 @@ def combine(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict], dict[tuple[s
     zs: dict[tuple[str, str, str], float] = {}
     order = {p: i for i, p in enumerate(PARAMETERS)}
     for (vehicle, param), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], order.get(kv[0][1], 99))):
-        good, copies = _distinct([r for r in rs if usable(r)])
+        # copies first, over every converged drive: a not-valid log and its .gz are one drive too
+        once, copies = _distinct([r for r in rs if r.get("status") == CONVERGED])
+        good = [r for r in once if usable(r)]
         row: dict[str, Any] = {
             "vehicle": vehicle,
             "parameter": param,
@@ -330,7 +338,7 @@ def combine(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict], dict[tuple[s
             "dof_kept": max(len(good) - 1, 0),
             "p_value_kept": math.nan,
             # converged, but vdp said not valid (its reason in runs.parquet): left out
-            "not_valid": sum(1 for r in rs if r.get("status") == CONVERGED and not r.get("valid")),
+            "not_valid": sum(1 for r in once if not r.get("valid")),
             "copies": copies,  # logs that are another log's very drive (the same result): counted once
         }
         xs = [float(r["value"]) for r in good]

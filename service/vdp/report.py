@@ -479,7 +479,8 @@ def fleet_figure(rows: list[dict], vehicles: list[dict]):
                 what = "χ² p of the rest" if left_out > 0 else "χ² p"
                 ax.text(0.02, 0.98, f"{what} = {p:.2g}", transform=ax.transAxes, fontsize=6, va="top")
     title = (
-        "drives (value ± 2σ; red: flagged as disagreeing; hollow: not converged or not valid, not used) and their "
+        "drives (value ± 2σ; red: flagged as disagreeing; hollow: not used: not converged, not valid, or a copy "
+        "of another log) and their "
         "combination (blue ± 2σ)"
     )
     fig.suptitle(textwrap.fill(title, 40 * n_cols), fontsize=8)  # (wrapped to a narrow figure's width)

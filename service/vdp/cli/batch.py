@@ -131,19 +131,24 @@ def read_manifest(path: str) -> list[tuple[str, str | None, str | None]]:
     except (OSError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: cannot read the manifest: {exc}") from None
     reader = csv.DictReader(text.splitlines())
-    cols = [c.strip() for c in reader.fieldnames or []]
+    # header names as written (Log, VEHICLE, a trailing comma's empty one: a spreadsheet's export)
+    reader.fieldnames = [(c or "").strip().lower() for c in reader.fieldnames or []]
+    cols = [c for c in reader.fieldnames if c]
     if "log" not in cols:
         raise ConfigError(
             f"{path}: the manifest needs a header line with the columns log,vehicle,profile "
             f"(found: {','.join(cols) or 'nothing'})"
         )
+    # another column beside all three is a note of the user's; in place of vehicle or profile it is
+    # most likely that column misnamed (car, vehicle_name), which would be passed over in silence
     unknown = [c for c in cols if c not in MANIFEST_COLUMNS]
-    if unknown:
+    if unknown and not all(c in cols for c in MANIFEST_COLUMNS):
         near = {c: difflib.get_close_matches(c.lower(), MANIFEST_COLUMNS, 1, 0.5) for c in unknown}
         said = ", ".join(f"'{c}'" + (f" (did you mean '{near[c][0]}'?)" if near[c] else "") for c in unknown)
         raise ConfigError(
             f"{path}: unknown manifest column(s) {said}: the columns are {','.join(MANIFEST_COLUMNS)} (vehicle and "
-            f"profile may be left out: the profile's name is the vehicle, and profiles/paper.toml the profile)"
+            f"profile may be left out: the profile's name is the vehicle, and profiles/paper.toml the profile; "
+            f"other columns are allowed beside all three)"
         )
     base = where.resolve().parent
     out = []
