@@ -240,3 +240,28 @@ def test_a_closed_pipe_does_not_cost_the_files(drive, repo_root):
     run = subprocess.run(["bash", "-c", cmd], capture_output=True, text=True, timeout=300)
     assert run.stdout.count("\n") == 1 and out.is_file(), run.stderr[-2000:]
     assert json.loads(out.read_text())["parameters"]["l_f"]["value"] is not None
+
+
+def test_simulate_repeat_makes_one_long_log_of_one_car(tmp_path, capsys):
+    """vdp simulate --repeat N: N drives of the scenario, seeds SEED.., 1 s apart in one log; the
+    truth holds every drive's seed, start and segments on the log's clock."""
+    from vdp.io.logs import open_log
+    from vdp.sim.run import REPEAT_GAP
+
+    out = tmp_path / "long.log"
+    args = ["simulate", "--scenario", "stage1", "--duration", "6", "--seed", "4", "--repeat", "3", "--out", str(out)]
+    assert main(args) == 0
+    assert "simulated stage1 x 3: 20.0 s" in capsys.readouterr().out
+    truth = json.loads(out.with_name("long.truth.json").read_text())
+    assert [(d["seed"], d["start"]) for d in truth["repeat"]] == [
+        (4, 0.0),
+        (5, 6 + REPEAT_GAP),
+        (6, 12 + 2 * REPEAT_GAP),
+    ]
+    assert truth["duration"] == 20.0 and truth["segments"][-1]["end"] == 20.0
+    t = [m.timestamp for m in open_log(out)]
+    assert t == sorted(t) and t[-1] - t[0] < 20.0 + 1e-6
+    gaps = [b - a for a, b in zip(t, t[1:]) if b - a > 0.5]
+    assert len(gaps) == 2  # the silence between drives
+    assert main(["simulate", "--model", "brush", "--repeat", "2", "--out", str(tmp_path / "b.log")]) == 2
+    assert "--repeat applies to --model vdp only" in capsys.readouterr().err

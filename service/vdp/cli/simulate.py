@@ -65,6 +65,14 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument(
         "--duration", type=float, help="stop after this many seconds (at most the scenario's length; said if capped)"
     )
+    p.add_argument(
+        "--repeat",
+        type=int,
+        default=1,
+        metavar="N",
+        help="N drives of the scenario back to back in one log, seeds SEED..SEED+N-1, 1 s apart: "
+        "a long log of one car (default 1)",
+    )
     p.add_argument("--drop-rate", type=float, default=0.0, help="drop each frame with this probability")
     p.add_argument("--extra-ids", type=int, default=0, help="number of unrelated filler IDs (benchmarks)")
     p.add_argument("--extra-rate", type=float, default=100.0, help="frames per second of each filler ID")
@@ -112,22 +120,31 @@ def run(args: argparse.Namespace) -> int:
             except OSError as exc:
                 raise ConfigError(f"{path}: cannot create its folder {path.parent}: {exc.strerror or exc}") from None
     params = dict(args.param)
+    if args.repeat < 1:
+        raise ConfigError(f"--repeat must be at least 1, got {args.repeat}")
     if args.model != "vdp":
+        if args.repeat != 1:
+            raise ConfigError("--repeat applies to --model vdp only")
         return _run_independent(args)
     if args.car:
         raise ConfigError("--car chooses a car of an independent model; give --model brush or --model mb too")
-    sim = simrun.Simulation(
-        args.profile,
-        args.scenario,
-        args.seed,
-        args.noise,
-        params=params or None,
-        dbc=args.dbc,
-        drop_rate=args.drop_rate,
-        extra_ids=args.extra_ids,
-        extra_rate=args.extra_rate,
-        duration=args.duration,
-    )
+
+    def make(k: int = 0, start: float = simrun.START_TIME) -> simrun.Simulation:
+        return simrun.Simulation(
+            args.profile,
+            args.scenario,
+            args.seed + k,
+            args.noise,
+            params=params or None,
+            dbc=args.dbc,
+            drop_rate=args.drop_rate,
+            extra_ids=args.extra_ids,
+            extra_rate=args.extra_rate,
+            duration=args.duration,
+            start_time=start,
+        )
+
+    sim = make() if args.repeat == 1 else simrun.Repeated(make, args.repeat)
     if args.duration is not None and args.duration > sim.scenario.duration:
         # the cap bites: say so rather than hand back a shorter drive than asked for
         print(
@@ -140,7 +157,8 @@ def run(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     where = f" -> {', '.join(files)}" if files else ""
     live = f" (sent on {args.bus_interface})" if sent else ""
-    print(f"simulated {sim.scenario.name}: {sim.duration:.1f} s, {count} frames in {wall:.1f} s{live}{where}")
+    what = sim.scenario.name if args.repeat == 1 else f"{sim.scenario.name} x {args.repeat}"
+    print(f"simulated {what}: {sim.duration:.1f} s, {count} frames in {wall:.1f} s{live}{where}")
     return 0
 
 

@@ -299,6 +299,56 @@ def simulate(
     return sim.frames(), sim.truth
 
 
+REPEAT_GAP = 1.0  # s of silence between repeated drives: each starts afresh, as after a stop of the logger
+
+
+class Repeated:
+    """Drives of one scenario back to back in one log, seeds ``seed``, ``seed + 1``, ...: a long
+    log of one car for a fleet or a benchmark (``vdp simulate --repeat N``).  Each drive starts
+    REPEAT_GAP after the last one ended, from the scenario's start.  The truth is the first
+    drive's, with the whole span, the segments of every drive on the log's clock and each
+    drive's seed, start and sensor offsets under ``repeat``."""
+
+    def __init__(self, make: Callable[[int, float], Simulation], count: int, start_time: float = START_TIME):
+        if count < 1:
+            raise ConfigError(f"--repeat must be at least 1, got {count}")
+        self.sims: list[Simulation] = []
+        t = start_time
+        for k in range(count):
+            sim = make(k, t)
+            self.sims.append(sim)
+            t = sim.start_us / 1e6 + sim.duration + REPEAT_GAP
+        first, last = self.sims[0], self.sims[-1]
+        self.scenario = first.scenario
+        self.bus_channel = first.bus_channel
+        self.duration = last.start_us / 1e6 + last.duration - first.start_us / 1e6
+        self.truth = self._truth()
+
+    def _truth(self) -> dict:
+        first = self.sims[0]
+        t0 = first.start_us / 1e6
+        segments, drives = [], []
+        for sim in self.sims:
+            off = sim.start_us / 1e6 - t0
+            for seg in sim.truth["segments"]:
+                segments.append({**seg, "start": round(seg["start"] + off, 6), "end": round(seg["end"] + off, 6)})
+            drives.append({"seed": sim.seed, "start": round(off, 6), "duration": sim.duration,
+                           "bias": sim.truth["noise"].get("bias", {})})  # fmt: skip
+        return {**first.truth, "duration": self.duration, "segments": segments, "repeat": drives}
+
+    def frames(self, tap: Tap | None = None, progress: Callable[[float, float], None] | None = None):
+        """Every drive's frames in turn; ``progress`` sees the time into the whole log."""
+        t0 = self.sims[0].start_us / 1e6
+        for sim in self.sims:
+            off = sim.start_us / 1e6 - t0
+
+            def step(t: float, _total: float, off: float = off) -> None:
+                if progress is not None:
+                    progress(off + t, self.duration)
+
+            yield from sim.frames(tap, step if progress is not None else None)
+
+
 # -- physics-only trace (tests, plots) ------------------------------------------------
 def trace(
     scenario: str | Scenario = "paper",
