@@ -1,6 +1,7 @@
 """Exports: replay --series/--channels, vdp export's formats, --version, caps that say they bite."""
 
 import csv
+import dataclasses
 import json
 import math
 import sys
@@ -303,3 +304,26 @@ def test_the_plot_marks_what_the_result_reports_beside_the_filters_line():
         assert seg[:, 1].tolist() == pytest.approx([9.6e4 - 1.2e4, 9.6e4 + 1.2e4])
     finally:
         plt.close(fig)
+
+
+def test_a_measured_l_f_is_handed_on_where_stage_1_did_not_run(tmp_path, capsys):
+    """A car without axle torques runs stage 2 on the profile's measured l_f ([vehicle] l_f): an
+    export carries that l_f (marked measured), not nothing; without one, l_f stays left out."""
+    from vdp.export import Constants, render
+
+    params = {
+        "l_f": {"value": 1.15, "std": 0.3, "unit": "m", "status": "not_run", "valid": False},
+        "C_alpha": {"value": 9.0e4, "std": 2e3, "unit": "N/rad", "status": "converged", "valid": True},
+    }
+    known = Constants("rav4", 1656.0, 2.66, 0.35, 2.4, 1.57, l_f=1.17, l_f_std=0.08)
+    text = render("commonroad", params, known)
+    assert "a: 1.17\n" in text and "measured: the profile's [vehicle] l_f" in text and "p_ky1:" in text
+    carla = json.loads(render("carla", params, known))
+    assert carla["center_of_mass"]["x"] == pytest.approx(2.66 / 2 - 1.17)
+    plain = render("commonroad", params, Constants("rav4", 1656.0, 2.66, 0.35, 2.4, 1.57))
+    assert "a: " not in plain and "left out (not estimated from the data): l_f" in plain
+    # through vdp export, from a replay's JSON (whose vehicle block carries the measured l_f)
+    result = tmp_path / "r.json"
+    result.write_text(json.dumps({"parameters": params, "vehicle": dataclasses.asdict(known)}))
+    assert main(["export", str(result), "--format", "commonroad", "--out", str(tmp_path / "c.yaml")]) == 0
+    assert "l_f is the profile's measured 1.17 m" in capsys.readouterr().err

@@ -36,11 +36,15 @@ class Constants:
     wheel_inertia: float  # per axle, both wheels
     track: float
     g: float = 9.8
+    # l_f measured on axle scales ([vehicle] l_f): handed on where stage 1 did not estimate it
+    l_f: float | None = None
+    l_f_std: float | None = None
 
     @classmethod
     def of(cls, vehicle) -> Constants:
         v = vehicle
-        return cls(v.name, v.mass, v.wheelbase, v.wheel_radius, v.wheel_inertia, v.track, v.g)
+        l_f, sd = getattr(v, "l_f", None), getattr(v, "l_f_std", None)
+        return cls(v.name, v.mass, v.wheelbase, v.wheel_radius, v.wheel_inertia, v.track, v.g, l_f, sd)
 
     @classmethod
     def from_dict(cls, d: dict) -> Constants:
@@ -56,12 +60,20 @@ def check_format(fmt: str) -> str:
     return fmt
 
 
-def usable(params: dict) -> tuple[dict[str, dict], list[str]]:
-    """(name -> estimate) of the parameters worth handing on, and the names left out."""
+MEASURED = "measured"  # the status of a value handed on from the profile, not estimated
+
+
+def usable(params: dict, const: Constants | None = None) -> tuple[dict[str, dict], list[str]]:
+    """(name -> estimate) of the parameters worth handing on, and the names left out.  An l_f
+    stage 1 did not estimate is the profile's measured one where ``const`` has it (stage 2
+    used that one too): a car without axle torques is otherwise exported without its CG."""
     keep, skipped = {}, []
     for name in NAMES:
         p = params.get(name) or {}
-        if p.get("value") is None or p.get("status", NOT_RUN) in UNUSABLE:
+        if name == "l_f" and p.get("status", NOT_RUN) == NOT_RUN and const is not None and const.l_f is not None:
+            sd = const.l_f_std if const.l_f_std is not None else 0.01 * const.l_f  # (as stage 2 takes it)
+            keep[name] = {"value": const.l_f, "std": sd, "unit": "m", "status": MEASURED, "valid": True}
+        elif p.get("value") is None or p.get("status", NOT_RUN) in UNUSABLE:
             skipped.append(name)
         else:
             keep[name] = p
@@ -88,6 +100,8 @@ def _about(p: dict) -> str:
     std = p.get("std")
     sd = f"+- {std:.4g}" if std is not None else "std unknown"
     valid = "" if p.get("valid", True) else ", NOT VALID (see its reason in the result)"
+    if p.get("status") == MEASURED:
+        return f"{sd} {p.get('unit', '')}, measured: the profile's [vehicle] l_f, not estimated"
     return f"{sd} {p.get('unit', '')}, {p.get('status', '?')}{valid}"
 
 
@@ -100,7 +114,7 @@ def not_valid(params: dict) -> list[str]:
 def _commonroad(params: dict, const: Constants, source: str) -> str:
     """The layout of the commonroad-vehicle-models parameter YAML (parameters_vehicleN.yaml):
     the same keys and units, only those vdp knows; load it over a base set."""
-    keep, skipped = usable(params)
+    keep, skipped = usable(params, const)
     lines = [
         f"# {const.name}: vehicle parameters estimated by vdp" + (f" from {source}" if source else ""),
         "# layout of commonroad-vehicle-models' parameters_vehicle<N>.yaml; merge over a base set",
@@ -175,7 +189,7 @@ def _carla(params: dict, const: Constants, source: str) -> str:
     """CARLA 0.9's VehiclePhysicsControl / WheelPhysicsControl field names and units (radius in
     cm), wheels front-left, front-right, rear-left, rear-right.  PhysX has no inertia fields:
     I_z and I_x go in the ``vdp`` block only."""
-    keep, skipped = usable(params)
+    keep, skipped = usable(params, const)
     out: dict = {"mass": const.mass}
     l_f = keep["l_f"]["value"] if "l_f" in keep else None
     if l_f is not None:

@@ -76,7 +76,9 @@ def run(args) -> int:
         sys.stdout.write(text)
     else:
         args.out.write_text(text, encoding="utf-8")
-    _, skipped = usable(data["parameters"])
+    keep, skipped = usable(data["parameters"], const)
+    if keep.get("l_f", {}).get("status") == "measured" and args.format in ("commonroad", "carla"):
+        print(f"vdp export: l_f is the profile's measured {const.l_f:g} m (stage 1 did not run)", file=sys.stderr)
     if skipped and args.format in ("commonroad", "carla"):
         print(
             f"vdp export: left out (not estimated from the data, or mostly the prior): {', '.join(skipped)}",
