@@ -174,7 +174,7 @@ def test_windows_that_diverge_and_last_good_copies_inside_the_compiled_steps(dri
     assert b == a and sb == sa
 
 
-def test_a_gap_a_wheel_reference_and_a_profile_l_f(drive, paper, repo_root, tmp_path, monkeypatch):
+def test_a_gap_a_profile_l_f_and_the_ekf_baseline(drive, paper, repo_root, tmp_path, monkeypatch):
     lines = drive.read_bytes().splitlines(keepends=True)
     half = len(lines) // 2
     shifted = []
