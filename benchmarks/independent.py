@@ -40,7 +40,16 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "service"))
 
-CASES = ("brush/saloon", "brush/small", "mb/bmw_320i", "mb/vw_vanagon", "vdp/paper", "vdp/small", "vdp/axles")
+CASES = (
+    "brush/saloon",
+    "brush/small",
+    "brush/compact",
+    "mb/bmw_320i",
+    "mb/vw_vanagon",
+    "vdp/paper",
+    "vdp/small",
+    "vdp/axles",
+)
 
 # vdp's own physics on the paper car with axles that differ: the rear 1.3x the front (the paper
 # car carries more of its load behind, l_f > l_r); their mean is Table 6's C_alpha
@@ -360,7 +369,7 @@ def report(runs: list[dict], cases: list[str], seeds: int, scale: float) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", default=",".join(CASES), help=f"comma-separated, from {', '.join(CASES)}")
-    ap.add_argument("--scenario", default="paper", choices=("paper",))
+    ap.add_argument("--scenario", default="paper", choices=("paper", "ordinary_rolling"))
     ap.add_argument("--seeds", type=int, default=5, help="seeds of realistic noise per case (plus one noise-free)")
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=2)

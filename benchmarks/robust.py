@@ -51,6 +51,20 @@ CARS = {
             "I_x": (500.0, 250.0),
         },
     },
+    # issue 24's light car on stiff tyres: 1,093 kg, wheelbase 2.58 m, C_alpha 140,000 N/rad per
+    # axle, I_z 1,790 kg m^2 (its lateral mode m v / sum C_alpha is ~30-60 ms, near the 20 ms tick)
+    "light": {
+        "vehicle": {"mass": 1093.0, "wheelbase": 2.58, "roll_stiffness": 48000.0, "roll_damping": 3500.0},
+        "truth": {"l_f": 1.03, "h": 0.5, "C_K": 11.0, "C_alpha": 140000.0, "I_z": 1790.0, "I_x": 380.0},
+        "priors": {
+            "l_f": (1.2, 0.3),
+            "h": (0.55, 0.2),
+            "C_K": (8.0, 4.0),
+            "C_alpha": (80000.0, 40000.0),
+            "I_z": (2200.0, 1100.0),
+            "I_x": (500.0, 250.0),
+        },
+    },
     # a compact SUV (the RAV4's constants) on vdp's bus
     "suv": {
         "vehicle": {"mass": 1656.0, "wheelbase": 2.66, "roll_stiffness": 90000.0, "roll_damping": 6000.0},

@@ -270,12 +270,12 @@ def combined(values: list[float], stds: list[float], common: float = COMMON) -> 
 
 
 def usable(row: Mapping[str, Any]) -> bool:
-    """A drive's parameter enters the combination only if vdp called it converged and valid
-    (not a model mismatch, a profile the self-check found wrong, ...)."""
+    """A drive's parameter enters the combination only if vdp called it valid (its honest std
+    within the usefulness threshold, no profile the self-check found wrong, ...)."""
     v, s = row.get("value"), row.get("std")
     return (
-        row.get("status") == CONVERGED
-        and bool(row.get("valid"))
+        bool(row.get("valid"))
+        and row.get("status") in (CONVERGED, UNCERTAIN)  # learnt from the data (an older row may say more)
         and v is not None
         and s is not None
         and math.isfinite(v)

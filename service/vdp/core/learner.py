@@ -110,7 +110,6 @@ RESEED_M2 = 16.3
 # the half-difference (C_f - C_r) / 2 gets this share of its std, independently (a real
 # car's axles differ by up to about a third; a tight C_alpha prior means a known car)
 AXLE_SPLIT = 0.5
-AXLE_CONVERGED_REL = 0.03  # per-axle std / value below which an axle counts as known (twice the mean's)
 AXLE_CORR_MAX = 0.95  # |correlation| of the two beyond this: the data know one combination of them
 # The split is held (one C_alpha in effect: its half-difference's std SPLIT_HELD of C_alpha's prior
 # std) until the data know the axles' mean to SPLIT_FREE_REL, then freed to AXLE_SPLIT.  In a steady
@@ -365,6 +364,38 @@ def _verdict(c: Consistency, size: str, colour: str, kind: str) -> tuple[float, 
     return _widen(rho, nis), (f"{kind}: " + "; ".join(why)) if why else None
 
 
+class Hard(str):
+    """A reason that makes a value not valid whatever its std (the drive does not excite it: the
+    number is the prior's).  Other reasons (a model mismatch) stand beside a valid value."""
+
+
+def honest_std(spec, value: float, std: float) -> float:
+    """The std a user may take: the data's (widened for coloured and oversized innovations, with
+    the model's error where a mismatch shows) and the model class's own floor, which no length of
+    drive averages out (ParamSpec.floor_rel)."""
+    if not (math.isfinite(value) and math.isfinite(std)):
+        return std
+    return math.hypot(std, spec.floor_rel * abs(value))
+
+
+def useful(spec, status: str, value: float, std: float) -> bool:
+    """The verdict: a finite value in its sane range, learnt from the data (converged or still
+    uncertain: not the prior's, not_identifiable), whose honest std is within the parameter's
+    usefulness threshold.  Model-mismatch findings widen the std and stay beside the value as
+    its reason; they do not veto it (a knife-edge test statistic would flip every parameter)."""
+    if status not in (CONVERGED, UNCERTAIN) or not (math.isfinite(value) and math.isfinite(std)):
+        return False
+    return spec.lo <= value <= spec.hi and std <= spec.useful_rel * abs(value)
+
+
+def too_wide(spec, value: float, std: float) -> str:
+    return (
+        f"std {100 * std / abs(value):.1f} % of the value, above the {100 * spec.useful_rel:g} % "
+        f"a model can use (the data's spread, the model's error and the model's floor of "
+        f"{100 * spec.floor_rel:g} %)"
+    )
+
+
 class StageLearner:
     """Common machinery: filter life cycle, last-good copies, snapshot."""
 
@@ -466,7 +497,11 @@ class StageLearner:
                     reason = own
                 elif value != filtered:  # a value that is not the filter's says where it came from first
                     reason = f"{own}; {reason}"
-            valid = status == CONVERGED and reason is None
+            if status != NOT_RUN:  # a prior alone keeps its own std
+                std = honest_std(spec, value, std)
+            valid = useful(spec, status, value, std) and not isinstance(own, Hard)
+            if not valid and reason is None and status in (CONVERGED, UNCERTAIN) and math.isfinite(std):
+                reason = too_wide(spec, value, std)
             out[name] = Estimate(
                 name=name,
                 value=finite(value),
@@ -1174,6 +1209,9 @@ class Stage2(StageLearner):
             # drive excited), also where the values are the fit's: the fit's common-mode model error
             # correlates its axles (0.99 on brush/small) without saying the drive could not tell them apart
             axle_why = why_f or why_r
+        spec = BY_NAME["C_alpha"]
+        if self.samples > 0:
+            sf, sr = honest_std(spec, f, sf), honest_std(spec, r, sr)
         why = None
         if self.samples == 0:
             why = "stage 2 has not run"
@@ -1182,14 +1220,12 @@ class Stage2(StageLearner):
                 f"the drive does not separate the axles: front minus rear is known to +-{diff:,.0f} N/rad "
                 f"(prior +-{self.prior_diff_std:,.0f}), correlation {corr:+.2f}; only their mean is"
             )
-        elif reason is not None:
-            why = reason
-        elif axle_why is not None:
-            why = axle_why
         elif not valid:
-            why = "the mean C_alpha has not converged yet (each axle waits for it)"
-        elif sf > AXLE_CONVERGED_REL * abs(f) or sr > AXLE_CONVERGED_REL * abs(r):
-            why = f"a per-axle std is above {100 * AXLE_CONVERGED_REL:g} % of its value"
+            why = reason or "the mean C_alpha is not valid yet (each axle waits for it)"
+        elif not (sf <= spec.useful_rel * abs(f) and sr <= spec.useful_rel * abs(r)):
+            why = f"a per-axle std is above the {100 * spec.useful_rel:g} % a model can use"
+        # a valid pair keeps the batch check's finding beside it, as the mean does
+        note = why if why is not None else axle_why
         return {
             "C_alpha_front": finite(f),
             "C_alpha_front_std": finite(sf),
@@ -1198,7 +1234,7 @@ class Stage2(StageLearner):
             "C_alpha_axle_corr": finite(corr),
             "C_alpha_front_minus_rear_std": finite(diff),
             "per_axle_valid": why is None,
-            "per_axle_reason": why,
+            "per_axle_reason": note,
         }
 
     def reset(self) -> None:
@@ -1355,7 +1391,7 @@ class Stage2(StageLearner):
             std = max(std, abs(value) * quiet)
         std = math.hypot(std, abs(value) * h_rel)
         if why is None and quiet is not None:
-            why = (
+            why = Hard(
                 f"roll not excited: the drive's roll rate tells I_x to {100 * quiet:.0f} % at best "
                 f"(its prior: {100 * self._ix_prior_rel():.0f} %); quick steering reversals at speed excite the roll"
             )

@@ -40,8 +40,10 @@ class Estimate:
     status: Status = field(metadata=_doc(f"one of {', '.join(STATUSES)}"))
     valid: bool = field(
         metadata=_doc(
-            "true only for a converged, finite estimate inside its sane range whose model explains the data "
-            "(no model mismatch found; else reason says what)"
+            "true for a finite estimate inside its sane range, learnt from the data, whose std is within the "
+            "parameter's usefulness threshold (l_f 2 %, h, C_K, C_alpha, I_z 5 %, I_x 10 %); the std carries "
+            "the model's error where a mismatch shows (reason then says which term and how large) and a floor "
+            "no drive length averages out"
         )
     )
     stage: int = field(metadata=_doc("1 (l_f, h, C_K) or 2 (C_alpha, I_z, I_x)"))

@@ -224,11 +224,88 @@ def city(wheelbase: float = 2.5) -> Scenario:
     return p.build()
 
 
+def lane_change(amp: float, T: float, wait: float = 0.0) -> SteerFn:
+    """One full sine of road-wheel angle over T after ``wait`` s: the car moves a lane across
+    and straightens (amp at speed v gives a peak a_y of about v^2 amp / L)."""
+
+    def steer(t: float) -> float:
+        tau = t - wait
+        return amp * math.sin(2.0 * math.pi * tau / T) if 0.0 <= tau <= T else 0.0
+
+    return steer
+
+
+def _ordinary(name: str, wheelbase: float, v_stop: float) -> Scenario:
+    """About 14 minutes as an owner drives: town blocks with stops and junction turns, an
+    arterial road with lane changes and bends, a highway cruise with lane changes, and town
+    again.  No test-track manoeuvre: a_y mostly under 3 m/s^2, speeds held, firm
+    acceleration only when pulling away.  Segments are labelled ``other``: what the
+    supervisor takes from them is its own gating's business.  ``v_stop`` > 0 rolls through
+    the stops at that speed instead (a model that cannot stand still)."""
+    L = wheelbase
+    right, left = -90.0 * DEG, 90.0 * DEG
+    p = Plan(name, v_stop)
+
+    def stop(T: float) -> None:
+        if v_stop > 0.0:
+            p.cruise(T, "give way")
+        else:
+            p.hold(T)
+
+    def town(turn: float, v: float) -> None:
+        stop(4.0)
+        p.ramp(v, 7.0, "pull away")
+        p.cruise(12.0, "town street", steer=sine_steer(0.4 * DEG, 7.0))
+        p.ramp(5.0, 4.0, "slow for junction")
+        p.cruise(4.5, "junction turn", steer=turn_steer(turn, 4.5, 5.0, L))
+        p.ramp(v, 6.0, "accelerate out")
+        p.cruise(15.0, "town street", steer=lane_change(1.5 * DEG, 4.0, 6.0))
+        p.ramp(v_stop, 6.0, "stop at lights")
+
+    for turn, v in ((right, 13.0), (left, 12.0), (right, 14.0), (left, 11.0)):
+        town(turn, v)
+    stop(3.0)
+    p.ramp(17.0, 12.0, "on to the arterial")
+    for _ in range(2):
+        p.cruise(20.0, "arterial, lane change", steer=lane_change(1.1 * DEG, 5.0, 8.0))
+        p.cruise(8.0, "arterial bend", steer=turn_steer(right / 3.0, 8.0, 17.0, L))
+        p.cruise(20.0, "arterial", steer=sine_steer(0.2 * DEG, 9.0))
+        p.cruise(8.0, "arterial bend", steer=turn_steer(left / 3.0, 8.0, 17.0, L))
+        p.ramp(11.0, 6.0, "slow for traffic")
+        p.cruise(10.0, "arterial, traffic")
+        p.ramp(17.0, 8.0, "traffic clears")
+    p.ramp(30.0, 18.0, "on to the highway")
+    for _ in range(4):
+        p.cruise(25.0, "highway", steer=sine_steer(0.08 * DEG, 12.0))
+        p.cruise(8.0, "highway lane change", steer=lane_change(0.35 * DEG, 6.0, 1.0))
+        p.cruise(15.0, "highway curve", steer=turn_steer(left / 6.0, 15.0, 30.0, L))
+        p.sine(2.0, 20.0, 1, "highway, speed varies")
+    p.ramp(15.0, 14.0, "off the highway")
+    p.cruise(6.0, "exit bend", steer=turn_steer(right / 2.0, 6.0, 15.0, L))
+    p.ramp(v_stop, 10.0, "stop at the end of the ramp")
+    for turn, v in ((left, 12.0), (right, 13.0)):
+        town(turn, v)
+    stop(3.0)
+    return p.build()
+
+
+def ordinary(wheelbase: float = 2.5) -> Scenario:
+    return _ordinary("ordinary", wheelbase, 0.0)
+
+
+def ordinary_rolling(wheelbase: float = 2.5) -> Scenario:
+    """``ordinary`` rolling through its stops at 5 m/s: for the independent models, whose
+    explicit wheel integration needs the car moving (vdp.sim.independent.brush)."""
+    return _ordinary("ordinary_rolling", wheelbase, 5.0)
+
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "stage1": stage1,
     "stage2": stage2,
     "paper": paper,
     "city": city,
+    "ordinary": ordinary,
+    "ordinary_rolling": ordinary_rolling,
 }
 
 

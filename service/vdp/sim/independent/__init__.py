@@ -63,7 +63,8 @@ DEFINITIONS = {
 }
 
 MODELS = ("brush", "mb")
-SCENARIOS = ("paper", "stage1", "stage2")  # the ones that stay above 5 m/s (see brush.py on the wheel modes)
+# the ones that stay above 5 m/s (see brush.py on the wheel modes)
+SCENARIOS = ("paper", "stage1", "stage2", "ordinary_rolling")
 
 
 def cars(model: str) -> tuple[str, ...]:

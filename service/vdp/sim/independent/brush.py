@@ -95,6 +95,12 @@ class BrushCar:
     h_aero: float = 0.55
     steering_ratio: float = 15.0
     g: float = 9.81
+    # Effects the other cars leave out (issue 24's wider zoo); each is off at its default.
+    relax: float = 0.0  # tyre relaxation length [m]: the slip angle lags the kinematic one by relax / |u|
+    trail: float = 0.0  # pneumatic trail [m]: the front tyres' aligning torque is trail x F_y
+    k_steer: float = 0.0  # steering stiffness at the road wheels [N m/rad]: they yield to the aligning torque
+    roll_steer_f: float = 0.0  # front road-wheel angle per roll angle (out of the turn: understeer)
+    roll_steer_r: float = 0.0  # rear road-wheel angle per roll angle (into the turn: understeer)
     priors: dict = field(default_factory=dict)
 
 
@@ -179,6 +185,55 @@ CARS: dict[str, BrushCar] = {
             "I_x": (500.0, 350.0),
         },
     ),
+    # A compact hatchback with what a real car adds to its tyres' kinematic slips: a relaxation
+    # length of 0.45 m, aligning torque through a compliant steering (about 1 deg of road-wheel
+    # angle per g at the front), and roll steer at both axles (K&C figures of compact cars).
+    "compact": BrushCar(
+        name="compact",
+        m_s=1130.0,
+        m_uf=70.0,
+        m_ur=55.0,
+        L=2.64,
+        a_s=1.05,
+        h_s=0.57,
+        t_f=1.53,
+        t_r=1.51,
+        r=0.30,
+        J_w=0.9,
+        h_rcf=0.07,
+        h_rcr=0.11,
+        k_phif=38000.0,
+        k_phir=24000.0,
+        c_phif=2400.0,
+        c_phir=1700.0,
+        I_xs=320.0,
+        I_ys=1600.0,
+        I_z=1950.0,
+        h_pc=0.28,
+        k_th=110000.0,
+        c_th=6500.0,
+        c_x=14.0,
+        c_yf=11.5,
+        c_yr=15.0,
+        q_x=0.12,
+        q_y=0.18,
+        mu=0.95,
+        cda=0.64,
+        h_aero=0.52,
+        relax=0.45,
+        trail=0.035,
+        k_steer=18000.0,
+        roll_steer_f=0.08,
+        roll_steer_r=0.04,
+        priors={
+            "l_f": (1.3, 0.3),
+            "h": (0.55, 0.2),
+            "C_K": (12.0, 6.0),
+            "C_alpha": (80000.0, 40000.0),
+            "I_z": (2300.0, 1100.0),
+            "I_x": (550.0, 350.0),
+        },
+    ),
 }
 
 
@@ -235,6 +290,7 @@ class BrushModel(Model):
         self.k_phi = c.k_phif + c.k_phir
         self.c_phi = c.c_phif + c.c_phir
         self._acc = [0.0, 0.0]  # last a_x, a_y: the start of the load loop's fixed-point pass
+        self._fyf = 0.0  # last front lateral force: the aligning torque's, as _acc (the loop's gain is small)
 
     # -- tyre law, for the truth definitions ------------------------------------------
     def _cx(self, Fz: float, axle: str) -> float:
@@ -274,11 +330,23 @@ class BrushModel(Model):
         """Straight at v0 with the drag and rolling resistance already balanced (near enough)."""
         w = v0 / self.c.r
         self._acc = [0.0, 0.0]
-        return [float(v0), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, w, w, w, w]
+        self._fyf = 0.0
+        x = [float(v0), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, w, w, w, w]
+        return x + [0.0] * 4 if self.c.relax > 0.0 else x  # each tyre's lagging slip angle
 
     def deriv(self, x: list[float], T_f: float, T_r: float, delta: float) -> tuple[list[float], tuple]:
         c = self.c
-        vx, vy, r, phi, p, th, q, w1, w2, w3, w4 = x
+        vx, vy, r, phi, p, th, q, w1, w2, w3, w4 = x[:11]
+        lag = x[11:]  # the tyres' lagging slip angles (relax > 0)
+        d_lag = [0.0] * len(lag)
+        # the front wheels yield to the aligning torque and steer with the roll; the rear steer with it
+        delta_r = 0.0
+        if c.k_steer > 0.0:
+            delta = delta - c.trail * self._fyf / c.k_steer
+        if c.roll_steer_f or c.roll_steer_r:
+            delta = delta - c.roll_steer_f * phi
+            delta_r = c.roll_steer_r * phi
+        cr, sr = math.cos(delta_r), math.sin(delta_r)
         ax, ay = self._acc
         m, L, R = self.m, c.L, c.r
         Fd = 0.5 * c.rho * c.cda * vx * abs(vx)
@@ -293,7 +361,7 @@ class BrushModel(Model):
         pos = ((lf, 0.5 * c.t_f), (lf, -0.5 * c.t_f), (-lr, 0.5 * c.t_r), (-lr, -0.5 * c.t_r))
         ws = (w1, w2, w3, w4)
         torque = (0.5 * T_f, 0.5 * T_f, 0.5 * T_r, 0.5 * T_r)
-        sfx = sfy = mz = 0.0
+        sfx = sfy = mz = fyf = 0.0
         dw = [0.0] * 4
         for i in range(4):
             px, py = pos[i]
@@ -303,16 +371,24 @@ class BrushModel(Model):
             front = i < 2
             if front:
                 u, v = ux * cd + uy * sd, -ux * sd + uy * cd
+            elif delta_r:
+                u, v = ux * cr + uy * sr, -ux * sr + uy * cr
             else:
                 u, v = ux, uy
             au = abs(u)
             den = au if au > V_FLOOR else V_FLOOR
             kappa = (ws[i] * R - u) / den
             alpha = -math.atan2(v, au if au > 1e-3 else 1e-3)
+            if lag:  # the carcass deflects over the relaxation length: d alpha / dt = |u| / relax (alpha_ss - alpha)
+                d_lag[i] = den / c.relax * (alpha - lag[i])
+                alpha = lag[i]
             axle = "front" if front else "rear"
             fxw, fyw = brush_force(kappa, alpha, Fz, self._cx(Fz, axle), self._cy(Fz, axle), c.mu)
             if front:
                 fx, fy = fxw * cd - fyw * sd, fxw * sd + fyw * cd
+                fyf += fyw
+            elif delta_r:
+                fx, fy = fxw * cr - fyw * sr, fxw * sr + fyw * cr
             else:
                 fx, fy = fxw, fyw
             sfx += fx
@@ -329,7 +405,8 @@ class BrushModel(Model):
         ax = (sfx - Fd + ms * e * qd) / m
         ay = (sfy + ms * d * pd) / m
         self._acc = [ax, ay]
-        dx = [ax + r * vy, ay - r * vx, mz / c.I_z, p, pd, q, qd, *dw]
+        self._fyf = fyf
+        dx = [ax + r * vy, ay - r * vx, mz / c.I_z, p, pd, q, qd, *dw, *d_lag]
         return dx, (ax, ay, zf, zr)
 
     def step(self, x: list[float], T_f: float, T_r: float, delta: float, dt: float) -> tuple[list[float], tuple]:
