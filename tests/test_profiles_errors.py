@@ -209,6 +209,26 @@ LOAD_CASES = [
         "cannot be converted",
     ),
     (
+        "composite-condition-not-names",
+        edit(
+            'wheel_torque_front = { message = "WHEEL_TORQUE", signal = "TORQUE_FRONT", unit = "Nm" }',
+            "wheel_torque_front = { conditions = [{ message = 5, signal = [] }], "
+            'terms = [{ message = "WHEEL_TORQUE", signal = "TORQUE_FRONT", unit = "Nm" }] }',
+        ),
+        "[channels.wheel_torque_front]",
+        r"conditions\[0\]: 'message' must be a message name \(a string\), got 5",
+    ),
+    (
+        "composite-condition-signal-list",
+        edit(
+            'wheel_torque_front = { message = "WHEEL_TORQUE", signal = "TORQUE_FRONT", unit = "Nm" }',
+            'wheel_torque_front = { conditions = [{ message = "STEERING", signal = [] }], '
+            'terms = [{ message = "WHEEL_TORQUE", signal = "TORQUE_FRONT", unit = "Nm" }] }',
+        ),
+        "[channels.wheel_torque_front]",
+        r"conditions\[0\]: 'signal' must be a signal name \(a string\), got \[\]",
+    ),
+    (
         "checks-not-table",
         edit('IMU_RATES          = { counter = "COUNTER", checksum = "CHECKSUM" }', 'IMU_RATES = "COUNTER"'),
         "[checks.IMU_RATES]",
