@@ -480,6 +480,15 @@ def test_the_fleet_picture_shows_each_drive_its_combination_and_the_one_that_dis
     assert (tmp_path / "fleet.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_names_that_read_as_math_are_drawn_as_text(tmp_path):
+    """A vehicle or log named "$^$" raised in matplotlib's math parser at the end of a batch."""
+    from vdp.report import fleet_plot
+
+    rows = [run_row("a$^$.log", 1.40, 0.002, vehicle="$^$"), run_row("b.log", 1.41, 0.002, vehicle="$^$")]
+    fleet_plot(rows, combine(rows)[0], tmp_path / "fleet.png")
+    assert (tmp_path / "fleet.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 def test_a_vehicle_of_hundreds_of_drives_keeps_the_fleet_picture_readable():
     """Beyond NAMED_DRIVES a vehicle's drives are still each drawn, but no longer named a row each,
     and the figure stops growing (300 drives had made it ~90 inches tall)."""

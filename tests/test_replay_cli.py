@@ -265,3 +265,28 @@ def test_simulate_repeat_makes_one_long_log_of_one_car(tmp_path, capsys):
     assert len(gaps) == 2  # the silence between drives
     assert main(["simulate", "--model", "brush", "--repeat", "2", "--out", str(tmp_path / "b.log")]) == 2
     assert "--repeat applies to --model vdp only" in capsys.readouterr().err
+
+
+def test_a_name_that_reads_as_math_is_plotted_as_text(drive, repo_root, tmp_path, capsys):
+    """A vehicle (and a log) named "$^$" went to matplotlib's math parser through the plot's
+    title and raised after the whole replay; the title is the names as given."""
+    import matplotlib.pyplot as plt
+
+    from vdp import report
+
+    _, log = drive
+    prof = tmp_path / "car.toml"
+    paper = repo_root / "profiles" / "paper.toml"
+    text = paper.read_text().replace('"../dbc/vdp.dbc"', f'"{repo_root / "dbc" / "vdp.dbc"}"')
+    prof.write_text(text.replace('name = "paper"', 'name = "$^$"', 1))
+    odd = tmp_path / "a$^$.log"
+    odd.symlink_to(log)
+    png = tmp_path / "p.png"
+    assert main(["replay", str(odd), "--profile", str(prof), "--plot", str(png), "--no-progress"]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    fig = report.figure([], [], title="a$^$.log: $^$")
+    try:
+        fig.canvas.draw()
+        assert fig.get_suptitle() == "a$^$.log: $^$"
+    finally:
+        plt.close(fig)
