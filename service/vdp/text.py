@@ -2,7 +2,8 @@
 
 A name comes from the user (a profile, a hand-edited result, a command line): it may hold a
 quote, a newline, a ``$`` or a lone surrogate (JSON's "\\ud800").  Written in as it is, it
-broke the TOML or YAML around it or added a line to it; these write it as that format's string.
+broke the TOML or YAML around it or added a line to it: a TOML string escapes it, a comment or
+a title takes it on one line.
 """
 
 from __future__ import annotations
@@ -24,18 +25,9 @@ def _odd(c: str) -> bool:
     return unicodedata.category(c) in ("Cc", "Zl", "Zp") or c in "\ufffe\uffff"
 
 
-def _quoted(s: object) -> str:
-    return '"' + "".join(_SHORT.get(c) or (f"\\u{ord(c):04X}" if _odd(c) else c) for c in clean(s)) + '"'
-
-
 def toml_str(s: object) -> str:
     """A TOML basic string (TOML 1.0: quote, backslash and controls escaped)."""
-    return _quoted(s)
-
-
-def yaml_str(s: object) -> str:
-    """A YAML double-quoted scalar: always read back as this string, never a number or a null."""
-    return _quoted(s)
+    return '"' + "".join(_SHORT.get(c) or (f"\\u{ord(c):04X}" if _odd(c) else c) for c in clean(s)) + '"'
 
 
 def one_line(s: object) -> str:

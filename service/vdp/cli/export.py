@@ -71,7 +71,11 @@ def run(args) -> int:
         check_output(args.out, "--out")
     data = _load(args.result)
     const = constants(data, args.profile)
-    text = render(args.format, data["parameters"], const, source=str(args.result))
+    try:
+        text = render(args.format, data["parameters"], const, source=str(args.result))
+    except ConfigError as exc:  # a number that is not one: name the file, and where the constants came from
+        fix = "; or give --profile PROFILE to take the profile's constants" if str(exc).startswith("vehicle.") else ""
+        raise ConfigError(f"{args.result}: {exc}{fix}") from None
     if to_stdout:
         sys.stdout.write(text)
     else:
