@@ -383,3 +383,31 @@ def test_export_writes_a_name_with_quotes_and_newlines_as_text(tmp_path):
         else:
             doc = json.loads(text)
             assert (doc["vehicle"]["name"] if fmt == "json" else doc["vdp"]["vehicle"]) == name
+
+
+def test_export_over_its_own_result_is_refused(tmp_path, capsys):
+    """`vdp export r.json --format json --out r.json` wrote the export over the result."""
+    src = _hand_edited(tmp_path)
+    before = src.read_bytes()
+    assert main(["export", str(src), "--format", "json", "--out", str(src)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"--out {src}: is the result {src}, an input of this run" in err and len(err.splitlines()) == 1, err
+    assert src.read_bytes() == before
+
+
+def test_an_output_is_whole_or_the_old_file(tmp_path):
+    """outfile.replacing: a writer that fails leaves the old file and no temporary; one that ends
+    replaces it whole, through a symlink, keeping the file's mode."""
+    from vdp.outfile import replacing, write_text
+
+    out = tmp_path / "r.json"
+    out.write_text("old")
+    out.chmod(0o640)
+    with pytest.raises(RuntimeError), replacing(out) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("the writer failed")
+    assert out.read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]
+    (tmp_path / "link.json").symlink_to(out)
+    write_text(tmp_path / "link.json", "new")
+    assert out.read_text() == "new" and (tmp_path / "link.json").is_symlink()
+    assert out.stat().st_mode & 0o777 == 0o640

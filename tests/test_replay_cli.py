@@ -290,3 +290,33 @@ def test_a_name_that_reads_as_math_is_plotted_as_text(drive, repo_root, tmp_path
         assert fig.get_suptitle() == "a$^$.log: $^$"
     finally:
         plt.close(fig)
+
+
+@pytest.mark.parametrize("which", ["the log", "a symlink to the log", "the profile", "the truth"])
+def test_an_output_that_is_an_input_is_refused_before_the_replay(drive, repo_root, tmp_path, capsys, which):
+    """`vdp replay drive.log --json drive.log` wrote the JSON over the log and exited 0: an output
+    that is an input (by name, or the same file by another) is one line, exit 2, nothing touched."""
+    d, log = drive
+    copy = tmp_path / "drive.log"
+    copy.write_bytes(log.read_bytes())
+    prof = tmp_path / "car.toml"
+    paper = (repo_root / "profiles" / "paper.toml").read_text()
+    prof.write_text(paper.replace('"../dbc/vdp.dbc"', f'"{repo_root / "dbc" / "vdp.dbc"}"'))
+    truth = tmp_path / "drive.truth.json"
+    truth.write_text((d / "drive.truth.json").read_text())
+    (tmp_path / "alias.json").symlink_to(copy)
+    out = {"the log": copy, "a symlink to the log": tmp_path / "alias.json", "the profile": prof, "the truth": truth}
+    before = {p: p.read_bytes() for p in (copy, prof, truth)}
+    args = ["replay", str(copy), "--profile", str(prof), "--truth", str(truth), "--json", str(out[which])]
+    assert main([*args, "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"--json {out[which]}: is " in err and "give --json another file" in err, err
+    assert {p: p.read_bytes() for p in before} == before
+
+
+def test_two_outputs_on_one_file_are_refused(drive, tmp_path, capsys):
+    _, log = drive
+    same = tmp_path / "t.csv"
+    assert main(["replay", str(log), "--series", str(same), "--channels", str(same), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--channels" in err and "is also the file of --series" in err and not same.exists()

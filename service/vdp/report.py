@@ -12,6 +12,7 @@ from typing import Any
 from .core.params import BY_NAME, NAMES
 from .core.result import Estimate
 from .errors import ConfigError
+from .outfile import replacing, write_text
 from .result import RunResult, jsonable
 
 
@@ -180,7 +181,7 @@ def axle_lines(params: Mapping[str, Estimate], truth: dict | None = None) -> lis
 
 def write_json(doc: dict | RunResult, path: str | Path) -> None:
     """Strict JSON (never NaN: non-finite numbers become null)."""
-    Path(path).write_text(json.dumps(jsonable(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    write_text(path, json.dumps(jsonable(doc), indent=2, allow_nan=False) + "\n")
 
 
 # The paper's figures: Fig. 5 is stage 1 (C_K, h, l_f), Fig. 7 stage 2 (C_alpha, I_x, I_z);
@@ -238,8 +239,11 @@ def plot(
     import matplotlib.pyplot as plt
 
     fig = figure(trace, windows, truth, title, params, priors, capabilities)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        with replacing(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
 
 
 def figure(
@@ -505,5 +509,8 @@ def fleet_plot(rows: list[dict], vehicles: list[dict], path: str | Path) -> None
     import matplotlib.pyplot as plt
 
     fig = fleet_figure(rows, vehicles)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        with replacing(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
