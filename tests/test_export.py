@@ -411,3 +411,14 @@ def test_an_output_is_whole_or_the_old_file(tmp_path):
     write_text(tmp_path / "link.json", "new")
     assert out.read_text() == "new" and (tmp_path / "link.json").is_symlink()
     assert out.stat().st_mode & 0o777 == 0o640
+    # /dev/stdout on a pipe (a link to /proc/self/fd/1, which names no path) is written in place
+    import os
+
+    r, w = os.pipe()
+    (tmp_path / "stdout").symlink_to(f"/proc/self/fd/{w}")
+    try:
+        write_text(tmp_path / "stdout", "through the pipe")
+        assert os.read(r, 100) == b"through the pipe"
+    finally:
+        os.close(r)
+        os.close(w)

@@ -11,6 +11,7 @@ import contextlib
 import os
 import secrets
 import shutil
+import stat
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -21,10 +22,14 @@ def replacing(path: str | Path) -> Iterator[Path]:
     if it raises.  Its name ends in ``path``'s own (a writer that goes by the suffix, matplotlib's
     or python-can's, picks the same format).  A symlink is written through, as ``open`` would;
     a FIFO or a device (``/dev/stdout``) is written in place: renaming over one would replace it."""
-    target = Path(os.path.realpath(path))
-    if target.exists() and not target.is_file():
-        yield target
+    try:
+        st = os.stat(path)  # (through symlinks: /dev/stdout on a pipe resolves to no path at all)
+    except OSError:
+        st = None
+    if st is not None and not stat.S_ISREG(st.st_mode):
+        yield Path(path)
         return
+    target = Path(os.path.realpath(path))
     tmp = target.with_name(f".vdp-{secrets.token_hex(4)}-{target.name[-200:]}")
     # created here (not by mkstemp, whose 0600 would stay on the output): the umask applies as to open()
     os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
