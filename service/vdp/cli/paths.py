@@ -41,23 +41,23 @@ def check_apart(outputs: dict[str, str | Path | None], inputs: dict | list[tuple
     -> path, or a list of such pairs.  ``vdp replay drive.log --json drive.log`` wrote the JSON
     over the log and exited 0.
     """
-    seen: dict[tuple, str] = {}
+    taken: dict[tuple, str] = {}  # a file -> the input it is
     for what, path in inputs.items() if isinstance(inputs, dict) else inputs:
         if path is not None:
-            seen.setdefault(_identity(path), f"{what} {path}")
+            taken.setdefault(_identity(path), f"{what} {path}")
+    written: dict[tuple, str] = {}  # a file -> the flag of the output already there
     for flag, path in outputs.items():
         if path is None:
             continue
         ident = _identity(path)
-        if ident in seen:
-            other = seen[ident]
-            if other.startswith("output "):
-                raise ConfigError(f"{flag} {path}: is also the file of {other[7:]}; give each output its own file")
+        if ident in taken:
             raise ConfigError(
-                f"{flag} {path}: is {other}, an input of this run: writing there would overwrite it; "
+                f"{flag} {path}: is {taken[ident]}, an input of this run: writing there would overwrite it; "
                 f"give {flag} another file"
             )
-        seen[ident] = f"output {flag}"
+        if ident in written:
+            raise ConfigError(f"{flag} {path}: is also the file of {written[ident]}; give each output its own file")
+        written[ident] = flag
 
 
 def profile_inputs(profile) -> dict[str, Path]:
