@@ -293,16 +293,10 @@ def rerun_reason(rows: list[dict], task, profile_key: str | None) -> str | None:
     if profile_key is None or first.get("profile_hash") != profile_key:
         return "its profile changed"
     # size and mtime first: a log that changed is told without reading it
-    if (first.get("log_size"), first.get("log_mtime_ns")) != file_stamp(task.log) or first["log_hash"] != content_hash(
-        task.log
-    ):
+    stamp = (first.get("log_size"), first.get("log_mtime_ns"))
+    if stamp != file_stamp(task.log) or first["log_hash"] != content_hash(task.log):
         return "the log changed"
     return None
-
-
-def done(rows: list[dict], task, profile_key: str | None) -> bool:
-    """Already run on this very file and profile by this vdp, without an error."""
-    return rerun_reason(rows, task, profile_key) is None
 
 
 def profile_keys(todo: list) -> dict[str, str | None]:
