@@ -1,6 +1,9 @@
 """Hostile and damaged inputs through `vdp replay`: outcome, frames kept, peak RSS, time.
 
-    nice -n 10 .venv/bin/python benchmarks/hostile.py [--seconds 60] [--only NAME]
+    nice -n 10 .venv/bin/python benchmarks/hostile.py [--seconds 60] [--only NAME] [--outputs]
+
+Then the output side (issue 26; --outputs: only these): an output given as an input, names
+that break a format, a hand-edited result, an unwritable --out, each through the CLI.
 
 Every input is made on the fly in a temporary directory from one simulated drive
 (`--seconds` of the paper's stage-1 scenario).  Each replay runs in its own process;
@@ -194,14 +197,162 @@ def replay(path: Path, d: Path) -> dict:
     return info
 
 
+def outputs(d: Path, log: Path) -> dict:
+    """Output-side cases (issue 26): name -> (vdp arguments, check of what was left, what a user
+    should get).  A check returns "" when the case held, else what broke."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+
+    text = PROFILE.read_text().replace('"../dbc/vdp.dbc"', f'"{ROOT / "dbc" / "vdp.dbc"}"')
+    own = d / "own.log"
+    own.write_bytes(log.read_bytes())
+    kept = own.read_bytes()
+    math_name = d / "math.toml"
+    math_name.write_text(text.replace('name = "paper"', 'name = "$^$"', 1))
+    cond = d / "cond.toml"
+    torque = 'wheel_torque_front = { message = "WHEEL_TORQUE", signal = "TORQUE_FRONT", unit = "Nm" }'
+    cond.write_text(
+        text.replace(
+            torque,
+            "wheel_torque_front = { conditions = [{ message = 5, signal = [] }], "
+            'terms = [{ message = "WHEEL_TORQUE", signal = "TORQUE_FRONT", unit = "Nm" }] }',
+        )
+    )
+    good = {"value": 1.2, "std": 0.02, "unit": "m", "status": "converged", "valid": True}
+    car = {"name": "car", "mass": 1600.0, "wheelbase": 2.5, "wheel_radius": 0.3, "wheel_inertia": 2.0, "track": 1.5}
+
+    def result(file: str, l_f=None, **vehicle) -> Path:
+        p = d / f"{file}.json"
+        p.write_text(json.dumps({"parameters": {"l_f": {**good, **(l_f or {})}}, "vehicle": {**car, **vehicle}}))
+        return p
+
+    def unchanged(path: Path, before: bytes):
+        return lambda: "" if path.read_bytes() == before else f"{path.name} was overwritten"
+
+    def loads(path: Path, key, want):
+        def check() -> str:
+            if not path.exists():
+                return "nothing written"
+            try:
+                got = tomllib.loads(path.read_text())
+            except tomllib.TOMLDecodeError as exc:
+                return f"not valid TOML ({exc})"
+            for k in key:
+                got = got[k]
+            return "" if got == want else f"read back {got!r}"
+
+        return check
+
+    def exists(path: Path):
+        return lambda: "" if path.exists() else "nothing written"
+
+    def absent(path: Path):
+        return lambda: "" if not path.exists() else f"{path.name} written"
+
+    nan = result("nan", {"value": float("nan")})
+    text_num = result("text", {"value": "1.2"})
+    zero = result("zero", wheelbase=0.0)
+    newline = result("newline", name='Golf "R"\nm: 1')
+    replay = ["replay", "--no-progress", "--no-ekf"]
+    out: dict = {
+        "replay drive.log --json drive.log": (
+            [*replay, str(own), "--profile", str(PROFILE), "--json", str(own)],
+            unchanged(own, kept),
+            "refused, log kept",
+        ),
+        "replay --plot, vehicle named $^$": (
+            [*replay, str(log), "--profile", str(math_name), "--plot", str(d / "math.png")],
+            exists(d / "math.png"),
+            "plotted",
+        ),
+        "composite conditions [{message = 5, signal = []}]": (
+            [*replay, str(log), "--profile", str(cond)],
+            lambda: "",
+            "one line naming the key",
+        ),
+        "export commonroad, l_f NaN": (
+            ["export", str(nan), "--format", "commonroad", "--out", str(d / "nan.yaml")],
+            absent(d / "nan.yaml"),
+            "refused, field named",
+        ),
+        'export carla, l_f "1.2"': (
+            ["export", str(text_num), "--format", "carla", "--out", str(d / "text.carla.json")],
+            absent(d / "text.carla.json"),
+            "refused, field named",
+        ),
+        "export carla, wheelbase 0": (
+            ["export", str(zero), "--format", "carla", "--out", str(d / "zero.carla.json")],
+            absent(d / "zero.carla.json"),
+            "refused, field named",
+        ),
+        "export toml, newline and quote in the name": (
+            ["export", str(newline), "--format", "toml", "--out", str(d / "newline.toml")],
+            loads(d / "newline.toml", ("vehicle", "name"), 'Golf "R"\nm: 1'),
+            "name read back",
+        ),
+        "export json over its own result": (
+            ["export", str(nan), "--format", "json", "--out", str(nan)],
+            unchanged(nan, nan.read_bytes()),
+            "refused, result kept",
+        ),
+        "profile new --name 'Golf \"R\"'": (
+            [
+                "profile",
+                "new",
+                "--dbc",
+                str(ROOT / "dbc" / "vdp.dbc"),
+                "--name",
+                'Golf "R"',
+                "--out",
+                str(d / "g.toml"),
+            ],
+            loads(d / "g.toml", ("vehicle", "name"), 'Golf "R"'),
+            "name read back",
+        ),
+        "batch --out /proc (no file can be made)": (
+            ["batch", str(log), "--out", "/proc", "--workers", "1", "--no-progress"],
+            lambda: "",
+            "refused before the batch",
+        ),
+    }
+    return out
+
+
+def run_outputs(d: Path, log: Path, only: str | None) -> None:
+    print(f"\n{'output case':50} {'rc':>17} {'held':>5} {'wall s':>7}  [what vdp said]")
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "service")}
+    for name, (argv, check, want) in outputs(d, log).items():
+        if only and only not in name:
+            continue
+        res = d / "res.json"
+        res.unlink(missing_ok=True)
+        t = time.monotonic()
+        r = subprocess.run(
+            [sys.executable, "-c", RUN, str(res), *argv], capture_output=True, text=True, timeout=600, env=env
+        )
+        rc = json.loads(res.read_text())["rc"] if res.exists() else r.returncode
+        broke = check()
+        said = (r.stderr.strip().splitlines() or [""])[-1]
+        # held: the outcome wanted (0, or a one-line refusal, exit 2) and nothing overwritten or wrong
+        held = not broke and rc in (0, 2) and (rc == 0 or len(r.stderr.strip().splitlines()) == 1)
+        print(f"{name:50} {str(rc)[:17]:>17} {'yes' if held else 'NO':>5} {time.monotonic() - t:7.1f}  {want}"
+              + (f"  [{said[:110]}]" if said else "") + (f"  BROKEN: {broke}" if broke else ""))  # fmt: skip
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--only", help="run the inputs whose name contains this")
+    ap.add_argument("--outputs", action="store_true", help="run only the output-side cases (issue 26)")
     args = ap.parse_args()
     msgs = list(Simulation(PROFILE, "stage1", 1, "realistic", duration=args.seconds).frames())
     with tempfile.TemporaryDirectory(prefix="vdp-hostile-") as tmp:
         d = Path(tmp)
+        if args.outputs:
+            run_outputs(d, write(d / "clean.log", msgs), args.only)
+            return 0
         cases = inputs(d, msgs)
         print(f"{len(msgs)} frames in the clean drive ({args.seconds:g} s)")
         head = ("input", "rc", "frames", "of", "bad", "dmg", "bus s", "RSS MB", "wall s")
@@ -228,6 +379,7 @@ def main() -> int:
             mb = p.stat().st_size / 1e6
             rate = r["wall"] / mb
             print(f"linear: {mb:7.1f} MB clean candump: {r['wall']:6.1f} s, {rate:.3f} s/MB, {r['rss_mb']:.0f} MB RSS")
+        run_outputs(d, d / "clean.log", args.only)
     return 0
 
 

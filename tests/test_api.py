@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import json
 import logging
+import re
+from dataclasses import replace
+from pathlib import Path
+from urllib.parse import unquote
 
 import can
 import pytest
@@ -22,9 +26,12 @@ def running(tmp_path):
     """(service, client, sender bus) factory; everything stopped at the end."""
     made = []
 
-    def make(token=None, **service):
+    def make(token=None, profile=None, **service):
         pipe = FakePipeline()
-        svc = Service(make_settings(tmp_path, token, **service), pipeline=pipe)
+        settings = make_settings(tmp_path, token, **service)
+        if profile is not None:
+            settings = replace(settings, profile=profile)
+        svc = Service(settings, pipeline=pipe)
         svc.start()
         wait_up(svc)
         client = TestClient(create_app(svc.settings, svc))
@@ -154,6 +161,28 @@ def test_reset_needs_the_right_token(running):
     assert r.status_code == 200 and r.json()["reset"] == "all"
     assert pipe.resets == [1, 2, None]
     assert client.get("/estimates").json()["parameters"]["l_f"]["value"] == 1.25
+
+
+@pytest.mark.parametrize("name", ["\u0160koda Octavia", 'Golf "R"; filename=x.sh', "two\nlines\r\nX-Evil: 1"])
+def test_export_names_any_vehicle_in_its_header(running, tmp_path, name):
+    """/export's file name is the vehicle's, as RFC 6266 has it: UTF-8 percent-encoded in filename*,
+    an ASCII stand-in in filename.  Put in as it was, "Skoda" with a caron was a 500 in every
+    format, a newline cut the connection and a quote added a parameter of its own."""
+    from vdp.text import toml_str
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "profiles" / "paper.toml").read_text().replace('"../dbc/vdp.dbc"', f'"{root / "dbc" / "vdp.dbc"}"')
+    prof = tmp_path / "car.toml"
+    prof.write_text(text.replace('name = "paper"', f"name = {toml_str(name)}", 1))
+    svc, client, tx, pipe = running(profile=prof)
+    for fmt, suffix in (("commonroad", "yaml"), ("carla", "json"), ("json", "json"), ("toml", "toml")):
+        r = client.get("/export", params={"format": fmt})
+        assert r.status_code == 200, (fmt, r.text)
+        header = r.headers["content-disposition"]
+        got = re.fullmatch(r"inline; filename=\"([ !#-\[\]-~]*)\"; filename\*=UTF-8''([A-Za-z0-9%._~-]+)", header)
+        assert got, header  # one parameter each, printable ASCII, no quote or backslash inside the quotes
+        assert unquote(got.group(2), errors="strict") == f"{name}.{fmt}.{suffix}"
+        assert got.group(1).endswith(f".{fmt}.{suffix}")
 
 
 def test_metrics_text_and_per_app_registry(running):

@@ -355,6 +355,64 @@ def test_a_log_rerun_under_another_profile_counts_once(tmp_path, repo_root):
     assert len(runs) == 6 and {r["profile"] for r in runs} == {str(copy)}
     veh = pq.read_table(tmp_path / "out" / "vehicles.parquet").to_pylist()
     assert all(v["runs"] == 1 for v in veh)
+    # the profile corrected in place (its wheel radius): the log runs again, not "1 already done"
+    copy.write_text(copy.read_text().replace("wheel_radius = 0.3", "wheel_radius = 0.32", 1))
+    again = batch(tmp_path, workers=1)
+    assert "1 logs: 0 already done, 1 to run (1: its profile changed)" in again.stdout, again.stdout + again.stderr
+    rerun = pq.read_table(tmp_path / "out" / "runs.parquet").to_pylist()
+    assert len(rerun) == 6 and rerun[0]["profile_hash"] != runs[0]["profile_hash"]
+    assert [r["value"] for r in rerun] != [r["value"] for r in runs]  # the new radius's result, not the old one
+
+
+def test_a_result_is_done_only_for_the_same_log_profile_dbc_and_vdp(tmp_path, repo_root, monkeypatch):
+    """A batch's result stands for the log's bytes, the profile's and its DBC's, and vdp's version:
+    size and mtime alone kept the result of a profile corrected since.  A part written before
+    these keys existed is run again."""
+    import vdp
+    from vdp.cli.batch import rerun_reason
+    from vdp.fleet import RUN_COLUMNS, Task, profile_hash, run_key
+    from vdp.profile import load_profile
+
+    dbc = tmp_path / "car.dbc"
+    dbc.write_bytes((repo_root / "dbc" / "vdp.dbc").read_bytes())
+    prof = tmp_path / "car.toml"
+    prof.write_text((repo_root / "profiles" / "paper.toml").read_text().replace('"../dbc/vdp.dbc"', '"car.dbc"'))
+    log = tmp_path / "a.log"
+    log.write_text("(1.000000) can0 123#00\n" * 10)
+    t = Task(str(log), "car", str(prof))
+
+    def key():
+        return profile_hash(load_profile(prof))
+
+    rows = [{**dict.fromkeys(RUN_COLUMNS), "parameter": "l_f", "error": None, **run_key(t.log, key())}]
+    assert rerun_reason(rows, t, key()) is None
+    assert rerun_reason([], t, key()) == "new"
+    old = [{k: v for k, v in rows[0].items() if k not in ("log_hash", "profile_hash", "vdp_version")}]
+    assert rerun_reason(old, t, key()) == "an earlier vdp's result"
+    monkeypatch.setattr(vdp, "__version__", "0.0.1")
+    assert rerun_reason(rows, t, key()) == "another vdp version"
+    monkeypatch.undo()
+    # the log's bytes changed, its size and mtime put back as they were
+    st = log.stat()
+    log.write_text("(1.000000) can0 124#00\n" * 10)
+    os.utime(log, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert rerun_reason(rows, t, key()) == "the log changed"
+    rows = [{**rows[0], **run_key(t.log, key())}]
+    assert rerun_reason(rows, t, key()) is None
+    prof.write_text(prof.read_text().replace("wheel_radius = 0.3", "wheel_radius = 0.32", 1))
+    assert rerun_reason(rows, t, key()) == "its profile changed"
+    rows = [{**rows[0], **run_key(t.log, key())}]
+    with dbc.open("a") as f:
+        f.write('\nCM_ "a comment added to the DBC";\n')
+    assert rerun_reason(rows, t, key()) == "its profile changed"
+
+
+def test_an_out_folder_that_takes_no_file_is_refused_before_the_batch(tmp_path, capsys):
+    """--out on a folder nothing can be written in ran the first log, then a traceback."""
+    code = main(["batch", str(tmp_path / "a.log"), "--out", "/proc", "--workers", "1", "--no-progress"])
+    err = capsys.readouterr()
+    assert code == 2 and "logs:" not in err.out, err.out  # before the batch starts
+    assert err.err.startswith("vdp batch: error: --out /proc: cannot write in it") and len(err.err.splitlines()) == 1
 
 
 def test_a_tasks_warnings_name_its_log(monkeypatch, caplog):
@@ -477,6 +535,15 @@ def test_the_fleet_picture_shows_each_drive_its_combination_and_the_one_that_dis
     (pax,) = fleet_figure(pair, combine(pair)[0]).axes
     assert [t.get_text().split(" =")[0] for t in pax.texts] == ["χ² p"]
     fleet_plot(rows, vehicles, tmp_path / "fleet.png")
+    assert (tmp_path / "fleet.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_names_that_read_as_math_are_drawn_as_text(tmp_path):
+    """A vehicle or log named "$^$" raised in matplotlib's math parser at the end of a batch."""
+    from vdp.report import fleet_plot
+
+    rows = [run_row("a$^$.log", 1.40, 0.002, vehicle="$^$"), run_row("b.log", 1.41, 0.002, vehicle="$^$")]
+    fleet_plot(rows, combine(rows)[0], tmp_path / "fleet.png")
     assert (tmp_path / "fleet.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

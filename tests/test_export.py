@@ -327,3 +327,98 @@ def test_a_measured_l_f_is_handed_on_where_stage_1_did_not_run(tmp_path, capsys)
     result.write_text(json.dumps({"parameters": params, "vehicle": dataclasses.asdict(known)}))
     assert main(["export", str(result), "--format", "commonroad", "--out", str(tmp_path / "c.yaml")]) == 0
     assert "l_f is the profile's measured 1.17 m" in capsys.readouterr().err
+
+
+def _hand_edited(tmp_path, params=None, **vehicle):
+    """A result JSON as a user may have edited it (json.dumps writes NaN and Infinity as Python reads them)."""
+    p = {
+        "l_f": {"value": 1.15, "std": 0.03, "unit": "m", "status": "converged", "valid": True},
+        "C_K": {"value": 15.0, "std": 0.5, "unit": "1", "status": "converged", "valid": True},
+        "C_alpha": {"value": 9.0e4, "std": 2e3, "unit": "N/rad", "status": "converged", "valid": True},
+    }
+    for name, change in (params or {}).items():
+        p[name] = {**p[name], **change}
+    const = {"name": "car", "mass": 1600.0, "wheelbase": 2.5, "wheel_radius": 0.3, "wheel_inertia": 2.0, "track": 1.5}
+    src = tmp_path / "edited.json"
+    src.write_text(json.dumps({"parameters": p, "vehicle": {**const, **vehicle}}))
+    return src
+
+
+@pytest.mark.parametrize("fmt", ["commonroad", "carla", "json", "toml"])
+@pytest.mark.parametrize(
+    "params,vehicle,field",
+    [
+        ({"l_f": {"value": math.nan}}, {}, "parameters.l_f.value is nan"),
+        ({"C_K": {"std": math.inf}}, {}, "parameters.C_K.std is inf"),
+        ({"C_alpha": {"value": "9.0e4"}}, {}, 'parameters.C_alpha.value is "9.0e4", not a number'),
+        ({}, {"mass": math.nan}, "vehicle.mass is nan"),
+        ({}, {"wheelbase": 0}, "vehicle.wheelbase is 0: it must be above 0"),
+        ({}, {"track": "1.5"}, 'vehicle.track is "1.5", not a number'),
+    ],
+)
+def test_export_refuses_a_number_that_is_not_one_naming_its_field(tmp_path, capsys, fmt, params, vehicle, field):
+    """A NaN or inf wrote "a: nan" (YAML reads a string) or "mass = nan"; text or a zero wheelbase
+    was a traceback: each is one line naming the file and the field, and no file is written."""
+    src = _hand_edited(tmp_path, params, **vehicle)
+    dest = tmp_path / f"car.{fmt}"
+    assert main(["export", str(src), "--format", fmt, "--out", str(dest)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"{src}: {field}" in err and len(err.splitlines()) == 1, err
+    assert not dest.exists()
+
+
+def test_export_writes_a_name_with_quotes_and_newlines_as_text(tmp_path):
+    """A newline in the vehicle's name added a line to the YAML and broke the TOML."""
+    name = 'Golf "R"\nm: 1\n[vehicle]\\'
+    src = _hand_edited(tmp_path, name=name)
+    for fmt in ("commonroad", "toml", "json", "carla"):
+        dest = tmp_path / f"car.{fmt}"
+        assert main(["export", str(src), "--format", fmt, "--out", str(dest)]) == 0
+        text = dest.read_text()
+        if fmt == "commonroad":
+            y = yaml.safe_load(text)
+            assert y["m"] == 1600.0 and y["a"] == 1.15 and text.startswith('# Golf "R" m: 1 [vehicle]\\')
+        elif fmt == "toml":
+            assert tomllib.loads(text)["vehicle"]["name"] == name
+        else:
+            doc = json.loads(text)
+            assert (doc["vehicle"]["name"] if fmt == "json" else doc["vdp"]["vehicle"]) == name
+
+
+def test_export_over_its_own_result_is_refused(tmp_path, capsys):
+    """`vdp export r.json --format json --out r.json` wrote the export over the result."""
+    src = _hand_edited(tmp_path)
+    before = src.read_bytes()
+    assert main(["export", str(src), "--format", "json", "--out", str(src)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"--out {src}: is the result {src}, an input of this run" in err and len(err.splitlines()) == 1, err
+    assert src.read_bytes() == before
+
+
+def test_an_output_is_whole_or_the_old_file(tmp_path):
+    """outfile.replacing: a writer that fails leaves the old file and no temporary; one that ends
+    replaces it whole, through a symlink, keeping the file's mode."""
+    from vdp.outfile import replacing, write_text
+
+    out = tmp_path / "r.json"
+    out.write_text("old")
+    out.chmod(0o640)
+    with pytest.raises(RuntimeError), replacing(out) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("the writer failed")
+    assert out.read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]
+    (tmp_path / "link.json").symlink_to(out)
+    write_text(tmp_path / "link.json", "new")
+    assert out.read_text() == "new" and (tmp_path / "link.json").is_symlink()
+    assert out.stat().st_mode & 0o777 == 0o640
+    # /dev/stdout on a pipe (a link to /proc/self/fd/1, which names no path) is written in place
+    import os
+
+    r, w = os.pipe()
+    (tmp_path / "stdout").symlink_to(f"/proc/self/fd/{w}")
+    try:
+        write_text(tmp_path / "stdout", "through the pipe")
+        assert os.read(r, 100) == b"through the pipe"
+    finally:
+        os.close(r)
+        os.close(w)

@@ -209,6 +209,26 @@ LOAD_CASES = [
         "cannot be converted",
     ),
     (
+        "composite-condition-not-names",
+        edit(
+            'wheel_torque_front = { message = "WHEEL_TORQUE", signal = "TORQUE_FRONT", unit = "Nm" }',
+            "wheel_torque_front = { conditions = [{ message = 5, signal = [] }], "
+            'terms = [{ message = "WHEEL_TORQUE", signal = "TORQUE_FRONT", unit = "Nm" }] }',
+        ),
+        "[channels.wheel_torque_front]",
+        r"conditions\[0\]: 'message' must be a message name \(a string\), got 5",
+    ),
+    (
+        "composite-condition-signal-list",
+        edit(
+            'wheel_torque_front = { message = "WHEEL_TORQUE", signal = "TORQUE_FRONT", unit = "Nm" }',
+            'wheel_torque_front = { conditions = [{ message = "STEERING", signal = [] }], '
+            'terms = [{ message = "WHEEL_TORQUE", signal = "TORQUE_FRONT", unit = "Nm" }] }',
+        ),
+        "[channels.wheel_torque_front]",
+        r"conditions\[0\]: 'signal' must be a signal name \(a string\), got \[\]",
+    ),
+    (
         "checks-not-table",
         edit('IMU_RATES          = { counter = "COUNTER", checksum = "CHECKSUM" }', 'IMU_RATES = "COUNTER"'),
         "[checks.IMU_RATES]",
@@ -428,3 +448,13 @@ def test_cli_prints_one_line(tmp_path, capsys, command):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"vdp {command}: error: {path} [channels.yaw_rate]: ")
     assert "YAWRATE" in err[0]
+
+
+@pytest.mark.parametrize("name", ['Golf "R"', "Golf\nR = 1", "back\\slash\t$^$", "\u0160koda \U0001f697"])
+def test_profile_new_writes_any_name_as_a_toml_string(tmp_path, capsys, name):
+    """The draft's name is the given one read back, whatever it holds (a quote made the draft
+    invalid TOML; a newline added a key)."""
+    out = tmp_path / "d.toml"
+    assert main(["profile", "new", "--dbc", str(VDP_DBC), "--name", name, "--out", str(out)]) == 0
+    assert load_profile(out).vehicle.name == name
+    assert out.read_text().splitlines()[0].startswith("# Draft profile for ")

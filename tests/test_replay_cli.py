@@ -265,3 +265,58 @@ def test_simulate_repeat_makes_one_long_log_of_one_car(tmp_path, capsys):
     assert len(gaps) == 2  # the silence between drives
     assert main(["simulate", "--model", "brush", "--repeat", "2", "--out", str(tmp_path / "b.log")]) == 2
     assert "--repeat applies to --model vdp only" in capsys.readouterr().err
+
+
+def test_a_name_that_reads_as_math_is_plotted_as_text(drive, repo_root, tmp_path, capsys):
+    """A vehicle (and a log) named "$^$" went to matplotlib's math parser through the plot's
+    title and raised after the whole replay; the title is the names as given."""
+    import matplotlib.pyplot as plt
+
+    from vdp import report
+
+    _, log = drive
+    prof = tmp_path / "car.toml"
+    paper = repo_root / "profiles" / "paper.toml"
+    text = paper.read_text().replace('"../dbc/vdp.dbc"', f'"{repo_root / "dbc" / "vdp.dbc"}"')
+    prof.write_text(text.replace('name = "paper"', 'name = "$^$"', 1))
+    odd = tmp_path / "a$^$.log"
+    odd.symlink_to(log)
+    png = tmp_path / "p.png"
+    assert main(["replay", str(odd), "--profile", str(prof), "--plot", str(png), "--no-progress"]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    fig = report.figure([], [], title="a$^$.log: $^$")
+    try:
+        fig.canvas.draw()
+        assert fig.get_suptitle() == "a$^$.log: $^$"
+    finally:
+        plt.close(fig)
+
+
+@pytest.mark.parametrize("which", ["the log", "a symlink to the log", "the profile", "the truth"])
+def test_an_output_that_is_an_input_is_refused_before_the_replay(drive, repo_root, tmp_path, capsys, which):
+    """`vdp replay drive.log --json drive.log` wrote the JSON over the log and exited 0: an output
+    that is an input (by name, or the same file by another) is one line, exit 2, nothing touched."""
+    d, log = drive
+    copy = tmp_path / "drive.log"
+    copy.write_bytes(log.read_bytes())
+    prof = tmp_path / "car.toml"
+    paper = (repo_root / "profiles" / "paper.toml").read_text()
+    prof.write_text(paper.replace('"../dbc/vdp.dbc"', f'"{repo_root / "dbc" / "vdp.dbc"}"'))
+    truth = tmp_path / "drive.truth.json"
+    truth.write_text((d / "drive.truth.json").read_text())
+    (tmp_path / "alias.json").symlink_to(copy)
+    out = {"the log": copy, "a symlink to the log": tmp_path / "alias.json", "the profile": prof, "the truth": truth}
+    before = {p: p.read_bytes() for p in (copy, prof, truth)}
+    args = ["replay", str(copy), "--profile", str(prof), "--truth", str(truth), "--json", str(out[which])]
+    assert main([*args, "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"--json {out[which]}: is " in err and "give --json another file" in err, err
+    assert {p: p.read_bytes() for p in before} == before
+
+
+def test_two_outputs_on_one_file_are_refused(drive, tmp_path, capsys):
+    _, log = drive
+    same = tmp_path / "t.csv"
+    assert main(["replay", str(log), "--series", str(same), "--channels", str(same), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--channels" in err and "is also the file of --series" in err and not same.exists()

@@ -10,11 +10,13 @@ every one with its status and std.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass
 
 from .core.params import BY_NAME, NAMES
 from .core.result import INVALID, NOT_IDENTIFIABLE, NOT_RUN, finite
 from .errors import ConfigError
+from .text import clean, one_line, toml_str
 
 FORMATS = {
     "commonroad": ("yaml", "application/yaml"),
@@ -80,9 +82,56 @@ def usable(params: dict, const: Constants | None = None) -> tuple[dict[str, dict
     return keep, skipped
 
 
+# the constants a simulator file is computed from: each a positive number (a zero wheelbase
+# divided by zero, a NaN mass was written as "m: nan", which YAML reads as a string)
+POSITIVE = ("mass", "wheelbase", "wheel_radius", "wheel_inertia", "track", "g")
+_AXLES = ("C_alpha_front", "C_alpha_front_std", "C_alpha_rear", "C_alpha_rear_std")
+
+
+def _number(field: str, v, positive: bool = False) -> None:
+    """Refuse ``v`` unless it is a finite number (and above 0 where ``positive``).  A NaN, an
+    inf or a number in quotes comes only from a hand-edited or damaged result (vdp writes an
+    unknown number as null): no format can carry it as a number, so it is refused, not written."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        said = json.dumps(clean(v))[:40] if isinstance(v, str) else type(v).__name__
+        raise ConfigError(f"{field} is {said}, not a number: write it as a number (without quotes)")
+    if not math.isfinite(v):
+        null = ", or null where it is not known" if field.startswith("parameters.") else ""
+        raise ConfigError(f"{field} is {v}: not a number a parameter file can hold; put the number there{null}")
+    if positive and not v > 0:
+        raise ConfigError(f"{field} is {v}: it must be above 0")
+
+
+def check(params: dict, const: Constants) -> None:
+    """Every number the export writes or computes with, refused with the field's name unless
+    it is a finite number: before any text is made, so a bad one never leaves half a file."""
+    for k in POSITIVE:
+        _number(f"vehicle.{k}", getattr(const, k), positive=True)
+    for k in ("l_f", "l_f_std"):
+        if getattr(const, k) is not None:
+            _number(f"vehicle.{k}", getattr(const, k), positive=True)
+    for name in NAMES:
+        p = params.get(name)
+        if p is None:
+            continue
+        if not isinstance(p, dict):
+            raise ConfigError(f"parameters.{name} must be an object with value, std and status")
+        for k in ("value", "std"):
+            if p.get(k) is not None:
+                _number(f"parameters.{name}.{k}", p[k])
+        x = p.get("extra") or {}
+        if not isinstance(x, dict):
+            raise ConfigError(f"parameters.{name}.extra must be an object")
+        for k in _AXLES:
+            if x.get(k) is not None:
+                _number(f"parameters.{name}.extra.{k}", x[k])
+
+
 def render(fmt: str, params: dict, const: Constants, source: str = "") -> str:
-    """The text of ``params`` (a result's ``parameters``) in format ``fmt``."""
+    """The text of ``params`` (a result's ``parameters``) in format ``fmt``; a number that is
+    not one (NaN, inf, text, a zero wheelbase) is a ConfigError naming its field."""
     check_format(fmt)
+    check(params, const)
     return {"commonroad": _commonroad, "carla": _carla, "json": _json, "toml": _toml}[fmt](params, const, source)
 
 
@@ -100,9 +149,10 @@ def _about(p: dict) -> str:
     std = p.get("std")
     sd = f"+- {std:.4g}" if std is not None else "std unknown"
     valid = "" if p.get("valid", True) else ", NOT VALID (see its reason in the result)"
+    unit = one_line(p.get("unit", ""))  # (in a comment: a newline in it would start a line of YAML)
     if p.get("status") == MEASURED:
-        return f"{sd} {p.get('unit', '')}, measured: the profile's [vehicle] l_f, not estimated"
-    return f"{sd} {p.get('unit', '')}, {p.get('status', '?')}{valid}"
+        return f"{sd} {unit}, measured: the profile's [vehicle] l_f, not estimated"
+    return f"{sd} {unit}, {one_line(p.get('status', '?'))}{valid}"
 
 
 def not_valid(params: dict) -> list[str]:
@@ -116,7 +166,8 @@ def _commonroad(params: dict, const: Constants, source: str) -> str:
     the same keys and units, only those vdp knows; load it over a base set."""
     keep, skipped = usable(params, const)
     lines = [
-        f"# {const.name}: vehicle parameters estimated by vdp" + (f" from {source}" if source else ""),
+        f"# {one_line(const.name)}: vehicle parameters estimated by vdp"
+        + (f" from {one_line(source)}" if source else ""),
         "# layout of commonroad-vehicle-models' parameters_vehicle<N>.yaml; merge over a base set",
         "# (keys vdp does not estimate are absent). Each estimate's 1-sigma and status in its comment.",
     ]
@@ -177,7 +228,7 @@ def _commonroad(params: dict, const: Constants, source: str) -> str:
         c_s = c["value"] / (const.mass * const.g / 2)
         sd = f"+- {c['std'] / (const.mass * const.g / 2):.4g}" if c.get("std") is not None else "std unknown"
         tire += [
-            f"  # lateral stiffness Kfy/Fznom [1/rad]: -C_alpha / (m g / 2)  ({sd}, {c.get('status')})",
+            f"  # lateral stiffness Kfy/Fznom [1/rad]: -C_alpha / (m g / 2)  ({sd}, {one_line(c.get('status'))})",
             f"  p_ky1: {_num(-c_s)}",
         ]
     if tire:
@@ -206,6 +257,9 @@ def _carla(params: dict, const: Constants, source: str) -> str:
         w: dict = {"radius": const.wheel_radius * 100.0}
         if loads is not None:
             f_z = loads[axle] / 2  # per wheel
+            if f_z <= 0:  # an l_f at or beyond an axle: no load on the other, no stiffness per load
+                wheels.append(w)
+                continue
             if "C_K" in keep:
                 # PhysX: longitudinal stiffness [N per unit slip] per unit g = C_K F_z / g
                 w["long_stiff_value"] = keep["C_K"]["value"] * f_z / const.g
@@ -215,8 +269,8 @@ def _carla(params: dict, const: Constants, source: str) -> str:
         wheels.append(w)
     out["wheels"] = wheels
     out["vdp"] = {
-        "vehicle": const.name,
-        "source": source,
+        "vehicle": clean(const.name),
+        "source": clean(source),
         "note": "CARLA 0.9 (PhysX) fields; set them on carla.VehiclePhysicsControl / WheelPhysicsControl. "
         "center_of_mass is relative to the wheelbase midpoint on the ground; PhysX's load curve scales "
         "lat_stiff_value at the rest load, check it against your CARLA version.",
@@ -245,9 +299,9 @@ def _plain(params: dict, const: Constants | None = None, source: str = "") -> di
             if x.get(k) is not None:  # C_alpha is the axles' mean: each axle as well
                 out["parameters"][name][k] = finite(x[k])
     if const is not None:
-        out["vehicle"] = asdict(const)
+        out["vehicle"] = {**asdict(const), "name": clean(const.name)}
     if source:
-        out["source"] = source
+        out["source"] = clean(source)
     return out
 
 
@@ -258,17 +312,17 @@ def _json(params: dict, const: Constants, source: str) -> str:
 def _toml_value(v) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
-    if isinstance(v, (int, float)):
+    if isinstance(v, (int, float)):  # (finite: check)
         return repr(float(v)) if isinstance(v, float) else str(v)
-    return json.dumps(str(v))  # a JSON string is a valid TOML basic string
+    return toml_str(v)  # a quote or a newline in a name escaped, not the file broken
 
 
 def _toml(params: dict, const: Constants, source: str) -> str:
     """Plain TOML; an unknown number is left out (TOML has no null)."""
     d = _plain(params, const, source)
-    lines = [f"# vdp estimates of {const.name}" + (f" from {source}" if source else ""), ""]
+    lines = [f"# vdp estimates of {one_line(const.name)}" + (f" from {one_line(source)}" if source else ""), ""]
     lines.append("[vehicle]")
-    lines += [f"{k} = {_toml_value(v)}" for k, v in d["vehicle"].items()]
+    lines += [f"{k} = {_toml_value(v)}" for k, v in d["vehicle"].items() if v is not None]
     for name, p in d["parameters"].items():
         lines += ["", f"[parameters.{name}]"]
         lines += [f"{k} = {_toml_value(v)}" for k, v in p.items() if v is not None]

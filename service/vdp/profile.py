@@ -730,6 +730,11 @@ def _composite(where: str, name: str, raw: dict) -> Composite:
     for i, c in enumerate(conds_raw):
         if not isinstance(c, dict) or set(c) != {"message", "signal"}:
             raise ProfileError(f"{w}: conditions[{i}] must be {{ message = ..., signal = ... }}")
+        for key in ("message", "signal"):  # (a number or a list here went on to a TypeError)
+            if not isinstance(c[key], str) or not c[key]:
+                raise ProfileError(
+                    f"{w}: conditions[{i}]: '{key}' must be a {key} name (a string), got {_short(c[key])}"
+                )
         conds.append(ChannelMap(TERM, c["message"], c["signal"], "1", where=f"{w} conditions[{i}]"))
     terms_raw = raw.get("terms")
     if not isinstance(terms_raw, list) or not terms_raw:

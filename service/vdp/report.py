@@ -12,6 +12,7 @@ from typing import Any
 from .core.params import BY_NAME, NAMES
 from .core.result import Estimate
 from .errors import ConfigError
+from .outfile import replacing, write_text
 from .result import RunResult, jsonable
 
 
@@ -180,7 +181,7 @@ def axle_lines(params: Mapping[str, Estimate], truth: dict | None = None) -> lis
 
 def write_json(doc: dict | RunResult, path: str | Path) -> None:
     """Strict JSON (never NaN: non-finite numbers become null)."""
-    Path(path).write_text(json.dumps(jsonable(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    write_text(path, json.dumps(jsonable(doc), indent=2, allow_nan=False) + "\n")
 
 
 # The paper's figures: Fig. 5 is stage 1 (C_K, h, l_f), Fig. 7 stage 2 (C_alpha, I_x, I_z);
@@ -238,8 +239,11 @@ def plot(
     import matplotlib.pyplot as plt
 
     fig = figure(trace, windows, truth, title, params, priors, capabilities)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        with replacing(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
 
 
 def figure(
@@ -413,7 +417,8 @@ def figure(
         Patch(color=_WINDOW_COLOR[2], alpha=0.25, label="stage-2 window"),
     ]
     fig.legend(handles=legend, loc="lower center", ncol=len(legend), fontsize=9, frameon=False)
-    fig.suptitle(title or "vdp estimates", fontsize=12)
+    # a name is text, not math: a vehicle or log named "$^$" made matplotlib's math parser raise
+    fig.suptitle(title or "vdp estimates", fontsize=12, parse_math=False)
     fig.tight_layout(rect=(0, 0.04, 1, 0.97))
     return fig
 
@@ -466,13 +471,16 @@ def fleet_figure(rows: list[dict], vehicles: list[dict]):
                 ax.errorbar(r["value"], k, xerr=2 * sd, fmt="o", ms=ms, color=colour, mfc=face, capsize=cap, lw=lw)
             ax.set_ylim(-0.7, max(len(logs), 1) - 0.3)
             ax.set_yticks([] if many else range(len(logs)))
-            ax.set_yticklabels([] if many or j else [Path(lg).name for lg in logs], fontsize=7)
+            ax.set_yticklabels([] if many or j else [Path(lg).name for lg in logs], fontsize=7, parse_math=False)
             ax.tick_params(axis="x", labelsize=7)
             ax.xaxis.set_major_locator(MaxNLocator(3))  # (a narrow panel's ticks ran into each other)
             unit = _unit(BY_NAME[name].unit)
             ax.set_title((f"{name} [{unit}]" if unit != "-" else name) if i == 0 else "", fontsize=9)
             if j == 0:
-                ax.set_ylabel(f"{car}\n{len(logs)} drives, in name order" if many else car, fontsize=9)
+                # (names as text, not matplotlib's math: see figure)
+                ax.set_ylabel(
+                    f"{car}\n{len(logs)} drives, in name order" if many else car, fontsize=9, parse_math=False
+                )
             p = v.get("p_value_kept")  # the consistency test of the drives combined
             if p is not None and math.isfinite(p):
                 left_out = (v.get("dof") or 0) + 1 - (v.get("drives") or 0)  # (a flagged pair stays in)
@@ -501,5 +509,8 @@ def fleet_plot(rows: list[dict], vehicles: list[dict], path: str | Path) -> None
     import matplotlib.pyplot as plt
 
     fig = fleet_figure(rows, vehicles)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        with replacing(path) as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)

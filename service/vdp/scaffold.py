@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from . import channels
+from .text import one_line, toml_str
 from .units import CHANNEL_KINDS, SOURCES, UNIT_FACTORS
 
 # channel -> (patterns that must all match the lower-case "message.signal", patterns that add)
@@ -282,13 +283,13 @@ def _drafted(ch: str, has_sources: bool) -> bool:
 def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", facts: LogFacts | None = None) -> str:
     """A commented TOML profile: the best candidate per channel mapped, the others as comments."""
     L = [
-        f"# Draft profile for {name}, written by `vdp profile new` from {dbc.name}.",
+        f"# Draft profile for {one_line(name)}, written by `vdp profile new` from {one_line(dbc.name)}.",
         "# Every value marked EDIT is a placeholder: put in your car's numbers, then run",
         "#   vdp profile check LOG --profile THIS_FILE",
         "# on a drive with some acceleration, braking and turns; it names each sign or unit it doubts.",
         "",
         "[vehicle]",
-        f'name = "{name}"',
+        f"name = {toml_str(name)}",  # (a quote or a newline in it is escaped, not TOML broken)
         "mass = 1500.0              # kg as driven (kerb weight plus occupants): EDIT",
         "wheelbase = 2.65           # m: EDIT",
         "wheel_radius = 0.31        # m, rolling radius of the tyres: EDIT",
@@ -307,18 +308,19 @@ def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", fa
         "I_x     = { value = 600.0,   std = 400.0 }",
         "",
         "[can]",
-        f'dbc = "{dbc}"',
+        f"dbc = {toml_str(dbc)}",
     ]
     if facts is not None and facts.channel:
         L.append(
-            f'channel = "{facts.channel}"  # the log has frames on {", ".join([facts.channel, *facts.also])}; '
-            f"the mapped messages come on {facts.channel}: another bus's frames of the same ids stay out"
+            f"channel = {toml_str(facts.channel)}  # the log has frames on "
+            f"{one_line(', '.join([facts.channel, *facts.also]))}; the mapped messages come on "
+            f"{one_line(facts.channel)}: another bus's frames of the same ids stay out"
         )
     if facts is not None and facts.short:
         worst = max(facts.short, key=facts.short.get)
         L.append(
             f"pad_short = true  # {sum(facts.short.values())} frame(s) in the log shorter than the DBC's "
-            f"length ({worst}: {facts.short[worst]}); without this they are refused"
+            f"length ({one_line(worst)}: {facts.short[worst]}); without this they are refused"
         )
     L.append("")
     has_sources = _has_sources(cands)
@@ -339,18 +341,24 @@ def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", fa
             continue
         best = cs[0]
         unit = best.unit or "EDIT"
-        flag = "" if best.unit else f"  # DBC unit '{best.dbc_unit}' unknown to vdp: EDIT unit"
-        extra = f', fine = "{best.fine}"' if best.fine else ""  # (a coarse value's finer part)
+        flag = "" if best.unit else f"  # DBC unit '{one_line(best.dbc_unit)}' unknown to vdp: EDIT unit"
+        extra = f", fine = {toml_str(best.fine)}" if best.fine else ""  # (a coarse value's finer part)
         extra += ", steering_wheel = true" if ch == "steering_angle" else ""
         why = f"  # {best.note}" if best.note and not flag else ""
-        line = f'{ch} = {{ message = "{best.message}", signal = "{best.signal}", unit = "{unit}"{extra} }}'
+        line = (
+            f"{ch} = {{ message = {toml_str(best.message)}, signal = {toml_str(best.signal)}, "
+            f"unit = {toml_str(unit)}{extra} }}"
+        )
         if best.engine:  # left out: mapped as it is, stage 1 would read the gearbox's ratio as mass
             L.append(f"# {line}  # {ENGINE_NOTE}")
         elif best.wrong_kind:  # a name that matches, a unit that does not (STEER_TORQUE_SENSOR.STEER_ANGLE)
-            L.append(f"# {line}  # its unit '{best.dbc_unit}' is not one of a {ch}: no signal fits; map it yourself")
+            L.append(
+                f"# {line}  # its unit '{one_line(best.dbc_unit)}' is not one of a {ch}: no signal fits; "
+                "map it yourself"
+            )
         else:
             L.append(("# " if not best.unit else "") + line + (flag or why))
         for c in cs[1:3]:
             note = "an engine torque? at the wheels it is this times the gear ratio" if c.engine else c.note
-            L.append(f"#   or {c.message}.{c.signal} [{c.dbc_unit or '-'}]" + (f" ({note})" if note else ""))
+            L.append(f"#   or {c.message}.{c.signal} [{one_line(c.dbc_unit or '-')}]" + (f" ({note})" if note else ""))
     return "\n".join(L) + "\n"

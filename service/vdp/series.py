@@ -19,6 +19,7 @@ from .core.params import NAMES
 from .core.result import Estimate
 from .core.sample import Sample
 from .errors import ConfigError
+from .outfile import replacing
 from .result import RunResult
 
 SUFFIXES = (".csv", ".parquet")
@@ -153,7 +154,7 @@ def write_table(path: str | Path, columns: list[str], rows) -> None:
     """Rows (lists or a 2-D array) to CSV or Parquet by the file's suffix; missing numbers are empty / null."""
     p = Path(path)
     if _kind(p) == ".csv":
-        with p.open("w", newline="", encoding="utf-8") as f:
+        with replacing(p) as tmp, tmp.open("w", newline="", encoding="utf-8") as f:
             w = csv.writer(f)
             w.writerow(columns)
             for r in rows:
@@ -174,7 +175,8 @@ def write_table(path: str | Path, columns: list[str], rows) -> None:
                 data[c] = pa.array(list(vals), type=pa.string())
             else:
                 data[c] = pa.array([None if v is None else float(v) for v in vals], type=pa.float64())
-    pq.write_table(pa.table(data), p)
+    with replacing(p) as tmp:
+        pq.write_table(pa.table(data), tmp)
 
 
 def check_suffix(path: str | Path) -> None:

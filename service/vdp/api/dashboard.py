@@ -10,9 +10,11 @@ client that goes away leaves nothing behind on the server.
 from __future__ import annotations
 
 import logging
+import unicodedata
 from importlib.resources import files
 from pathlib import Path
 from typing import Annotated, Any, Literal
+from urllib.parse import quote
 
 from fastapi import APIRouter, FastAPI, Query, Request
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
@@ -21,6 +23,7 @@ from fastapi.staticfiles import StaticFiles
 
 from ..core.params import SPECS
 from ..export import FORMATS, Constants, render
+from ..text import clean
 from .deps import Svc
 
 log = logging.getLogger(__name__)
@@ -123,4 +126,18 @@ def export(svc: Svc, format: Annotated[Format, Query(description="the file layou
     text = render(format, params, Constants.of(svc.profile.vehicle), source="vdp serve")
     suffix, media = FORMATS[format]
     name = f"{svc.profile.vehicle.name}.{format}.{suffix}"
-    return PlainTextResponse(text, media_type=media, headers={"Content-Disposition": f'inline; filename="{name}"'})
+    return PlainTextResponse(text, media_type=media, headers={"Content-Disposition": disposition(name)})
+
+
+def disposition(name: str) -> str:
+    """``inline`` with ``name`` as RFC 6266 says: the UTF-8 name percent-encoded (``filename*``) and
+    an ASCII one beside it for old clients.  The name is the profile's vehicle: put in as it was,
+    a letter beyond Latin-1 ("Škoda") was a 500, a newline cut the connection and a quote added
+    parameters of its own."""
+    utf8 = quote(clean(name), safe="")  # every byte but letters, digits and -._~ percent-encoded
+    ascii_ = "".join(
+        c if c.isascii() and (c.isalnum() or c in " -._()+,") else "_"
+        for c in unicodedata.normalize("NFKD", clean(name))
+        if not unicodedata.combining(c)  # (Škoda -> Skoda)
+    )
+    return f"inline; filename=\"{ascii_}\"; filename*=UTF-8''{utf8}"

@@ -252,11 +252,12 @@ def write_part(out: Path, key: str, rows: list[dict]) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    from ..outfile import replacing
+
     parts = out / "parts"
     parts.mkdir(parents=True, exist_ok=True)
-    tmp = parts / f".{key}.tmp"
-    pq.write_table(pa.Table.from_pylist(rows, schema=_schema()), tmp)
-    os.replace(tmp, parts / f"{key}.parquet")
+    with replacing(parts / f"{key}.parquet") as tmp:
+        pq.write_table(pa.Table.from_pylist(rows, schema=_schema()), tmp)
 
 
 def read_parts(out: Path) -> dict[str, list[dict]]:
@@ -264,6 +265,8 @@ def read_parts(out: Path) -> dict[str, list[dict]]:
 
     got = {}
     for f in sorted((out / "parts").glob("*.parquet")):
+        if f.name.startswith("."):  # a part being written (outfile.replacing), or one a kill left half-done
+            continue
         try:
             got[f.stem] = pq.read_table(f).to_pylist()
         except Exception as exc:  # a damaged part is redone, not fatal
@@ -271,14 +274,46 @@ def read_parts(out: Path) -> dict[str, list[dict]]:
     return got
 
 
-def done(rows: list[dict], task) -> bool:
-    """Already run on this very file, without an error."""
-    from ..fleet import file_stamp
+def rerun_reason(rows: list[dict], task, profile_key: str | None) -> str | None:
+    """Why ``task`` must run (again), or None: its part is a result of this very log, profile
+    (``profile_key``: fleet.profile_hash now) and vdp version, without an error.  A part of an
+    earlier vdp that has no such key is run again."""
+    from .. import __version__
+    from ..fleet import content_hash, file_stamp
 
-    if not rows or any(r["error"] for r in rows):
-        return False
-    stamp = file_stamp(task.log)
-    return stamp is not None and (rows[0]["log_size"], rows[0]["log_mtime_ns"]) == stamp
+    if not rows:
+        return "new"
+    first = rows[0]
+    if any(r["error"] for r in rows):
+        return "failed before"
+    if not first.get("log_hash"):
+        return "an earlier vdp's result"
+    if first.get("vdp_version") != __version__:
+        return "another vdp version"
+    if profile_key is None or first.get("profile_hash") != profile_key:
+        return "its profile changed"
+    # size and mtime first: a log that changed is told without reading it
+    stamp = (first.get("log_size"), first.get("log_mtime_ns"))
+    if stamp != file_stamp(task.log) or first["log_hash"] != content_hash(task.log):
+        return "the log changed"
+    return None
+
+
+def profile_keys(todo: list) -> dict[str, str | None]:
+    """profile path -> fleet.profile_hash of its files now (None if it does not load: its logs
+    run, and their error rows say why)."""
+    from ..errors import VdpError
+    from ..fleet import profile_hash
+    from ..profile import load_profile
+
+    keys: dict[str, str | None] = {}
+    for t in todo:
+        if t.profile not in keys:
+            try:
+                keys[t.profile] = profile_hash(load_profile(t.profile))
+            except VdpError:
+                keys[t.profile] = None
+    return keys
 
 
 def write_results(out: Path, parts: dict[str, list[dict]]) -> tuple[list[dict], list[dict]]:
@@ -332,9 +367,10 @@ def _z_flag() -> float:
 
 
 def _atomic(pq, table, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    pq.write_table(table, tmp)
-    os.replace(tmp, path)
+    from ..outfile import replacing
+
+    with replacing(path) as tmp:
+        pq.write_table(table, tmp)
 
 
 # -- dask -----------------------------------------------------------------------
@@ -419,16 +455,32 @@ def run(args) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"--out {out}: cannot create it: {exc.strerror or exc}") from None
-    if args.plot:  # a wrong suffix or folder said before an hour of logs, not after (--out made first)
-        from .paths import check_output
+    from .paths import check_apart, check_dir, check_output
 
+    # a folder that takes no file is said now, not as a traceback after the first log
+    check_dir(out, "--out")
+    if (out / "parts").exists():
+        check_dir(out / "parts", "--out")
+    if args.plot:  # a wrong suffix or folder said before an hour of logs, not after (--out made first)
         check_output(args.plot, "--plot", (".png", ".pdf", ".svg"))
     unmatched: list[str] = []
     todo = tasks(args, unmatched)
+    keys = profile_keys(todo)
+    inputs = [("the log", t.log) for t in todo] + [("the profile", p) for p in keys]
+    if args.manifest:
+        inputs.append(("--manifest", args.manifest))
+    check_apart({"--plot": args.plot}, inputs)  # (the tables are .parquet, never a log, profile or manifest)
     parts = read_parts(out)
-    pending = [t for t in todo if args.redo or not done(parts.get(t.key, []), t)]
+    why = {t.key: "--redo" if args.redo else rerun_reason(parts.get(t.key, []), t, keys[t.profile]) for t in todo}
+    pending = [t for t in todo if why[t.key] is not None]
     skipped = len(todo) - len(pending)
-    print(f"{len(todo)} logs: {skipped} already done, {len(pending)} to run")
+    counts: dict[str, int] = {}
+    for t in pending:
+        counts[why[t.key]] = counts.get(why[t.key], 0) + 1
+    said = ", ".join(
+        f"{n} {w}" if w == "new" else f"{n}: {w}" for w, n in sorted(counts.items(), key=lambda kv: -kv[1])
+    )
+    print(f"{len(todo)} logs: {skipped} already done, {len(pending)} to run" + (f" ({said})" if said else ""))
     failed: list[tuple[str, str]] = []
     if pending:
         from distributed import as_completed
@@ -448,9 +500,10 @@ def run(args) -> int:
                 try:
                     rows = fut.result()
                 except Exception as exc:  # the worker died (KilledWorker), or Dask itself failed
-                    from ..fleet import error_row, file_stamp
+                    from ..fleet import error_row, run_key
 
-                    rows = [error_row(t, f"task failed on the cluster: {type(exc).__name__}: {exc}", file_stamp(t.log))]
+                    msg = f"task failed on the cluster: {type(exc).__name__}: {exc}"
+                    rows = [error_row(t, msg, run_key(t.log, keys[t.profile]))]
                 fut.release()
                 write_part(out, t.key, rows)
                 parts[t.key] = rows

@@ -12,7 +12,8 @@ import sys
 from pathlib import Path
 
 from ..errors import ConfigError
-from .paths import check_output
+from ..outfile import write_text
+from .paths import check_apart, check_output, profile_inputs
 
 
 def add_parser(sub):
@@ -52,13 +53,15 @@ def _load(path: Path) -> dict:
 
 
 def constants(data: dict, profile: str | None):
+    """(the known constants, the profile they came from, or None: the result's own)."""
     from ..export import Constants
     from ..profile import load_profile
     from .replay import default_profile
 
     if profile is None and isinstance(data.get("vehicle"), dict):
-        return Constants.from_dict(data["vehicle"])
-    return Constants.of(load_profile(profile or default_profile()).vehicle)
+        return Constants.from_dict(data["vehicle"]), None
+    prof = load_profile(profile or default_profile())
+    return Constants.of(prof.vehicle), prof
 
 
 def run(args) -> int:
@@ -70,12 +73,18 @@ def run(args) -> int:
     if not to_stdout:
         check_output(args.out, "--out")
     data = _load(args.result)
-    const = constants(data, args.profile)
-    text = render(args.format, data["parameters"], const, source=str(args.result))
+    const, prof = constants(data, args.profile)
+    if not to_stdout:
+        check_apart({"--out": args.out}, {"the result": args.result, **(profile_inputs(prof) if prof else {})})
+    try:
+        text = render(args.format, data["parameters"], const, source=str(args.result))
+    except ConfigError as exc:  # a number that is not one: name the file, and where the constants came from
+        fix = "; or give --profile PROFILE to take the profile's constants" if str(exc).startswith("vehicle.") else ""
+        raise ConfigError(f"{args.result}: {exc}{fix}") from None
     if to_stdout:
         sys.stdout.write(text)
     else:
-        args.out.write_text(text, encoding="utf-8")
+        write_text(args.out, text)
     keep, skipped = usable(data["parameters"], const)
     if keep.get("l_f", {}).get("status") == "measured" and args.format in ("commonroad", "carla"):
         print(f"vdp export: l_f is the profile's measured {const.l_f:g} m (stage 1 did not run)", file=sys.stderr)

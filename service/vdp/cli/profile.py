@@ -13,7 +13,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .paths import check_output
+from ..outfile import write_text
+from .paths import check_apart, check_output, profile_inputs
 
 
 def add_parser(sub):
@@ -47,13 +48,14 @@ def run_new(args) -> int:
     dbc = Path(args.dbc).resolve()
     if not dbc.is_file():
         raise ConfigError(f"--dbc {args.dbc}: no such file")
+    check_apart({"--out": args.out}, {"--dbc": args.dbc, "--log": args.log})
     db = dbcfix.load(dbc)
     cands = candidates(db)
     facts = behaviour(db, cands, args.log) if args.log else None
     for ch, cs in cands.items():
         best = ", ".join(f"{c.message}.{c.signal} [{c.dbc_unit or '-'}]" for c in cs[:3]) or "none"
         print(f"{ch:20} {best}")
-    Path(args.out).write_text(draft(dbc, cands, args.name, facts), encoding="utf-8")
+    write_text(args.out, draft(dbc, cands, args.name, facts))
     print(f"wrote {args.out}: edit the values marked EDIT, then run vdp profile check LOG --profile {args.out}")
     return 0
 
@@ -70,6 +72,7 @@ def run(args) -> int:
     if args.json_out:
         check_output(args.json_out, "--json", (".json",))
     profile = load_profile(args.profile)
+    check_apart({"--json": args.json_out}, {"the log": args.log, **profile_inputs(profile)})
     rep, cov = check_log(args.log, profile, seconds=args.seconds)
     print(f"{args.log}: {cov.message()}; checked {rep.seconds:.1f} s of bus time")
     for name, v in rep.measured.items():
@@ -84,7 +87,6 @@ def run(args) -> int:
     if args.json_out:
         doc = rep.as_dict()
         doc["coverage"] = {"messages": cov.wanted, "other_ids": cov.other[:20]}
-        with open(args.json_out, "w", encoding="utf-8") as f:
-            json.dump(doc, f, indent=2)
+        write_text(args.json_out, json.dumps(doc, indent=2))
         print(f"wrote {args.json_out}")
     return 1 if out else 0

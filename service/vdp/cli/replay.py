@@ -12,7 +12,7 @@ from pathlib import Path
 
 from ..core.result import CONVERGED
 from ..errors import ConfigError
-from .paths import check_output
+from .paths import check_apart, check_output, profile_inputs
 
 PLOT_ROWS = 20_000  # trace rows kept for --plot: a 4-hour log's 144,000 rows took ~140 MB
 
@@ -158,6 +158,8 @@ def run(args) -> int:
         if path:
             check_output(path, flag, suffixes)
     profile = load_profile(profile_path(args.profile) if args.profile else default_profile())
+    outputs = {"--json": args.json_out, "--plot": args.plot, "--series": args.series, "--channels": args.channels}
+    check_apart(outputs, {"the log": args.log, **profile_inputs(profile), "--truth": args.truth})
     # the profile self-check reads the log's first minutes; a log of another car stops here
     # quiet: the replay below reads the same lines and warns of what it skips, once
     check, cov = profilecheck.check_log(args.log, profile, quiet=True)

@@ -113,6 +113,10 @@ def run(args: argparse.Namespace) -> int:
         from ..sim.run import check_writable
 
         check_writable(args.out)
+    from .paths import check_apart
+
+    truth = args.truth or (simrun.truth_path(args.out) if args.out is not None else None)
+    check_apart({"--out": args.out, "--truth": truth}, {"--profile": args.profile, "--dbc": args.dbc})
     for path in (args.out, args.truth):  # a new folder for the log, as vdp batch --out makes its own
         if path is not None:
             try:
@@ -196,6 +200,7 @@ def _run_independent(args: argparse.Namespace) -> int:
 def _drive(args: argparse.Namespace, sim, profile: bool = False) -> tuple[int, list[str], bool]:
     """Run ``sim``'s frames to the bus, the log and its truth (and, with ``profile``, the car's
     profile TOML beside them); return the frame count, the files written and whether a bus was used."""
+    from ..outfile import write_bytes, write_text
     from ..sim import run as simrun
 
     frames = sim.frames(progress=_progress())
@@ -219,8 +224,8 @@ def _drive(args: argparse.Namespace, sim, profile: bool = False) -> tuple[int, l
                 # the DBC beside the profile: the log, truth, profile and DBC move together as one folder
                 copy = prof.with_name(dbc.name)
                 if not copy.exists() or copy.read_bytes() != dbc.read_bytes():
-                    copy.write_bytes(dbc.read_bytes())
-                prof.write_text(text.replace(f'dbc = "{dbc}"', f'dbc = "{dbc.name}"'), encoding="utf-8")
+                    write_bytes(copy, dbc.read_bytes())
+                write_text(prof, text.replace(f'dbc = "{dbc}"', f'dbc = "{dbc.name}"'))
                 files += [str(prof), str(copy)]
             count = simrun.write_log(frames, args.out, sim.bus_channel)
         else:

@@ -28,6 +28,7 @@ import can
 import numpy as np
 
 from ..errors import BusError, ConfigError, LogFormatError, ProfileError
+from ..outfile import replacing, write_text
 from ..profile import Profile, load_profile
 from .driver import Driver, DriverConfig
 from .encode import Encoder
@@ -410,7 +411,7 @@ def truth_path(log_path: str | Path) -> Path:
 
 def write_truth(truth: dict, path: str | Path) -> Path:
     path = Path(path)
-    path.write_text(json.dumps(truth, indent=2, sort_keys=False) + "\n", encoding="utf-8")
+    write_text(path, json.dumps(truth, indent=2, sort_keys=False) + "\n")
     return path
 
 
@@ -450,9 +451,18 @@ def write_log(frames: Iterator[can.Message], path: str | Path, channel: str = "c
     name = path.name.lower()
     if not path.parent.is_dir():
         raise LogFormatError(f"{path}: directory {path.parent} does not exist")
+    if not name.endswith((".log", ".log.gz")):
+        check_writable(path)
+    with replacing(path) as tmp:  # (the tmp's name ends in path's: python-can picks the same format)
+        return _write_frames(frames, tmp, path, channel)
+
+
+def _write_frames(frames: Iterator[can.Message], dest: Path, path: Path, channel: str) -> int:
+    """write_log's work, into ``dest`` (the file that becomes ``path``)."""
+    name = path.name.lower()
     n = 0
     if name.endswith((".log", ".log.gz")):
-        raw = open(path, "wb")
+        raw = open(dest, "wb")
         try:
             if name.endswith(".gz"):
                 gz = gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0)
@@ -476,9 +486,8 @@ def write_log(frames: Iterator[can.Message], path: str | Path, channel: str = "c
         finally:
             raw.close()
         return n
-    check_writable(path)
     try:
-        writer = can.Logger(str(path))
+        writer = can.Logger(str(dest))
     except ValueError as exc:
         raise LogFormatError(f"{path}: {exc}") from None
     except (NotImplementedError, ImportError) as exc:  # .mf4 needs asammdf
