@@ -328,12 +328,17 @@ def test_the_fit_frees_the_tyres_shape_and_finds_the_swing_where_the_car_has_the
     np.testing.assert_allclose(f.theta / TRUTH, 1.0, atol=0.03)  # the small-slip slopes, not the secant
     # noise on phi'' (the differentiated gyro) pulls the length toward 0 (0.42 noise-free, 0.36 here)
     assert 0.3 < f.swing < 0.5 and abs(f.swing - 0.45) < 3 * f.swing_std
-    # the filter's linear-law value (10 % low, tight) gives way to the fit's, not valid, the std covering both
+    # the filter's linear-law value (10 % low: the secant) gives way to the fit's small-slip slope, whose
+    # own cluster-robust std stands (issue 24): the two differ by the tyre's bend, not by this value's error
     value = 0.9 * f.c_alpha
     v, wide, why = oe.compare("C_alpha", value, 0.01 * value, f, oe.Z_MAX)
     assert v == f.c_alpha and why.startswith("model mismatch: the tyres' force bends with the slip angle")
-    assert wide > 5 * 0.01 * value  # widened well beyond the filter's own std
-    assert abs(v - TRUTH[:2].mean()) < wide
+    assert wide == pytest.approx(f.c_alpha * math.hypot(f.rel_std("C_alpha"), f.rel_spread("C_alpha")))
+    assert abs(v - TRUTH[:2].mean()) < 2 * wide
+    # I_z keeps the disagreement in its std: the bend does not explain it
+    i_z = f.value("I_z")
+    _, wide_z, _ = oe.compare("I_z", 1.2 * i_z, 0.01 * i_z, f, oe.Z_MAX)
+    assert wide_z > 0.2 * i_z
 
 
 def test_the_fit_is_the_same_with_the_compiled_states():

@@ -730,7 +730,16 @@ def compare(name: str, value: float, std: float, fit: Fit, z_max: float) -> tupl
         )
     else:
         return value, std, None
-    wide = math.hypot(std, abs(value - b), b * math.hypot(fit.rel_std(name), model))
+    fit_std = b * math.hypot(fit.rel_std(name), model)  # cluster-robust (_robust_scale), with the halves' spread
+    if beyond is not None and name.startswith("C_alpha"):
+        # the value is the fit's small-slip slope of the bending law, which the filter's linear law
+        # cannot read by construction (it reads a secant, lower: -11 % on brush/saloon against the
+        # fit's +3 %): their difference measures the tyre's bend, not this value's error, so the fit's
+        # own std stands.  Chosen on brush/saloon (the fit's C_alpha 1.3-1.4 of its std off), held
+        # out: brush/small (1.6-1.8), docs/decisions/0001-honest-std.md.  I_z keeps the difference:
+        # the bend does not explain it (brush/small: the fit's I_z 6 % off at 1.2 % std)
+        return b, fit_std, why
+    wide = math.hypot(std, abs(value - b), fit_std)
     # only a freed shape makes the fit's value the one reported: where the linear fit merely
     # disagrees, the filter's is kept (the multi-body cars' linear fit with the swing reads
     # I_z +15 %, the UKF's within 9 %; BENCHMARKS.md, "A tyre shape the data must earn")
