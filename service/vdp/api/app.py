@@ -22,6 +22,7 @@ from .. import __version__, live
 from ..errors import StoreError, VdpError
 from ..settings import Settings, load_settings
 from . import dashboard, metrics, routes
+from .guard import Gate
 
 log = logging.getLogger(__name__)
 
@@ -44,8 +45,12 @@ async def _vdp_error(request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse({"detail": str(exc)}, status_code=code)
 
 
-def create_app(settings: Settings | str | Path, service: live.Service | None = None) -> FastAPI:
-    """The API.  Without ``service`` the app makes one from ``settings`` and runs it in its lifespan."""
+def create_app(
+    settings: Settings | str | Path, service: live.Service | None = None, max_requests: int = 1024
+) -> FastAPI:
+    """The API.  Without ``service`` the app makes one from ``settings`` and runs it in its lifespan.
+
+    ``max_requests``: requests in flight at most (GET /health is never refused), see :mod:`.guard`."""
     if not isinstance(settings, Settings):
         settings = load_settings(settings)
     owned = service is None
@@ -74,6 +79,8 @@ def create_app(settings: Settings | str | Path, service: live.Service | None = N
     app.state.settings = settings
     app.state.service = service
     app.add_exception_handler(VdpError, _vdp_error)
+    # outermost: token and size are checked before anything reads the body
+    app.add_middleware(Gate, settings=settings, max_requests=max(1, max_requests))
     dashboard.install(app)
     app.include_router(routes.router)
     metrics.install(app)
