@@ -12,6 +12,7 @@ codes are decided in this package and only here; the service raises vdp errors.
 from __future__ import annotations
 
 import logging
+import sqlite3
 from contextlib import asynccontextmanager
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from fastapi.responses import JSONResponse
 from .. import __version__, live
 from ..errors import StoreError, VdpError
 from ..settings import Settings, load_settings
+from ..store import is_damage
 from . import dashboard, metrics, routes
 from .guard import Gate
 
@@ -43,6 +45,16 @@ async def _vdp_error(request: Request, exc: Exception) -> JSONResponse:
     # Unavailable / store refused: try later or elsewhere.  Anything else: the request was wrong.
     code = 503 if isinstance(exc, (live.Unavailable, StoreError)) else 400
     return JSONResponse({"detail": str(exc)}, status_code=code)
+
+
+async def _sqlite_error(request: Request, exc: Exception) -> JSONResponse:
+    # The store wraps its own queries; this catches any other route's: a damaged file is moved aside
+    # for a fresh one (as at start), and the answer is "try again", never a 500 with /health saying ok.
+    svc = getattr(request.app.state, "service", None)
+    if svc is not None and is_damage(exc):
+        svc.writer.damaged(exc)
+    log.error("estimate store error on %s: %s", request.url.path, exc)
+    return JSONResponse({"detail": f"the estimate store failed ({exc}); see /health"}, status_code=503)
 
 
 def create_app(
@@ -79,6 +91,7 @@ def create_app(
     app.state.settings = settings
     app.state.service = service
     app.add_exception_handler(VdpError, _vdp_error)
+    app.add_exception_handler(sqlite3.Error, _sqlite_error)
     # outermost: token and size are checked before anything reads the body
     app.add_middleware(Gate, settings=settings, max_requests=max(1, max_requests))
     dashboard.install(app)
