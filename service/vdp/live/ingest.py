@@ -109,6 +109,10 @@ class Ingest:
 
     def status(self) -> dict[str, Any]:
         """The bus, queue, raw log and simulation parts of /status."""
+        if self.rawlog is not None:
+            # a frame counts as written once a flush finds it in a file in place: flushed now, /status says
+            # what is on disk as it answers (one write and two stats, under the raw log's lock)
+            self.rawlog.flush()
         return {
             "bus": {
                 **self.link.status(),
