@@ -424,14 +424,16 @@ class RawLog(can.Listener):
         """The open file is no longer in place: make the directory again, open a new file, and write the
         frames held (and ``rest``, not yet written) into it.  Called with the lock held."""
         old, self._logger = self._logger, None
+        flushed = True
         try:
             old.stop()  # a file moved away whole keeps what was flushed into it; a deleted one, nothing
         except Exception:
+            flushed = False  # some may be missing from the moved file: all are written again (twice, not never)
             try:
                 old.writer.file.close()
             except Exception:
                 pass
-        if not gone.gone:
+        if flushed and not gone.gone:
             self._settled(len(self._held))  # in the moved file, under its new name
         held, self._held = self._held, []
         self.reopened += 1
