@@ -305,3 +305,12 @@ def test_slow_loris_clients_are_closed_and_health_is_still_answered(served):
     finally:
         for s in slow:
             s.close()
+
+
+def test_a_body_that_trickles_in_is_given_up_after_the_header_timeout(served):
+    port, svc = served(header_timeout=1.0)
+    head = b"POST /reset HTTP/1.1\r\nHost: localhost\r\nAuthorization: Bearer %s\r\n" % TOKEN.encode()
+    head += b"Content-Type: application/json\r\nContent-Length: 100\r\n\r\n"
+    # 14 of the 100 bytes, then nothing: the server answers 408 and closes, the request never runs
+    answer = ask(port, head, b'{"stage": 1,  ')
+    assert status_of(answer) == 408 and b"did not arrive within 1 s" in answer and svc.pipeline.resets == []
