@@ -314,3 +314,35 @@ def test_a_body_that_trickles_in_is_given_up_after_the_header_timeout(served):
     # 14 of the 100 bytes, then nothing: the server answers 408 and closes, the request never runs
     answer = ask(port, head, b'{"stage": 1,  ')
     assert status_of(answer) == 408 and b"did not arrive within 1 s" in answer and svc.pipeline.resets == []
+
+
+def test_health_is_answered_when_every_other_request_slot_is_taken(tmp_path):
+    import asyncio
+
+    import httpx
+
+    from vdp.api.guard import Gate
+
+    release = asyncio.Event()
+
+    async def slow(request):
+        await release.wait()
+        return PlainTextResponse("done")
+
+    app = Starlette(
+        routes=[Route("/slow", slow), Route("/health", lambda request: PlainTextResponse("ok"))],
+    )
+    gated = Gate(app, make_settings(tmp_path), max_requests=1)
+
+    async def scene():
+        transport = httpx.ASGITransport(app=gated)
+        async with httpx.AsyncClient(transport=transport, base_url="http://localhost") as client:
+            busy = asyncio.create_task(client.get("/slow"))
+            while gated.in_flight < 1:
+                await asyncio.sleep(0.01)
+            other = await client.get("/slow")
+            health = await client.get("/health")
+            release.set()
+            return other.status_code, health.status_code, (await busy).status_code
+
+    assert asyncio.run(scene()) == (503, 200, 200)

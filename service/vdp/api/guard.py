@@ -78,8 +78,8 @@ class Gate:
                 await _answer(send, 413, _too_large(api.max_body, "more"))
                 return
             if why == "too_slow":
-                why = f"the request body did not arrive within {api.header_timeout:g} s ([api] header_timeout)"
-                await _answer(send, 408, why)
+                late = f"the request body did not arrive within {api.header_timeout:g} s ([api] header_timeout)"
+                await _answer(send, 408, late)
                 return
             await self.app(scope, _replay(body, receive), send)
         finally:
