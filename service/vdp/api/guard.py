@@ -20,9 +20,6 @@ from __future__ import annotations
 import asyncio
 import hmac
 import json
-import logging
-
-log = logging.getLogger(__name__)
 
 TOKEN_ROUTES = {("POST", "/reset")}  # routes that need [api] reset_token, checked before their body is read
 RESERVED = {("GET", "/health")}  # never refused for being busy
