@@ -372,40 +372,6 @@ def _guard_hosts(app, host: str, allowed: str = ""):
         ", ".join(sorted(names)),
         "loopback addresses" if host in _LOCAL else "IP addresses",
     )
+    from ..api.guard import HostGuard
+
     return HostGuard(app, frozenset(names), any_address=host not in _LOCAL)
-
-
-class HostGuard:
-    """ASGI middleware: 400 for a Host header that is neither an IP address nor an allowed name."""
-
-    def __init__(self, app, names: frozenset[str], any_address: bool = True):
-        self.app = app
-        self.names = names
-        self.any_address = any_address  # False: loopback addresses only
-
-    def allowed(self, host: str) -> bool:
-        import ipaddress
-
-        if host.startswith("["):  # [v6]:port
-            name = host[1 : host.find("]")] if "]" in host else host
-        else:
-            name = host.rsplit(":", 1)[0] if host.count(":") == 1 else host
-        name = name.lower()
-        if name in self.names:
-            return True
-        try:
-            addr = ipaddress.ip_address(name)
-        except ValueError:
-            return False
-        return self.any_address or addr.is_loopback
-
-    async def __call__(self, scope, receive, send):
-        if scope["type"] == "http":
-            host = next((v.decode("latin-1") for k, v in scope["headers"] if k == b"host"), None)
-            # no Host header at all (HTTP/1.0) cannot be a browser's: browsers always send one
-            if host is not None and not self.allowed(host):
-                from starlette.responses import PlainTextResponse
-
-                await PlainTextResponse(f"Host {host!r} is not one of this logger's names\n", 400)(scope, receive, send)
-                return
-        await self.app(scope, receive, send)
