@@ -244,7 +244,11 @@ class RawLog(can.Listener):
                 if self._logger is None:
                     self._lose(1)
                     return
-            self._write([msg])
+            self._held.append(msg)
+            try:
+                self._logger.on_message_received(msg)
+            except Exception as exc:
+                self._not_written(exc, [msg])
 
     def _write(self, msgs: list[can.Message]) -> None:
         """Write ``msgs`` (held until a check finds them in place); called with the lock held."""
@@ -252,20 +256,23 @@ class RawLog(can.Listener):
             self._held.append(msg)
             try:
                 self._logger.on_message_received(msg)
-            except _Detached as gone:  # found at a rotation: the held frames and this one go into a new file
-                self._held.pop()  # not in the old file: the rotation comes before its line
-                self._reattach(gone, msgs[k:])
+            except Exception as exc:
+                self._not_written(exc, msgs[k:])
                 return
-            except OSError as exc:
-                self._fail(exc)
-                self._lose(len(msgs) - k - 1)
-                return
-            except Exception as exc:  # a bug must not stop the receive thread; the frame was not written
-                self._held.pop()
-                self._lose(1)
-                self._fail(exc)
-                self._lose(len(msgs) - k - 1)
-                return
+
+    def _not_written(self, exc: Exception, rest: list[can.Message]) -> None:
+        """Writing ``rest[0]`` (the last held frame) raised; ``rest[1:]`` are not written yet."""
+        if isinstance(exc, _Detached):  # found at a rotation: the held frames and these go into a new file
+            self._held.pop()  # not in the old file: the rotation comes before its line
+            self._reattach(exc, rest)
+        elif isinstance(exc, OSError):
+            self._fail(exc)
+            self._lose(len(rest) - 1)
+        else:  # a bug must not stop the receive thread; the frame was not written
+            self._held.pop()
+            self._lose(1)
+            self._fail(exc)
+            self._lose(len(rest) - 1)
 
     def on_error(self, exc: Exception) -> None:
         """The bus failed; the service handles it.  Defined so the Notifier counts it as handled."""
