@@ -1,9 +1,21 @@
 """Hostile and damaged inputs through `vdp replay`: outcome, frames kept, peak RSS, time.
 
     nice -n 10 .venv/bin/python benchmarks/hostile.py [--seconds 60] [--only NAME] [--outputs]
+    nice -n 10 .venv/bin/python benchmarks/hostile.py --service [--loris 2100] [--only NAME]
+    nice -n 10 .venv/bin/python benchmarks/hostile.py --cost
 
 Then the output side (issue 26; --outputs: only these): an output given as an input, names
 that break a format, a hand-edited result, an unwritable --out, each through the CLI.
+
+``--cost`` prints what the receive thread's guards cost a frame: the check every received
+frame passes (`clean_frame`) and the raw log's write with its exact counts (flushed and
+checked every 8,000 frames, a second of a saturated bus), best of 3 over 200,000 frames.
+
+``--service`` runs the attacks of issue 26 on one `vdp serve --simulate --loop` (its own
+process, 127.0.0.1 only): request bodies too large, a foreign Host name, slow-loris
+clients, the raw log's directory deleted and its files moved away, the store damaged.
+For each: the answers, /health, the raw log's counts and the service's RSS (VmRSS, and
+VmHWM: its peak so far).
 
 Every input is made on the fly in a temporary directory from one simulated drive
 (`--seconds` of the paper's stage-1 scenario).  Each replay runs in its own process;
@@ -341,12 +353,251 @@ def run_outputs(d: Path, log: Path, only: str | None) -> None:
               + (f"  [{said[:110]}]" if said else "") + (f"  BROKEN: {broke}" if broke else ""))  # fmt: skip
 
 
+# -- the live service (issue 26) ----------------------------------------------------------------
+TOKEN = "hostile-benchmark-token-0123456789"
+
+
+def _proc_mb(pid: int, key: str) -> float:
+    with open(f"/proc/{pid}/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith(key + ":")) / 1024
+
+
+def _ask(port: int, head: bytes, body_mb: float = 0.0, timeout: float = 30.0) -> str:
+    """Send a request head, then ``body_mb`` of body in 1 MiB blocks while the server reads; the status."""
+    import socket
+
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=timeout) as s:
+            s.sendall(head)
+            block = b"0" * (1 << 20)
+            try:
+                for _ in range(int(body_mb)):
+                    s.sendall(block)
+            except OSError:
+                pass  # the server answered and closed without reading it
+            answer = s.recv(4096)
+            return answer.split(b" ", 2)[1].decode() if answer else "closed"
+    except OSError as exc:
+        return type(exc).__name__
+
+
+def _json(port: int, path: str) -> dict:
+    import urllib.request
+
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}{path}", timeout=10) as r:
+        return json.loads(r.read())
+
+
+def _health(port: int) -> tuple[str, float]:
+    import urllib.error
+    import urllib.request
+
+    t = time.monotonic()
+    try:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/health", timeout=10) as r:
+            code = str(r.status)
+    except urllib.error.HTTPError as exc:
+        code = str(exc.code)
+    except OSError as exc:
+        code = type(exc).__name__
+    return code, time.monotonic() - t
+
+
+def _loris(port: int, pid: int, n: int, seconds: float) -> str:
+    """``n`` sockets each sending one byte of a request head every 3 s; /health asked once a second."""
+    import resource
+    import socket
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, max(soft, n + 256)), hard))
+    socks, refused = [], 0
+    for _ in range(n):
+        try:
+            s = socket.create_connection(("127.0.0.1", port), timeout=5)
+            s.setblocking(False)
+            s.send(b"GET /health HTTP/1.1\r\nHost: local")
+            socks.append(s)
+        except OSError:
+            refused += 1
+    codes: dict = {}
+    worst, start, closed, tick = 0.0, time.monotonic(), set(), 0
+    while time.monotonic() < start + seconds:
+        for k, s in enumerate(socks):
+            if k in closed:
+                continue
+            try:
+                if s.recv(1024) == b"":  # the server's close
+                    closed.add(k)
+                    continue
+            except BlockingIOError:
+                pass  # still open
+            except OSError:
+                closed.add(k)
+                continue
+            if tick % 3 == 0:  # a byte every 3 s from each
+                try:
+                    s.send(b"h")
+                except OSError:
+                    closed.add(k)
+        code, dt = _health(port)
+        codes[code] = codes.get(code, 0) + 1
+        worst = max(worst, dt)
+        tick += 1
+        time.sleep(max(0.0, start + tick - time.monotonic()))
+    for s in socks:
+        s.close()
+    return (
+        f"{n} slow sockets for {seconds:g} s ({refused} refused at connect): /health {codes}, worst "
+        f"{worst:.2f} s; {len(closed)} closed by the server; RSS {_proc_mb(pid, 'VmRSS'):.0f} MB"
+    )
+
+
+def service_cases(args) -> int:
+    """Each attack of issue 26 against one running service; one line each."""
+    import re
+    import shutil
+
+    tmp = Path(tempfile.mkdtemp(prefix="vdp-hostile-serve-"))
+    err = open(tmp / "err.txt", "wb")
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "service"), "VDP_RESET_TOKEN": TOKEN}
+    cmd = [sys.executable, "-c", "import sys; from vdp.cli import main; sys.exit(main())", "serve", "--simulate"]
+    cmd += ["--loop", "--port", "0", "--db", str(tmp / "s.sqlite"), "--raw-dir", str(tmp / "raw")]
+    p = subprocess.Popen(cmd, stdout=err, stderr=err, env=env)
+    try:
+        while not (m := re.search(r"127\.0\.0\.1:(\d+)/health", (tmp / "err.txt").read_text())):
+            if p.poll() is not None:
+                print((tmp / "err.txt").read_text())
+                return 1
+            time.sleep(0.1)
+        port = int(m.group(1))
+        time.sleep(3.0)
+
+        def raw() -> str:
+            r = _json(port, "/status")["raw_log"]
+            h = _json(port, "/health")
+            return (
+                f"raw log accepted {r.get('accepted')}, written {r['frames']}, lost {r['lost']}, "
+                f"reopened {r.get('reopened')}; /health {h['status']}"
+            )
+
+        def rss() -> str:
+            return f"RSS {_proc_mb(p.pid, 'VmRSS'):.0f} MB (peak {_proc_mb(p.pid, 'VmHWM'):.0f})"
+
+        print(f"vdp serve --simulate --loop, pid {p.pid}, port {port}; {rss()}")
+        cases = {
+            "30 MB JSON to /reset, no token": lambda: _ask(
+                port,
+                b"POST /reset HTTP/1.1\r\nHost: localhost\r\nContent-Type: application/json\r\n"
+                b"Content-Length: %d\r\n\r\n" % (30 << 20),
+                30,
+            ),
+            "150 MB text/plain to /reset, the token": lambda: _ask(
+                port,
+                b"POST /reset HTTP/1.1\r\nHost: localhost\r\nAuthorization: Bearer %s\r\n"
+                b"Content-Type: text/plain\r\nContent-Length: %d\r\n\r\n" % (TOKEN.encode(), 150 << 20),
+                150,
+            ),
+            "Host: evil.example on /status": lambda: _ask(port, b"GET /status HTTP/1.1\r\nHost: evil.example\r\n\r\n"),
+            "slow-loris": lambda: _loris(port, p.pid, args.loris, args.loris_seconds),
+            "rm -rf the raw log directory": lambda: (shutil.rmtree(tmp / "raw"), time.sleep(3.0), raw())[-1],
+            "mv raw/*.log elsewhere": lambda: (
+                (tmp / "away").mkdir(exist_ok=True),
+                [f.rename(tmp / "away" / f.name) for f in (tmp / "raw").glob("*.log")],
+                time.sleep(3.0),
+                raw(),
+            )[-1],
+            "a history page of the store overwritten": lambda: _damage(tmp / "s.sqlite", port),
+        }
+        for name, run in cases.items():
+            if args.only and args.only not in name:
+                continue
+            t = time.monotonic()
+            out = run()
+            print(f"{name:42} {out}; {rss()}; {time.monotonic() - t:.1f} s")
+        print(f"after all: {raw()}; service stderr {(tmp / 'err.txt').stat().st_size:,} bytes")
+    finally:
+        p.terminate()
+        p.wait(60)
+        shutil.rmtree(tmp, ignore_errors=True)
+    return 0
+
+
+def _damage(db: Path, port: int) -> str:
+    import sqlite3
+    import urllib.error
+    import urllib.request
+
+    con = sqlite3.connect(db)
+    con.execute("PRAGMA wal_checkpoint(TRUNCATE)")  # the history pages into the file itself
+    root = con.execute("SELECT rootpage FROM sqlite_master WHERE name='history'").fetchone()[0]
+    size = con.execute("PRAGMA page_size").fetchone()[0]
+    con.close()
+    with open(db, "r+b") as f:
+        f.seek((root - 1) * size)
+        f.write(b"\xa5" * size)
+    codes = []
+    for _ in range(2):
+        try:
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/estimates/history", timeout=10) as r:
+                codes.append(str(r.status))
+        except urllib.error.HTTPError as exc:
+            codes.append(str(exc.code))
+        time.sleep(1.5)
+    h = _json(port, "/health")
+    kept = sorted(q.name for q in db.parent.iterdir() if ".damaged-" in q.name)
+    said = [r[:60] for r in h["reasons"] if "store" in r]
+    return f"/estimates/history {' then '.join(codes)}; /health {h['status']} {said}; kept {kept}"
+
+
+def cost() -> int:
+    from vdp.live.rawlog import RawLog
+
+    try:
+        from vdp.live.bus import clean_frame
+    except ImportError:  # a tree from before issue 26 (run for the comparison)
+        clean_frame = None
+
+    n = 200_000
+    msgs = [
+        can.Message(timestamp=1.7e9 + k * 1e-4, arbitration_id=0xB1, is_extended_id=False, data=bytes(8))
+        for k in range(n)
+    ]
+    best: dict = {"clean_frame": [], "RawLog": []} if clean_frame else {"RawLog": []}
+    for _ in range(3):
+        if clean_frame is not None:
+            t = time.perf_counter()
+            for m in msgs:
+                clean_frame(m, "can0")
+            best["clean_frame"].append(time.perf_counter() - t)
+        with tempfile.TemporaryDirectory(prefix="vdp-cost-") as tmp:
+            rl = RawLog(tmp, 64 << 20, 4, min_free=0)
+            rl.open()
+            t = time.perf_counter()
+            for k, m in enumerate(msgs):
+                rl.on_message_received(m)
+                if k % 8000 == 7999:
+                    rl.flush()
+            best["RawLog"].append(time.perf_counter() - t)
+            rl.close()
+    for name, ts in best.items():
+        print(f"{name:12} {min(ts) / n * 1e6:.2f} us a frame (best of 3 over {n:,})")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--only", help="run the inputs whose name contains this")
     ap.add_argument("--outputs", action="store_true", help="run only the output-side cases (issue 26)")
+    ap.add_argument("--service", action="store_true", help="the live service's attacks (issue 26) instead")
+    ap.add_argument("--loris", type=int, default=500, help="--service: slow-loris sockets (default 500)")
+    ap.add_argument("--loris-seconds", type=float, default=20.0, help="--service: how long they hang on")
+    ap.add_argument("--cost", action="store_true", help="what the receive thread's guards cost a frame")
     args = ap.parse_args()
+    if args.cost:
+        return cost()
+    if args.service:
+        return service_cases(args)
     msgs = list(Simulation(PROFILE, "stage1", 1, "realistic", duration=args.seconds).frames())
     with tempfile.TemporaryDirectory(prefix="vdp-hostile-") as tmp:
         d = Path(tmp)

@@ -5,10 +5,12 @@ unknown ids are counted, cause no reconnect, lose no frame, and grow no table.
 from __future__ import annotations
 
 import random
+import re
 import time
 from pathlib import Path
 
 import can
+import pytest
 
 from vdp.live.bus import BusLink
 from vdp.pipeline import Pipeline
@@ -85,3 +87,75 @@ def test_a_burst_of_random_unknown_ids_is_counted_in_bounded_memory():
     assert d["errors_by_kind"]["unknown_id"] == n and d["frames"] == n
     assert d["unknown_distinct"] == 4096 and len(dec.stats.unknown) == 4096
     assert sum(dec.stats.unknown.values()) + d["unknown_untracked"] == n and d["unknown_untracked"] > n - 4096 - 10
+
+
+# -- forged datagrams: what reaches the raw log is a CAN frame on the configured channel ----------
+
+FORGE_SCRIPT = r"""
+import json, sys, time
+from dataclasses import replace
+from pathlib import Path
+
+import can, msgpack
+
+from vdp.live.ingest import Ingest
+from vdp.profile import load_profile
+from vdp.settings import BusSettings, RawLogSettings, Settings
+
+tmp, root = Path(sys.argv[1]), Path(sys.argv[2])
+group = "239.74.163.26"
+s = Settings(
+    profile=root / "profiles" / "paper.toml",
+    bus=BusSettings(interface="udp_multicast", channel=group, bitrate=None),
+    raw_log=RawLogSettings(dir=tmp / "raw", max_bytes=1 << 20, max_files=4),
+)
+ing = Ingest(s, load_profile(s.profile))
+ing.open_rawlog()
+ing.start()
+end = time.monotonic() + 30
+while not ing.link.up and time.monotonic() < end:
+    time.sleep(0.05)
+tx = can.Bus(interface="udp_multicast", channel=group)
+sock = tx._multicast._socket
+
+def forge(**over):
+    d = {"timestamp": 5.0, "arbitration_id": 0x0B1, "is_extended_id": False, "is_remote_frame": False,
+         "is_error_frame": False, "channel": "can0", "dlc": 1, "data": b"\x01", "is_fd": False,
+         "bitrate_switch": False, "error_state_indicator": False}
+    d.update(over)
+    sock.sendto(msgpack.packb(d, use_bin_type=True), (group, 43113))
+
+tx.send(can.Message(arbitration_id=0x0B1, data=b"\x00", is_extended_id=False))
+# a channel that writes two made-up lines into a candump log
+forge(channel="can0 0B1#01 R\n(1.000000) can0 123#DEADBEEF R\n(2.000000) can0")
+forge(arbitration_id=1.5)  # a float id: python-can's checks pass it, the log writer cannot format it
+forge(channel={"a": 1})
+tx.send(can.Message(arbitration_id=0x0B1, data=b"\x02", is_extended_id=False))
+end = time.monotonic() + 30
+while ing.intake.received + ing.link.info.garbage < 5 and time.monotonic() < end:
+    time.sleep(0.05)
+time.sleep(0.3)
+ing.tick()
+st = ing.status()
+ing.stop()
+ing.close()
+lines = [l for f in sorted((tmp / "raw").glob("*.log")) for l in f.read_text().splitlines()]
+tx.shutdown()
+print(json.dumps({"lines": lines, "received": ing.intake.received, "garbage": st["bus"]["garbage"],
+                  "raw": {k: st["raw_log"][k] for k in ("lost", "error")}}))
+"""
+
+
+def test_a_forged_udp_multicast_datagram_cannot_write_lines_into_the_raw_log(tmp_path):
+    from helpers.netns import netns_reason, run_in_netns
+
+    why = netns_reason()
+    if why:
+        pytest.skip(why)
+    out = run_in_netns(FORGE_SCRIPT, str(tmp_path), str(ROOT), timeout=120)
+    lines = out["lines"]
+    # the two true frames and the two with a forged channel, each one line on the configured channel
+    # (the paper profile names none: can0); the float id is skipped and counted, the writer carries on
+    assert len(lines) == 4 and out["received"] == 4, out
+    assert all(re.fullmatch(r"\(\d+\.\d{6}\) can0 0B1#0[012] R", line) for line in lines), lines
+    assert out["garbage"] == 1 and out["raw"] == {"lost": 0, "error": None}, out

@@ -120,7 +120,8 @@ def test_raw_logging_resumes_within_seconds_of_an_error(tmp_path):
     assert not rl.maybe_resume(now=t + 0.5)
     assert rl.maybe_resume(now=t + 1.5)  # was 30 s
     rl.on_message_received(_frame(2))
-    assert rl.stats()["active"] and rl.frames == 2 and rl.lost == 1
+    rl.flush()  # written once a flush has put it in a file found in place
+    assert rl.stats()["active"] and rl.accepted == 3 and rl.frames == 2 and rl.lost == 1
     rl.close()
 
 
@@ -150,6 +151,156 @@ def test_a_filling_disk_rotates_out_the_oldest_raw_logs_and_says_so(tmp_path, mo
     assert last.startswith(f"({_frame(n - 1).timestamp:.6f})")
     seqs = [int(re.match(r"vdp-(\d+)-", p.name).group(1)) for p in files]
     assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+
+
+# -- raw logging cannot be unlinked from under itself; its counts are exact (issue 26) ------------
+
+
+def _lines(d: Path) -> list[str]:
+    """Every complete line of the raw logs in ``d``, in file order (a cut last line is not one)."""
+    out = []
+    for f in sorted(d.glob("*.log")):
+        text = f.read_text()
+        out += text[: text.rfind("\n") + 1].splitlines()
+    return out
+
+
+def _sent(lines: list[str]) -> list[int]:
+    """The frame numbers ``_frame(k)`` wrote, from their timestamps."""
+    return [round((float(ln[1 : ln.index(")")]) - 1.7e9) * 1000) for ln in lines]
+
+
+def test_the_raw_log_directory_deleted_under_vdp_serve_is_made_again_and_health_says_so(tmp_path):
+    import shutil
+
+    from fastapi.testclient import TestClient
+
+    from helpers.live import FakePipeline, make_settings, wait_up
+    from vdp.api import create_app
+    from vdp.live import Service
+
+    settings = make_settings(tmp_path)
+    raw = settings.raw_log.dir
+    svc = Service(settings, pipeline=FakePipeline())
+    svc.start()
+    wait_up(svc)
+    client = TestClient(create_app(settings, svc))
+    rl = svc.rawlog
+    try:
+        for k in range(100):
+            rl.on_message_received(_frame(k))
+        rl.flush()
+        assert rl.written == 100
+        for k in range(100, 150):  # pending: in the buffer, or flushed into the file about to go
+            rl.on_message_received(_frame(k))
+        shutil.rmtree(raw)  # `rm -rf raw` while the service records
+        for k in range(150, 200):
+            rl.on_message_received(_frame(k))
+        rl.flush()  # the keeper's flush, once a second
+        st = client.get("/status").json()["raw_log"]
+        assert st["active"] and st["reopened"] == 1 and "deleted" in st["detached"], st
+        # nothing after the last check was lost: the 100 pending frames went into the new file
+        assert (st["accepted"], st["frames"], st["lost"], st["pending"]) == (200, 200, 0, 0), st
+        assert _sent(_lines(raw)) == list(range(100, 200))
+        h = client.get("/health").json()
+        assert h["status"] == "degraded" and any("recording again in a new file" in r for r in h["reasons"]), h
+        for k in range(200, 300):
+            rl.on_message_received(_frame(k))
+    finally:
+        svc.stop()
+    assert _sent(_lines(raw)) == list(range(100, 300))  # closed, complete, in order
+    assert not (raw / "vdp-current.log").exists()
+
+
+def test_raw_logs_moved_away_keep_their_frames_and_logging_goes_on_in_a_new_file(tmp_path):
+    raw, away = tmp_path / "raw", tmp_path / "elsewhere"
+    away.mkdir()
+    rl = RawLog(raw, max_bytes=1 << 20, max_files=8)
+    rl.open()
+    for k in range(100):
+        rl.on_message_received(_frame(k))
+    rl.flush()
+    for k in range(100, 150):
+        rl.on_message_received(_frame(k))
+    for f in raw.glob("*.log"):  # `mv raw/*.log /elsewhere/`, the open file among them
+        f.rename(away / f.name)
+    for k in range(150, 200):
+        rl.on_message_received(_frame(k))
+    rl.flush()
+    assert rl.reopened == 1 and "moved away" in rl.detached
+    for k in range(200, 250):
+        rl.on_message_received(_frame(k))
+    rl.close()
+    # the moved file holds all it was given (its descriptor followed it), nothing is written twice,
+    # and logging goes on in the directory
+    assert _sent(_lines(away)) == list(range(200)) and _sent(_lines(raw)) == list(range(200, 250))
+    assert (rl.accepted, rl.written, rl.lost) == (250, 250, 0)
+
+
+def test_a_raw_log_directory_deleted_before_a_rotation_does_not_stop_logging(tmp_path):
+    import shutil
+
+    raw = tmp_path / "raw"
+    rl = RawLog(raw, max_bytes=4096, max_files=100)  # ~75 lines a file: a rotation every 128 frames
+    rl.open()
+    for k in range(50):
+        rl.on_message_received(_frame(k))
+    shutil.rmtree(raw)
+    for k in range(50, 1000):  # no flush: the rotation is the first to find the file gone
+        rl.on_message_received(_frame(k))
+    assert rl.error is None and rl.reopened == 1
+    rl.close()
+    assert _sent(_lines(raw)) == list(range(1000))  # the 50 frames of the deleted file written again
+    assert (rl.accepted, rl.written, rl.lost) == (1000, 1000, 0)
+    assert len(rl.closed_files()) > 5
+
+
+FULL_DISK = r"""
+import json, subprocess, sys
+from pathlib import Path
+import can
+from vdp.live.rawlog import RawLog
+d = Path(sys.argv[1])
+subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "none", str(d)], check=True)
+rl = RawLog(d / "raw", max_bytes=1 << 20, max_files=4, min_free=0)
+rl.open()
+k = 0
+while rl.error is None and k < 100_000:
+    rl.on_message_received(can.Message(timestamp=1.7e9 + k * 0.001, arbitration_id=0xB1,
+                                       is_extended_id=False, data=bytes(8)))
+    k += 1
+for j in range(10):  # and a few more while it is stopped
+    rl.on_message_received(can.Message(timestamp=1.8e9 + j, arbitration_id=0xB1, is_extended_id=False, data=bytes(8)))
+rl.close()
+text = b"".join(f.read_bytes() for f in sorted((d / "raw").glob("*.log")))
+print(json.dumps({"accepted": rl.accepted, "written": rl.written, "lost": rl.lost, "error": rl.error,
+                  "lines": text.count(b"\n")}))
+"""
+
+
+def test_on_a_full_disk_the_frames_left_in_the_write_buffer_count_as_lost(tmp_path):
+    import json
+    import os
+    import shutil
+    import subprocess
+    import sys
+
+    if not shutil.which("unshare") or os.geteuid() != 0:
+        pytest.skip("needs root and unshare (util-linux) to mount a small tmpfs")
+    d = tmp_path / "small"
+    d.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "service")}
+    r = subprocess.run(
+        ["unshare", "-m", sys.executable, "-c", FULL_DISK, str(d)], capture_output=True, text=True, timeout=120, env=env
+    )
+    if r.returncode != 0 and "mount" in r.stderr:
+        pytest.skip(f"cannot mount a tmpfs here: {r.stderr[-300:]}")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out["error"] == "disk full"
+    # exact: what counts as written is what the disk holds, every other frame is lost
+    assert out["written"] == out["lines"] and out["accepted"] == out["written"] + out["lost"], out
+    assert out["lost"] > 10, out  # the buffer's frames as well as those after the stop
 
 
 # -- the simulator survives a DBC it cannot reopen for a while ---------------------------------

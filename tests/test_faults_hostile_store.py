@@ -175,3 +175,47 @@ def test_a_full_disk_under_a_new_store_gives_the_right_advice_and_is_retried(tmp
     assert out["STATE"] == "unavailable"
     assert "the disk is full" in out["ERROR"] and "not a vdp store" not in out["ERROR"]
     assert out["REOPENED"] == "True ok"
+
+
+# -- damage found while the service runs (issue 26) ---------------------------------------------
+
+
+def test_a_store_damaged_while_the_service_runs_is_moved_aside_and_health_says_so(tmp_path):
+    from fastapi.testclient import TestClient
+
+    from helpers.live import FakePipeline, make_settings
+    from vdp.api import create_app
+    from vdp.live import Service
+    from vdp.profile import load_profile
+    from vdp.store import profile_fingerprint
+
+    settings = make_settings(tmp_path)
+    db = settings.store.path
+    s = Store(db, profile_fingerprint(load_profile(settings.profile)), "paper", synchronous="normal")
+    for k in range(300):
+        s.save({"l_f": est(1.0 + k * 1e-3, k)}, t=1.7e9 + k)
+    s.close()  # checkpointed: the history pages live in the file itself
+    svc = Service(settings, pipeline=FakePipeline())
+    svc.start()
+    client = TestClient(create_app(settings, svc))
+    try:
+        assert client.get("/health").json()["reasons"] == ["no frames received yet"]
+        overwrite_page(db, rootpage(db, "history"))  # a disk fault, or a careless hand, under the service
+        r = client.get("/estimates/history")
+        assert r.status_code == 503 and "damaged" in r.json()["detail"], r.text  # was a 500
+        h = client.get("/health").json()
+        assert h["status"] == "degraded"
+        assert any(x.startswith("estimate store recovered:") and "damaged-" in x for x in h["reasons"]), h
+        kept = [q for q in tmp_path.iterdir() if re.fullmatch(r"state\.sqlite\.damaged-[0-9TZ]+", q.name)]
+        assert len(kept) == 1
+        r = client.get("/estimates/history", params={"limit": 1000})  # the fresh store answers: only new rows
+        assert r.status_code == 200 and all(it["t"] > 1.7e9 + 300 for it in r.json()["items"])
+        assert "vdp_store_recoveries_total 1.0" in client.get("/metrics").text
+        svc.commit()
+    finally:
+        svc.stop()
+    # what is left under the store's name after shutdown is a sound store, not the damaged file
+    with sqlite3.connect(db) as con:
+        assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+        assert con.execute("SELECT count(*) FROM estimates").fetchone()[0] > 0
+    assert b"\xa5" * 1024 in kept[0].read_bytes()  # the damaged file, kept for a look

@@ -31,3 +31,7 @@ class FilterError(VdpError):
 
 class StoreError(VdpError):
     """The estimate store is unusable or belongs to another profile or schema."""
+
+
+class StoreDamaged(StoreError):
+    """SQLite found the store's file damaged while the service used it (Store.recover() moves it aside)."""

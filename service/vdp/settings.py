@@ -64,6 +64,14 @@ class ApiSettings:
     host: str = "127.0.0.1"
     port: int = 8000
     reset_token: str | None = None  # POST /reset is disabled without one
+    # Host header names answered besides localhost, 127.0.0.1 and [::1] (comma-separated), e.g. the logger's
+    # DNS name; any other name is refused (DNS rebinding).  Bound beyond loopback, IP addresses are answered too.
+    allowed_hosts: str = ""
+    max_body: int = 4096  # bytes of a request body; a larger one is refused (413) before it is read
+    header_timeout: float = 10.0  # s for a request's head (and then its body) to arrive; slower ones are closed
+    # connections at once (None: 2,048, or fewer under a low open-file limit); when all are taken, the oldest
+    # one still sending its request head is closed for the newcomer
+    max_connections: int | None = None
 
 
 @dataclass(frozen=True)
@@ -235,6 +243,11 @@ def validate(s: Settings) -> Settings:
             f"{_where(src, 'api', 'reset_token')}: must be at least 16 characters "
             "(generate one with: openssl rand -hex 24), or leave it out to disable POST /reset"
         )
+    if not 64 <= s.api.max_body <= 1 << 20:
+        raise ConfigError(f"{_where(src, 'api', 'max_body')}: must be within 64..1048576 bytes, got {s.api.max_body}")
+    _positive(src, "api", "header_timeout", s.api.header_timeout)
+    if s.api.max_connections is not None and s.api.max_connections < 16:
+        raise ConfigError(f"{_where(src, 'api', 'max_connections')}: must be at least 16, got {s.api.max_connections}")
     _positive(src, "simulate", "speed", s.simulate.speed, allow_zero=True)
     sv = s.service
     _positive(src, "service", "queue_size", sv.queue_size)

@@ -16,7 +16,9 @@ the user's data silently would be worse.
 A damaged store (SQLite reports corruption, or its quick check fails, say a
 page overwritten in the middle or the meta table's index broken) is moved
 aside, kept under ``NAME.damaged-<UTC time>``, and a fresh store starts;
-``recovered`` says what happened.  A full disk or an I/O error is a
+``recovered`` says what happened.  Damage found later, by a query or a commit
+of the running service, raises :class:`StoreDamaged`; :meth:`Store.recover`
+then does the same as at open.  A full disk or an I/O error is a
 :class:`StoreError` with ``retry = True``: the file is fine, try again later.
 """
 
@@ -31,11 +33,12 @@ import sqlite3
 import threading
 import time
 from collections.abc import Mapping
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from .core.result import Estimate, finite
-from .errors import StoreError
+from .errors import StoreDamaged, StoreError
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +63,11 @@ def _kind(exc: sqlite3.Error) -> str:
     if code in (_FULL, _IOERR, _CANTOPEN) or "disk is full" in text or "disk i/o error" in text:
         return "space"
     return ""
+
+
+def is_damage(exc: BaseException) -> bool:
+    """True for an SQLite error saying the file is damaged."""
+    return isinstance(exc, sqlite3.Error) and _kind(exc) == "damaged"
 
 
 def _unavailable(path: Path, exc: BaseException) -> StoreError:
@@ -136,6 +144,7 @@ class Store:
         self.fingerprint = fingerprint
         self.profile_name = profile_name
         self.history_max_rows = history_max_rows
+        self.synchronous = synchronous
         self._last: dict[str, tuple] = {}  # what the last committed batch held, per parameter
         self._saves = 0
         self.commits = 0
@@ -282,7 +291,7 @@ class Store:
     # -- use ------------------------------------------------------------------------------
     def load(self) -> dict[str, Stored]:
         """The last committed estimate of each parameter."""
-        with self._rlock:
+        with self._rlock, self._reading():
             rows = self._r.execute(
                 "SELECT name, value, std, unit, valid, stage, status, samples, t, bus_t FROM estimates"
             ).fetchall()
@@ -338,6 +347,8 @@ class Store:
                     con.execute("ROLLBACK")
                 except sqlite3.Error:
                     pass
+                if _kind(exc) == "damaged":
+                    raise StoreDamaged(f"{self.path}: {exc}") from None
                 raise StoreError(f"{self.path}: could not commit estimates: {exc}") from None
         self._last.update(seen)
         self.commits += 1
@@ -371,7 +382,7 @@ class Store:
             where.append("t < ?")
             args.append(until)
         cond = (" WHERE " + " AND ".join(where)) if where else ""
-        with self._rlock:
+        with self._rlock, self._reading():
             total = self._r.execute(f"SELECT count(*) FROM history{cond}", args).fetchone()[0]
             rows = self._r.execute(
                 f"SELECT id, t, bus_t, name, value, std, valid, stage, status, samples "
@@ -394,6 +405,30 @@ class Store:
             for r in rows
         ]
         return items, total
+
+    @contextmanager
+    def _reading(self):
+        """SQLite errors of a read as vdp errors: damage as StoreDamaged, the rest as StoreError (never a 500)."""
+        try:
+            yield
+        except sqlite3.Error as exc:
+            if _kind(exc) == "damaged":
+                raise StoreDamaged(f"{self.path}: {exc}") from None
+            raise StoreError(f"{self.path}: cannot be read now: {exc}") from None
+
+    def recover(self, why: str) -> str:
+        """The file was found damaged while in use: move it aside (kept) and start a fresh store, as
+        at open.  Returns what happened (also kept in ``recovered``); StoreError if that fails."""
+        with self._wlock, self._rlock:
+            moved = self._move_aside()
+            self._last.clear()
+            self.recovered = f"the store was damaged ({why}); kept as {moved.name}, started a fresh one"
+            log.error("%s: %s", self.path, self.recovered)
+            try:
+                self._open(self.synchronous)
+            except _Damaged as again:
+                raise StoreError(f"{self.path}: a fresh store is damaged too ({again}); is the disk failing?") from None
+        return self.recovered
 
     def integrity(self) -> str:
         with self._rlock:

@@ -12,6 +12,7 @@ codes are decided in this package and only here; the service raises vdp errors.
 from __future__ import annotations
 
 import logging
+import sqlite3
 from contextlib import asynccontextmanager
 from pathlib import Path
 
@@ -21,7 +22,9 @@ from fastapi.responses import JSONResponse
 from .. import __version__, live
 from ..errors import StoreError, VdpError
 from ..settings import Settings, load_settings
+from ..store import is_damage
 from . import dashboard, metrics, routes
+from .guard import Gate
 
 log = logging.getLogger(__name__)
 
@@ -44,8 +47,22 @@ async def _vdp_error(request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse({"detail": str(exc)}, status_code=code)
 
 
-def create_app(settings: Settings | str | Path, service: live.Service | None = None) -> FastAPI:
-    """The API.  Without ``service`` the app makes one from ``settings`` and runs it in its lifespan."""
+async def _sqlite_error(request: Request, exc: Exception) -> JSONResponse:
+    # The store wraps its own queries; this catches any other route's: a damaged file is moved aside
+    # for a fresh one (as at start), and the answer is "try again", never a 500 with /health saying ok.
+    svc = getattr(request.app.state, "service", None)
+    if svc is not None and is_damage(exc):
+        svc.writer.damaged(exc)
+    log.error("estimate store error on %s: %s", request.url.path, exc)
+    return JSONResponse({"detail": f"the estimate store failed ({exc}); see /health"}, status_code=503)
+
+
+def create_app(
+    settings: Settings | str | Path, service: live.Service | None = None, max_requests: int = 1024
+) -> FastAPI:
+    """The API.  Without ``service`` the app makes one from ``settings`` and runs it in its lifespan.
+
+    ``max_requests``: requests in flight at most (GET /health is never refused), see :mod:`.guard`."""
     if not isinstance(settings, Settings):
         settings = load_settings(settings)
     owned = service is None
@@ -74,6 +91,9 @@ def create_app(settings: Settings | str | Path, service: live.Service | None = N
     app.state.settings = settings
     app.state.service = service
     app.add_exception_handler(VdpError, _vdp_error)
+    app.add_exception_handler(sqlite3.Error, _sqlite_error)
+    # outermost: token and size are checked before anything reads the body
+    app.add_middleware(Gate, settings=settings, max_requests=max(1, max_requests))
     dashboard.install(app)
     app.include_router(routes.router)
     metrics.install(app)

@@ -62,8 +62,14 @@ class Collector:
         yield counter("bus_errors", "bus errors (open failures, receive errors)", m["bus_errors"])
         yield counter("bus_garbage", "datagrams on the bus interface that held no CAN frame", m.get("bus_garbage", 0))
         yield counter("estimation_errors", "frames on which estimation raised", m["errors"])
-        yield counter("raw_log_frames", "frames written to the raw log", m["raw_frames"])
-        yield counter("raw_log_lost", "frames not written while raw logging was stopped", m["raw_lost"])
+        yield counter("raw_log_accepted", "frames handed to the raw log", m.get("raw_accepted", 0))
+        yield counter("raw_log_frames", "frames written to the raw log (in a file found in place)", m["raw_frames"])
+        yield counter("raw_log_lost", "frames the raw log could not write (stopped, write failed)", m["raw_lost"])
+        yield counter(
+            "raw_log_reopened",
+            "times the raw log's file or directory vanished and was made again",
+            m.get("raw_reopened", 0),
+        )
         yield counter("store_commits", "batches committed to the estimate store", m["store_commits"])
         yield counter(
             "store_recoveries", "damaged estimate stores moved aside for a fresh one", m.get("store_recoveries", 0)

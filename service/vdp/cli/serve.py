@@ -129,10 +129,35 @@ class _Terminate:
         self.server.should_exit = True
 
 
-def run(args) -> int:
+def build_server(settings, service):
+    """The uvicorn server of ``vdp serve`` over a started service (tests run it in a thread)."""
     import uvicorn
 
-    from ..api import check_host, create_app
+    from ..api import create_app
+
+    verbose = logging.getLogger().level <= logging.INFO
+    api = settings.api
+    limit = api.max_connections or _concurrency()
+    config = uvicorn.Config(
+        _guard_hosts(create_app(settings, service, max_requests=limit - HEALTH_RESERVE), api.host, api.allowed_hosts),
+        log_level="info" if verbose else "warning",
+        access_log=verbose,
+        lifespan="on",
+        timeout_graceful_shutdown=5,
+        # The API must never starve the logger of file descriptors or CPU: bounded connections, idle
+        # ones closed after a few seconds, slow ones after [api] header_timeout (see _guarded_protocol).
+        # uvicorn's own limit_concurrency would answer 503 to /health too once slow clients hold it.
+        limit_concurrency=None,
+        timeout_keep_alive=TIMEOUT_KEEP_ALIVE,
+        # h11 refuses a request head larger than this (431): a few KB is all vdp's routes need
+        h11_max_incomplete_event_size=16 * 1024,
+        http=_guarded_protocol(limit, api.header_timeout),
+    )
+    return uvicorn.Server(config)
+
+
+def run(args) -> int:
+    from ..api import check_host
     from ..live import Service
     from ..live.lock import service_lock
 
@@ -152,20 +177,7 @@ def run(args) -> int:
     previous = signal.signal(signal.SIGTERM, terminate)
     try:
         service.start()
-        verbose = logging.getLogger().level <= logging.INFO
-        config = uvicorn.Config(
-            _guard_hosts(create_app(settings, service), settings.api.host),
-            log_level="info" if verbose else "warning",
-            access_log=verbose,
-            lifespan="on",
-            timeout_graceful_shutdown=5,
-            # the API must never starve the logger of file descriptors or CPU: bounded connections
-            # (503 beyond), and idle ones closed after a few seconds
-            limit_concurrency=_concurrency(),
-            timeout_keep_alive=TIMEOUT_KEEP_ALIVE,
-            http=_idle_closing_protocol(),
-        )
-        terminate.server = server = uvicorn.Server(config)
+        terminate.server = server = build_server(settings, service)
         host, port = sock.getsockname()[:2]
         url = f"http://{'[' + host + ']' if ':' in host else host}:{port}"
         what = (
@@ -199,7 +211,8 @@ def run(args) -> int:
     return 0
 
 
-LIMIT_CONCURRENCY = 2048  # connections and requests in flight at most; beyond, uvicorn answers 503 at once
+LIMIT_CONCURRENCY = 2048  # connections at most (fewer under a low open-file limit)
+HEALTH_RESERVE = 8  # of those, kept for GET /health: other requests in flight beyond the rest get 503
 FD_RESERVE = 256  # open files kept for everything but API sockets: raw logs, the store, the bus
 TIMEOUT_KEEP_ALIVE = 5  # s an idle connection stays open, also one that never sends a request
 
@@ -217,20 +230,80 @@ def _concurrency() -> int:
     return max(32, min(LIMIT_CONCURRENCY, soft - FD_RESERVE))
 
 
-def _idle_closing_protocol():
-    """uvicorn's h11 protocol, with the keep-alive timer also started when a connection opens:
-    uvicorn times out idle connections only after a first response, so a client that connects
-    and says nothing would hold its socket (and a file descriptor) for ever."""
+def _guarded_protocol(limit: int, header_timeout: float):
+    """uvicorn's h11 protocol with two guards against clients that hold connections open.
+
+    - A request head (request line and headers) must arrive within ``header_timeout`` s of the
+      connection opening or of the previous answer; a client sending a byte every few seconds
+      (slow-loris) is closed then.  uvicorn cancels its keep-alive timer on any byte and has no
+      head timeout of its own; its idle timer is also started at open here (uvicorn starts it
+      only after a first answer, so a client that connects and says nothing held its socket).
+    - At most ``limit`` connections: a newcomer beyond it closes the oldest connection still
+      waiting for its request head, so a client that asks promptly (a health check) is answered
+      while slow ones hold the rest.  With none of those, the newcomer is closed.
+    """
+    import h11
     from uvicorn.protocols.http.h11_impl import H11Protocol
 
-    class IdleClosing(H11Protocol):
+    waiting: dict = {}  # connections still sending a request head -> None, oldest first
+    live: set = set()
+    said = {"at": -60.0, "closed": 0}  # one warning a minute under a flood
+
+    class Guarded(H11Protocol):
         def connection_made(self, transport) -> None:  # type: ignore[override]
             super().connection_made(transport)
+            live.add(self)
             self.timeout_keep_alive_task = self.loop.call_later(
                 self.timeout_keep_alive, self.timeout_keep_alive_handler
             )
+            self._head_task = None
+            self._await_head()
+            if len(live) > limit:
+                victim = next((c for c in waiting if c is not self), self)
+                victim._drop()
+                said["closed"] += 1
+                if self.loop.time() - said["at"] >= 60.0:
+                    said["at"] = self.loop.time()
+                    log.warning(
+                        "%d connections open, at most %d ([api] max_connections): closed the oldest still "
+                        "sending its request (%d so far)",
+                        len(live),
+                        limit,
+                        said["closed"],
+                    )
 
-    return IdleClosing
+        def _await_head(self) -> None:
+            waiting[self] = None
+            if self._head_task is None:
+                self._head_task = self.loop.call_later(header_timeout, self._drop)
+
+        def _head_done(self) -> None:
+            waiting.pop(self, None)
+            if self._head_task is not None:
+                self._head_task.cancel()
+                self._head_task = None
+
+        def _drop(self) -> None:
+            self._head_done()
+            if not self.transport.is_closing():
+                self.transport.close()
+
+        def data_received(self, data: bytes) -> None:
+            super().data_received(data)
+            if self in waiting and self.conn.their_state is not h11.IDLE:
+                self._head_done()  # a request came in whole: it is the app's (and the body timeout's) now
+
+        def on_response_complete(self) -> None:
+            super().on_response_complete()
+            if not self.transport.is_closing():
+                self._await_head()  # the next request on this connection gets the same time
+
+        def connection_lost(self, exc) -> None:
+            self._head_done()
+            live.discard(self)
+            super().connection_lost(exc)
+
+    return Guarded
 
 
 class _AcceptErrors(logging.Filter):
@@ -279,53 +352,26 @@ def _raise_nofile() -> None:
         log.warning("could not raise the open-file limit: %s", exc)
 
 
-def _guard_hosts(app, host: str):
-    """Beyond localhost, answer only requests whose Host header is an address or a name of this machine.
+def _guard_hosts(app, host: str, allowed: str = ""):
+    """Answer only requests whose Host header names this machine, loopback included.
 
-    A page on another site can make a browser on the car's network send requests here under
-    a DNS name of the attacker's (DNS rebinding); those are refused (400).  An IP address as
-    Host is never that attack, so any is accepted.  VDP_ALLOWED_HOSTS (comma-separated) adds
-    names, e.g. the logger's DNS name.
+    A page on another site can make a browser on this machine (or on the car's network) send
+    requests here under a DNS name of the attacker's that resolves to 127.0.0.1 or to the
+    logger (DNS rebinding); those are refused (400).  Always answered: localhost, 127.0.0.1,
+    [::1]; beyond loopback also the machine's names and any IP address (an address as Host is
+    never that attack).  [api] allowed_hosts (and VDP_ALLOWED_HOSTS), comma-separated, add names.
     """
-    if host in _LOCAL:
-        return app
-    names = {"localhost", socket.gethostname(), socket.getfqdn()}
-    extra = os.environ.get("VDP_ALLOWED_HOSTS", "")
+    names = {"localhost"}
+    if host not in _LOCAL:
+        names.update((socket.gethostname(), socket.getfqdn()))
+    extra = f"{allowed},{os.environ.get('VDP_ALLOWED_HOSTS', '')}"
     names.update(n.strip() for n in extra.split(",") if n.strip())
     names = {n.lower() for n in names}
-    log.info("accepting Host headers: IP addresses and %s", ", ".join(sorted(names)))
-    return HostGuard(app, frozenset(names))
+    log.info(
+        "accepting Host headers: %s and %s",
+        ", ".join(sorted(names)),
+        "loopback addresses" if host in _LOCAL else "IP addresses",
+    )
+    from ..api.guard import HostGuard
 
-
-class HostGuard:
-    """ASGI middleware: 400 for a Host header that is neither an IP address nor an allowed name."""
-
-    def __init__(self, app, names: frozenset[str]):
-        self.app = app
-        self.names = names
-
-    def allowed(self, host: str) -> bool:
-        import ipaddress
-
-        if host.startswith("["):  # [v6]:port
-            name = host[1 : host.find("]")] if "]" in host else host
-        else:
-            name = host.rsplit(":", 1)[0] if host.count(":") == 1 else host
-        name = name.lower()
-        if name in self.names:
-            return True
-        try:
-            ipaddress.ip_address(name)
-        except ValueError:
-            return False
-        return True
-
-    async def __call__(self, scope, receive, send):
-        if scope["type"] == "http":
-            host = next((v.decode("latin-1") for k, v in scope["headers"] if k == b"host"), "")
-            if not self.allowed(host):
-                from starlette.responses import PlainTextResponse
-
-                await PlainTextResponse(f"Host {host!r} is not one of this logger's names\n", 400)(scope, receive, send)
-                return
-        await self.app(scope, receive, send)
+    return HostGuard(app, frozenset(names), any_address=host not in _LOCAL)

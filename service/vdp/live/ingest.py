@@ -20,8 +20,8 @@ from dataclasses import replace
 from typing import Any
 
 from ..settings import Settings
-from .bus import BusLink, open_bus
-from .intake import Intake, Rename
+from .bus import BusLink, frame_channel, open_bus
+from .intake import Intake
 from .rawlog import RawLog
 
 log = logging.getLogger(__name__)
@@ -44,12 +44,13 @@ class Ingest:
             # A virtual channel of our own: two services in one process never share frames.
             channel = f"vdp-sim-{os.getpid()}-{next(_sim_ids)}"
             bus_cfg = replace(bus_cfg, interface="virtual", channel=channel, kwargs={})
-            listeners.append(Rename(profile.bus_channel or "can0"))
         listeners.append(self.intake)
         if self.rawlog is not None:
             listeners.append(self.rawlog)
         self.bus_cfg = bus_cfg
-        self.link = BusLink(bus_cfg, listeners, sv.reconnect_min, sv.reconnect_max, opener or open_bus)
+        # every frame gets the configured channel before anything sees it (guard_recv)
+        chan = frame_channel(bus_cfg, profile.bus_channel)
+        self.link = BusLink(bus_cfg, listeners, sv.reconnect_min, sv.reconnect_max, opener or open_bus, chan)
         self.sim = None
         if settings.simulate.enabled:
             from .simfeed import SimFeed
@@ -108,6 +109,10 @@ class Ingest:
 
     def status(self) -> dict[str, Any]:
         """The bus, queue, raw log and simulation parts of /status."""
+        if self.rawlog is not None:
+            # a frame counts as written once a flush finds it in a file in place: flushed now, /status says
+            # what is on disk as it answers (one write and two stats, under the raw log's lock)
+            self.rawlog.flush()
         return {
             "bus": {
                 **self.link.status(),

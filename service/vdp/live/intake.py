@@ -45,21 +45,3 @@ class Intake(can.Listener):
 
     def stop(self) -> None:
         """The Notifier calls this on each reconnect; the queue stays."""
-
-
-class Rename(can.Listener):
-    """Simulation only: the in-process virtual bus stamps its own channel id on every frame;
-    put back the simulated car's channel name, so the decoder's channel filter and the raw
-    log see what a real bus would give.  Registered first, before the other listeners."""
-
-    def __init__(self, channel: str):
-        self.channel = channel
-
-    def on_message_received(self, msg: can.Message) -> None:
-        msg.channel = self.channel
-
-    def on_error(self, exc: Exception) -> None:
-        pass
-
-    def stop(self) -> None:
-        pass

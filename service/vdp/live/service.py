@@ -227,6 +227,8 @@ class Service:
             reasons.append(f"estimation fell behind: {ing.intake.dropped} frame(s) dropped")
         if ing.rawlog is not None and ing.rawlog.error:
             reasons.append(f"raw logging stopped: {ing.rawlog.error}")
+        if ing.rawlog is not None:
+            reasons += ing.rawlog.recently(sv.diverged_hold)
         if self.restore_error:
             reasons.append(self.restore_error)
         if not self.writer.ok:
@@ -353,8 +355,10 @@ class Service:
             "resets": r.resets,
             "uptime": self.uptime(),
             "raw_bytes": rl.stats()["bytes"] if rl is not None else 0,
-            "raw_frames": rl.frames if rl is not None else 0,
+            "raw_accepted": rl.accepted if rl is not None else 0,
+            "raw_frames": rl.written if rl is not None else 0,
             "raw_lost": rl.lost if rl is not None else 0,
+            "raw_reopened": rl.reopened if rl is not None else 0,
             "raw_ok": rl is None or rl.error is None,
             "store_ok": self.writer.ok,
             "store_commits": self.writer.commits,

@@ -4,6 +4,11 @@ It opens the store (a store of another profile or schema is refused, never
 overwritten: estimation goes on from the priors, unsaved), hands what it held
 back for restoring, commits each new snapshot once, and keeps the store's
 state for /health and /status.  History queries read through it.
+
+Damage found while running (a commit or a query meets a malformed page) is
+handled as at start: the file is moved aside, kept, and a fresh store takes
+over; /health says "estimate store recovered" from then on.  Left alone, every
+later query answered 500 while /health said ok, and the file stayed damaged.
 """
 
 from __future__ import annotations
@@ -13,7 +18,7 @@ import threading
 import time
 from typing import Any
 
-from ..errors import StoreError
+from ..errors import StoreDamaged, StoreError
 from ..settings import StoreSettings
 from ..store import Store, Stored
 from .estimation import Published, Unavailable
@@ -83,6 +88,9 @@ class StoreWriter:
                 return
             try:
                 store.save(pub.result.parameters, t=pub.wall, bus_t=pub.bus_time)
+            except StoreDamaged as exc:
+                self._recover(store, exc)
+                return  # the fresh store gets this snapshot at the next commit
             except StoreError as exc:
                 if self.state != "error":
                     log.error("%s; will retry", exc)
@@ -93,6 +101,27 @@ class StoreWriter:
             self.state, self.error = "ok", None
             self.last_commit = time.time()
             self._committed_seq = pub.seq
+
+    def damaged(self, exc: BaseException) -> None:
+        """An SQLite error said the file is damaged (from any thread): move it aside for a fresh store."""
+        with self._lock:
+            if self.store is not None:
+                self._recover(self.store, exc)
+
+    def _recover(self, store: Store, exc: BaseException) -> None:
+        """Called with the lock held; ``store`` is the one that failed (another thread may have recovered it)."""
+        if store is not self.store:
+            return
+        try:
+            what = store.recover(str(exc).removeprefix(f"{store.path}: "))
+        except StoreError as again:
+            self.store, self.state, self.error = None, "error", str(again)
+            log.error("estimate store lost: %s; estimates are not saved", again)
+            return
+        self.recovered = f"{store.path}: {what}"
+        self.recoveries += 1
+        self._committed_seq = -1  # the fresh store gets the current estimates at the next commit
+        self.state, self.error = "ok", None
 
     def close(self) -> None:
         with self._lock:
@@ -137,7 +166,15 @@ class StoreWriter:
             raise Unavailable(
                 f"no estimate history: the store is {self.state}" + (f" ({self.error})" if self.error else "")
             )
-        items, total = store.history(parameter, since, until, limit, offset)
+        try:
+            items, total = store.history(parameter, since, until, limit, offset)
+        except StoreDamaged as exc:
+            with self._lock:
+                self._recover(store, exc)
+            raise Unavailable(
+                f"the estimate store was found damaged: {self.recovered or self.error}; "
+                "the history starts again from now"
+            ) from None
         nxt = offset + len(items)
         return {
             "items": items,
