@@ -191,3 +191,40 @@ def test_coverage_names_the_logs_other_ids_only_where_they_say_something():
     other = Coverage({"A": 10, "B": 5}, [("0x3A0", 1200)])
     # every message there: the other ids are information, not worded as a clue to a fault
     assert other.message().endswith(" (the log holds other ids too, which the profile does not use: 0x3A0 (1200))")
+
+
+def test_a_channel_beyond_what_a_car_can_read_is_a_finding_and_never_reaches_the_estimator(drive):
+    """A real Honda's KINEMATICS.LAT_ACCEL decoded at -502...-498 m/s^2 (a wrong offset): 1,003
+    such samples reached the estimator and nothing flagged them.  Here a_y read 500 m/s^2 low."""
+    low = chan(PAPER, "accel_y", offset=-500.0)
+    rep, _ = check_log(drive, low)
+    f = next(f for f in rep.findings if f.subject == "accel_y")
+    assert f.check == "accel_y_bounds" and set(f.params) == set(STAGE2)
+    lo, hi = (float(x) for x in re.search(r"seen (-?[\d.]+) to (-?[\d.]+) m/s\^2", f.message).groups())
+    assert -510 < lo < hi < -490 and "(100 %)" in f.message
+    assert not any(f.subject == "accel_y" for f in check_log(drive, PAPER)[0].findings)
+
+
+@pytest.mark.parametrize("bulk", [True, False])
+def test_values_beyond_the_limits_are_dropped_and_counted_on_both_replay_paths(tmp_path, bulk):
+    import math
+
+    from vdp.channels import AY
+    from vdp.io.bulk import replay_log
+    from vdp.pipeline import Pipeline
+
+    low = chan(PAPER, "accel_y", offset=-500.0)
+    seen = []
+
+    def make():
+        pipe = Pipeline(low)
+        pipe.tap(lambda s: seen.append(s.values[AY]))
+        return pipe
+
+    drive = tmp_path / "short.log"
+    write_log(Simulation(PAPER, "paper", seed=2, duration=15.0).frames(), drive)
+    res, pipe = replay_log(drive, make, bulk=bulk)
+    assert seen and all(math.isnan(v) for v in seen)  # no a_y at all, never -500
+    oob = res.decode["out_of_bounds"]["accel_y"]
+    assert oob["values"] == pipe.decoder.stats.samples[AY] > 500 and -510 < oob["min"] < oob["max"] < -490
+    assert list(res.decode["out_of_bounds"]) == ["accel_y"]

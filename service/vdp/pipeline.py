@@ -43,12 +43,14 @@ class Pipeline:
         # the speed reference this car has: GNSS at its resolution, or the free-rolling axle
         cfg = estimator_config(profile, self.decoder.db, cfg)
         self.estimator = TwoStageEstimator(profile.vehicle, profile.priors, cfg)
-        self.aligner = Aligner(stale_after=self._stale_after(), tick=self.estimator.cfg.tick)
+        self.aligner = Aligner(
+            stale_after=self._stale_after(), tick=self.estimator.cfg.tick, limits=channels.limits(profile.vehicle)
+        )
         self.ring = SampleRing(ring_capacity)
         self._taps: list[Callable[[Sample], None]] = []
         # the profile self-check of a running service, on the samples the ring holds (profilecheck);
         # vdp replay checks the log's first minutes instead and sets this to None
-        self.monitor: Monitor | None = Monitor(profile, self.decoder)
+        self.monitor: Monitor | None = Monitor(profile, self.decoder, aligner=self.aligner)
         self.samples = 0
         self.last_bus_time: float | None = None  # the newest decoded frame's
         self.first_frame_time: float | None = None  # of any frame fed, decoded or not: the self-check's clock
@@ -200,7 +202,7 @@ class Pipeline:
             dataclasses.replace(snap, parameters=params, baseline_ekf=ekf),
             capabilities=caps,
             coaching=coach,
-            decode=self.decoder.stats.as_dict(),
+            decode=self.decode_stats(),
             clock=Clock(a.clock_backwards, a.clock_jumps),
             channels=self.freshness(),
             frames=self.frames,
@@ -211,6 +213,12 @@ class Pipeline:
             log=log,
             profile_check=check,
         )
+
+    def decode_stats(self) -> dict:
+        """The decoder's counters, and the values beyond a car's limits the aligner dropped."""
+        out = self.decoder.stats.as_dict()
+        out["out_of_bounds"] = self.aligner.refused_dict()
+        return out
 
     def _coach(self, snap, caps) -> tuple[dict, dict[str, Estimate]]:
         """Progress and coaching from what the learners have (core.progress), and the UKF's

@@ -154,6 +154,44 @@ def _fit(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.dot(x, y) / d) if d > 0 else math.nan
 
 
+BOUNDS_SHARE = 0.01  # values beyond a car's limits: above this share of a channel's, its parameters are doubted
+
+
+def _subject(name: str) -> str:
+    """The DEPENDS key of a channel: the four wheel speeds are one, both axle torques one."""
+    for head in ("wheel_speed", "wheel_torque"):
+        if name.startswith(head):
+            return head
+    return name
+
+
+def check_bounds(refused: Mapping[int, list], decoded: list[int] | None, report: Report) -> Report:
+    """A finding per channel whose values went beyond what a road car's bus can carry
+    (channels.limits; the aligner dropped them: ``refused``, channel -> [count, lowest, highest]).
+    ``decoded``: values decoded per channel (DecodeStats.samples), for the share."""
+    for c, (n, lo, hi) in sorted(refused.items()):
+        name = ch.NAMES[c]
+        of = decoded[c] if decoded is not None and c < len(decoded) and decoded[c] >= n else None
+        share = n / of if of else 1.0
+        if any(f.subject == name for f in report.findings):  # a finding says what is wrong with it already
+            report.measured[f"{name}_beyond_limits"] = n
+            continue
+        unit = ch.UNITS[name]
+        extra = ""
+        if name.startswith("wheel_torque"):
+            extra = " (the drive torque, or the brake pressure times brake_gain, that make it)"
+        report.add(
+            f"{name}_bounds",
+            name,
+            f"{name}{extra}: {n} value{'s' if n > 1 else ''}"
+            + (f" of {of} ({100 * share:.0f} %)" if of else "")
+            + f" beyond what a car can read (seen {lo:.4g} to {hi:.4g} {unit}), kept from the estimator: "
+            f"check the signal's unit, scale, offset and layout in the profile and the DBC",
+            DEPENDS.get(_subject(name), ("I_x",)) if share > BOUNDS_SHARE else (),
+        )
+    return report
+
+
 def check_profile(profile: Profile, report: Report | None = None) -> Report:
     """The checks that need no data: priors against geometry."""
     rep = report or Report()
@@ -502,7 +540,7 @@ def check_log(
         cycle = dec.db.get_message_by_name(cm.message).cycle_time
         if cycle:
             stale[ch.INDEX[name]] = max(5.0 * cycle / 1000.0, 0.5)
-    al = Aligner(stale_after=stale, tick=TICK)
+    al = Aligner(stale_after=stale, tick=TICK, limits=ch.limits(profile.vehicle))
     ts: list[float] = []
     rows: list[np.ndarray] = []
     t0 = None
@@ -529,6 +567,7 @@ def check_log(
         check_samples(profile, np.asarray(ts), np.vstack(rows), rep)
     else:
         check_profile(profile, rep)
+    check_bounds(al.refused, dec.stats.samples, rep)
     return rep, cov
 
 
@@ -567,7 +606,13 @@ def coverage(dec, source: str = "log") -> Coverage:
 
 def lines(rep: Report) -> list[str]:
     """What the CLI prints: one warning line per finding."""
-    return [f"profile check: {f.message} (not valid: {', '.join(f.params)})" for f in rep.findings]
+    return lines_of(rep.findings)
+
+
+def lines_of(findings: list[Finding]) -> list[str]:
+    return [
+        f"profile check: {f.message}" + (f" (not valid: {', '.join(f.params)})" if f.params else "") for f in findings
+    ]
 
 
 START_AFTER = 10.0  # s of bus time before a running service's first check
@@ -596,7 +641,9 @@ class Monitor:
         every: float = 30.0,
         rate: float = 0.1,
         start: float | None = None,
+        aligner=None,
     ):
+        self.aligner = aligner  # its values beyond a car's limits are findings too
         self.profile, self.decoder, self.keep, self.every, self.rate = profile, decoder, keep, every, rate
         self.start = start if start is not None else start_after(profile, decoder)
         self.t: list[float] = []
@@ -657,13 +704,16 @@ class Monitor:
             self.coverage = coverage(self.decoder, source="bus")
         y = np.vstack(self.y) if self.y else np.empty((0, ch.N))
         self.report = check_samples(self.profile, np.asarray(self.t), y)
+        if self.aligner is not None:
+            decoded = None if self.decoder is None else self.decoder.stats.samples
+            check_bounds(self.aligner.refused, decoded, self.report)
         self._say()
 
     def _say(self) -> None:
         for f in self.report.findings:
             if f.check not in self._said:
                 self._said.add(f.check)
-                log.warning("profile check: %s (not valid: %s)", f.message, ", ".join(f.params))
+                log.warning("%s", lines_of([f])[0])
         cov = self.coverage
         if cov is None:
             return
