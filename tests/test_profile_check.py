@@ -228,3 +228,41 @@ def test_values_beyond_the_limits_are_dropped_and_counted_on_both_replay_paths(t
     oob = res.decode["out_of_bounds"]["accel_y"]
     assert oob["values"] == pipe.decoder.stats.samples[AY] > 500 and -510 < oob["min"] < oob["max"] < -490
     assert list(res.decode["out_of_bounds"]) == ["accel_y"]
+
+
+def test_a_message_the_decoder_mostly_refuses_is_a_finding_naming_the_share_the_cause_and_the_fix(
+    drive, tmp_path, capsys
+):
+    """A Hyundai bus through profiles/hyundai_elantra_2017.toml: the decoder refused 3,619 of
+    ~3,642 ESP12 frames, yet the check said "no mismatch found" (exit 0), its JSON findings and
+    coverage.refused were empty and ESP12 counted as seen.  Here IMU_ACCEL's [checks] names a
+    counter that does not count (its checksum byte)."""
+    from vdp.profile import MessageCheck
+
+    checks = dict(PAPER.checks)
+    checks["IMU_ACCEL"] = MessageCheck("IMU_ACCEL", counter="CHECKSUM", checksum=None)
+    bad = dataclasses.replace(PAPER, checks=checks)
+    rep, cov = check_log(drive, bad)
+    f = next(f for f in rep.findings if f.subject == "IMU_ACCEL")
+    share = int(re.search(r"\((\d+) %: counter \d+\)", f.message).group(1))
+    assert share > 90 and "counter CHECKSUM does not step by one" in f.message
+    assert "IMU_ACCEL = { check = false }" in f.message and set(f.params) == set(PARAMETERS)
+    assert "IMU_ACCEL" in cov.refused and "IMU_ACCEL" in cov.missing and cov.seen == 6
+    assert check_log(drive, PAPER)[1].refused == {}
+
+
+def test_profile_check_cli_exits_1_and_its_json_names_the_refused_message(drive, tmp_path, capsys):
+    text = (ROOT / "profiles" / "paper.toml").read_text()
+    text = text.replace(
+        'IMU_ACCEL          = { counter = "COUNTER", checksum = "CHECKSUM" }', 'IMU_ACCEL = { counter = "CHECKSUM" }'
+    )
+    text = text.replace('dbc = "../dbc/vdp.dbc"', f'dbc = "{ROOT / "dbc" / "vdp.dbc"}"')
+    prof = tmp_path / "refused.toml"
+    prof.write_text(text)
+    out = tmp_path / "c.json"
+    assert main(["profile", "check", str(drive), "--profile", str(prof), "--json", str(out)]) == 1
+    printed = capsys.readouterr().out
+    assert "no mismatch found" not in printed and "refused" in printed
+    doc = json.loads(out.read_text())
+    assert [f["subject"] for f in doc["findings"]] == ["IMU_ACCEL"]
+    assert "IMU_ACCEL" in doc["coverage"]["refused"] and "IMU_ACCEL" in doc["coverage"]["missing"]

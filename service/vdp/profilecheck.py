@@ -470,13 +470,19 @@ class Coverage:
     other_channels: dict[str, int] = field(default_factory=dict)  # frames left out: on another bus channel
     bus_channel: str | None = None  # the profile's [can] channel
 
+    def refused_share(self, name: str) -> float:
+        """The share of a message's frames the decoder refused (counter, checksum, length, layout)."""
+        bad = sum(self.refused.get(name, {}).values())
+        return bad / (bad + self.wanted.get(name, 0)) if bad else 0.0
+
     @property
     def seen(self) -> int:
-        return sum(1 for n in self.wanted.values() if n)
+        return len(self.wanted) - len(self.missing)
 
     @property
     def missing(self) -> list[str]:
-        return [m for m, n in self.wanted.items() if not n]
+        """Messages never decoded, or refused for most of their frames (the decoder had next to no values)."""
+        return [m for m, n in self.wanted.items() if not n or self.refused_share(m) > 0.5]
 
     def message(self, top: bool = True) -> str:
         """One line: "0 of 7 of the profile's messages seen (missing: ...); the ids the log holds most: ..."."""
@@ -484,10 +490,14 @@ class Coverage:
         out = f"{self.seen} of {len(self.wanted)} of the profile's messages seen" + (
             f" (missing: {', '.join(missing)})" if missing else ""
         )
-        for name, kinds in self.refused.items():  # the id is there, but no frame of it decodes
+        for name, kinds in self.refused.items():  # the id is there, but its frames are refused
             n = sum(kinds.values())
             why = ", ".join(f"{k} {c}" for k, c in sorted(kinds.items(), key=lambda kv: -kv[1]))
-            out += f"; {name} came {n} time{'s' if n > 1 else ''}, none decoded ({why})"
+            good = self.wanted.get(name, 0)
+            if good:
+                out += f"; {name} came {n + good} times, {n} refused ({why})"
+            else:
+                out += f"; {name} came {n} time{'s' if n > 1 else ''}, none decoded ({why})"
         if self.other_channels and self.seen < len(self.wanted):
             n = sum(self.other_channels.values())
             names = ", ".join(f"{c} ({k})" for c, k in sorted(self.other_channels.items(), key=lambda kv: -kv[1]))
@@ -568,7 +578,71 @@ def check_log(
     else:
         check_profile(profile, rep)
     check_bounds(al.refused, dec.stats.samples, rep)
+    check_refused(profile, cov, dec.db, rep)
     return rep, cov
+
+
+REFUSED_SHARE = 0.03  # a message whose frames the decoder refuses more often than this is a finding
+
+# Why the decoder refuses a message's frames, by the kind it counts most, and what to do.
+_REFUSED_WHY = {
+    "counter": (
+        "its counter {counter} does not step by one per frame, as [checks] says (another signal, step or width)",
+        "name the right counter in [checks] {name}, or leave the message unchecked: {name} = {{ check = false }}",
+    ),
+    "checksum": (
+        "its checksum {checksum} is not computed as checksum_kind says",
+        'set checksum_kind = "none" in [checks] {name}, or {name} = {{ check = false }}',
+    ),
+    "dlc": (
+        "its frames are not the length the DBC gives ({length} bytes): the DBC describes another model or year",
+        "use the DBC of this car; if a converter dropped trailing zero bytes, set pad_short = true in [can]",
+    ),
+}
+_LAYOUT = (
+    "its values lie outside the DBC's ranges or its layout differs (kinds: {kinds}): the DBC describes "
+    "another model or year",
+    "use the DBC of this car, or widen the signal's range in the profile",
+)
+
+
+def check_refused(profile: Profile, cov: Coverage, db, report: Report) -> Report:
+    """A finding per message the decoder refuses for more than REFUSED_SHARE of its frames: the
+    share, the likely cause and the fix; the parameters resting on its channels are doubted."""
+    for name, kinds in cov.refused.items():
+        share = cov.refused_share(name)
+        if share <= REFUSED_SHARE:
+            continue
+        bad = sum(kinds.values())
+        top = max(kinds, key=kinds.get)
+        chk = profile.checks.get(name)
+        try:
+            length = db.get_message_by_name(name).length
+        except KeyError:
+            length = "?"
+        fill = {
+            "name": name,
+            "counter": getattr(chk, "counter", None) or "",
+            "checksum": getattr(chk, "checksum", None) or "",
+            "length": length,
+            "kinds": ", ".join(sorted(kinds)),
+        }
+        why, fix = _REFUSED_WHY.get(top, _LAYOUT)
+        chans = [c for c, cm in profile.channels.items() if cm.message == name]
+        chans += [c for c, comp in getattr(profile, "composites", {}).items() if name in comp.messages]
+        params = tuple(dict.fromkeys(p for c in chans for p in DEPENDS.get(_subject(c), ("I_x",))))
+        counts = ", ".join(f"{k} {n}" for k, n in sorted(kinds.items(), key=lambda kv: -kv[1]))
+        report.add(
+            f"{name}_refused",
+            name,
+            f"the decoder refused {bad} of {bad + cov.wanted.get(name, 0)} frames of {name} ({100 * share:.0f} %: "
+            f"{counts}), and {', '.join(chans) or 'its channels'} lost their values: likely "
+            + why.format(**fill)
+            + "; fix: "
+            + fix.format(**fill),
+            params,
+        )
+    return report
 
 
 def primary_messages(profile: Profile) -> set[str]:
@@ -589,10 +663,9 @@ def coverage(dec, source: str = "log") -> Coverage:
     errors = dec.stats.errors.copy()
     refused: dict[str, dict[str, int]] = {}
     for p in plans:
-        if not p.good:
-            kinds = {kind: n for (key, kind), n in errors.items() if key == p.key}
-            if kinds:
-                refused[p.name] = kinds
+        kinds = {kind: n for (key, kind), n in errors.items() if key == p.key}
+        if kinds and sum(kinds.values()) > REFUSED_SHARE * (p.good + sum(kinds.values())):
+            refused[p.name] = kinds
     other = sorted(dec.stats.unknown.copy().items(), key=lambda kv: -kv[1])
     return Coverage(
         wanted,
@@ -707,6 +780,8 @@ class Monitor:
         if self.aligner is not None:
             decoded = None if self.decoder is None else self.decoder.stats.samples
             check_bounds(self.aligner.refused, decoded, self.report)
+        if self.coverage is not None and self.error is None:  # (a bus of another car: the error says it all)
+            check_refused(self.profile, self.coverage, self.decoder.db, self.report)
         self._say()
 
     def _say(self) -> None:

@@ -83,7 +83,7 @@ def run(args) -> int:
         print("profile check: no mismatch found")
     if args.json_out:
         doc = rep.as_dict()
-        doc["coverage"] = {"messages": cov.wanted, "other_ids": cov.other[:20]}
+        doc["coverage"] = dict(cov.as_dict(), messages=cov.wanted, other_ids=cov.other[:20])
         with open(args.json_out, "w", encoding="utf-8") as f:
             json.dump(doc, f, indent=2)
         print(f"wrote {args.json_out}")
