@@ -266,3 +266,26 @@ def test_profile_check_cli_exits_1_and_its_json_names_the_refused_message(drive,
     doc = json.loads(out.read_text())
     assert [f["subject"] for f in doc["findings"]] == ["IMU_ACCEL"]
     assert "IMU_ACCEL" in doc["coverage"]["refused"] and "IMU_ACCEL" in doc["coverage"]["missing"]
+
+
+def test_every_check_that_could_not_be_made_is_listed_with_why(drive):
+    """Without a yaw rate, a_y = v r and the steering checks cannot be made: the report had said
+    nothing of them (a clean report read as "a_y checked and fine")."""
+    chans = {k: v for k, v in PAPER.channels.items() if k != "yaw_rate"}
+    rep, _ = check_log(drive, dataclasses.replace(PAPER, channels=chans))
+    assert "no yaw rate to compare with" in rep.skipped["accel_y"]
+    assert "no yaw rate to compare with" in rep.skipped["steering_angle"]
+    assert "accel_y_per_v_r" not in rep.measured
+    # the right profile on a drive with turns: every check made, none listed as skipped
+    full = check_log(drive, PAPER)[0]
+    assert full.skipped == {} and {"accel_y_per_v_r", "steer_per_kinematic", "mass_fit"} <= set(full.measured)
+
+
+def test_a_check_whose_channel_lost_its_message_says_so(drive):
+    from vdp.profile import MessageCheck
+
+    checks = dict(PAPER.checks)
+    checks["IMU_ACCEL"] = MessageCheck("IMU_ACCEL", counter="CHECKSUM", checksum=None)
+    rep, _ = check_log(drive, dataclasses.replace(PAPER, checks=checks))
+    assert "accel_x had next to no values (its message IMU_ACCEL refused)" in rep.skipped["accel_x"]
+    assert "IMU_ACCEL refused" in rep.skipped["accel_y"] and "IMU_ACCEL refused" in rep.skipped["mass"]

@@ -456,7 +456,58 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
                     )
             else:
                 rep.skipped["mass"] = "no acceleration or braking above 0.5 m/s^2 with both axle torques"
+    _not_checked(rep, have, y, v is not None)
     return rep
+
+
+# Each check the samples allow: the figure it measures when made, and the channels it needs.
+CHECKS = (
+    ("wheel_speed_scale", "wheel_speed_scale", ("wheel_speed", "speed"), "the wheel speeds against the ground speed"),
+    ("accel_x", "accel_x_per_dv_dt", ("accel_x", "v"), "a_x against dv/dt"),
+    ("accel_y", "accel_y_per_v_r", ("accel_y", "yaw_rate", "v"), "a_y against v r in steady turns"),
+    ("steering_angle", "steer_per_kinematic", ("steering_angle", "yaw_rate", "v"), "steering against the yaw rate"),
+    ("mass", "mass_fit", ("wheel_torque_front", "wheel_torque_rear", "accel_x", "v"), "the mass from torque and a_x"),
+)
+_TO_COMPARE = {  # what a missing channel leaves a check without
+    "speed": "no ground speed (speed) to compare with",
+    "yaw_rate": "no yaw rate to compare with",
+    "v": "no speed (neither speed nor wheel speeds) to compare with",
+}
+
+
+def _not_checked(rep: Report, have: set[str], y: np.ndarray, has_v: bool) -> None:
+    """Name every check of CHECKS that was not made, with why: a missing channel, one without
+    values, or the driving (the check's own reason, or the steady turns' for the lateral ones)."""
+    turns = rep.skipped.pop("turns", None)
+    for key, figure, needs, what in CHECKS:
+        if figure in rep.measured:
+            continue
+        why = None
+        for n in needs:
+            if n == "v":
+                present = has_v
+                cols = [ch.SPEED] if "speed" in have else [ch.INDEX[w] for w in ch.NAMES[:4] if w in have]
+            elif n == "wheel_speed":
+                cols = [ch.INDEX[w] for w in ch.NAMES[:4] if w in have]
+                present = bool(cols)
+            else:
+                present, cols = n in have, [ch.INDEX[n]]
+            if not present:
+                why = _TO_COMPARE.get(n, f"no {n}") + f" (the profile maps no {'wheel speeds' if n == 'v' else n})"
+                break
+            k = max((int(np.isfinite(y[:, c]).sum()) for c in cols), default=0)
+            if k < MIN_SAMPLES:
+                name = {"v": "speed", "wheel_speed": "wheel speed"}.get(n, n)
+                why = (
+                    f"{'no' if not k else f'only {k}'} {name} values in the samples (its frames refused, "
+                    f"or its values beyond what a car can read)"
+                )
+                break
+        if why is None and key in rep.skipped:
+            continue  # the check's own reason: the driving did not allow it
+        if why is None:
+            why = turns if turns and key in ("accel_y", "steering_angle") else "too little driving where it applies"
+        rep.skipped[key] = f"{what}: {why}"
 
 
 @dataclass
@@ -572,13 +623,29 @@ def check_log(
         cov.other_channels = {", ".join(names) or "?": st.skipped}
     if strict_coverage and cov.seen * 2 < len(cov.wanted):
         raise ProfileError(f"{path}: the log does not fit profile {profile.path}: {cov.message()}")
+    # a channel whose message is missing or refused for most frames (and no alternative stands in):
+    # its few values are not judged, and its checks say why
+    lost = {
+        c: cm.message
+        for c, cm in profile.channels.items()
+        if cm.message in cov.missing and (cm.alt is None or cm.alt.message in cov.missing)
+    }
     rep = Report()
     if rows:
-        check_samples(profile, np.asarray(ts), np.vstack(rows), rep)
+        y = np.vstack(rows)
+        for c in lost:
+            y[:, ch.INDEX[c]] = np.nan
+        check_samples(profile, np.asarray(ts), y, rep)
     else:
         check_profile(profile, rep)
     check_bounds(al.refused, dec.stats.samples, rep)
     check_refused(profile, cov, dec.db, rep)
+    for key, figure, needs, what in CHECKS:
+        chans = [c for n in needs for c in (ch.NAMES[:4] if n == "wheel_speed" else (n,)) if c in lost]
+        if figure not in rep.measured and chans:
+            m = lost[chans[0]]
+            how = "refused" if m in cov.refused else "missing"
+            rep.skipped[key] = f"{what}: {chans[0]} had next to no values (its message {m} {how})"
     return rep, cov
 
 
