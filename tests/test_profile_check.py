@@ -289,3 +289,24 @@ def test_a_check_whose_channel_lost_its_message_says_so(drive):
     rep, _ = check_log(drive, dataclasses.replace(PAPER, checks=checks))
     assert "accel_x had next to no values (its message IMU_ACCEL refused)" in rep.skipped["accel_x"]
     assert "IMU_ACCEL refused" in rep.skipped["accel_y"] and "IMU_ACCEL refused" in rep.skipped["mass"]
+
+
+def test_a_stage_whose_messages_never_came_cannot_run_and_names_them(tmp_path):
+    """A bus with no wheel-speed message at all (nor the gear, on the Hyundai) had said both
+    stages can run: the profile maps the channels, but the log never carried them."""
+    from vdp.io.bulk import replay_log
+    from vdp.pipeline import Pipeline
+
+    sim = Simulation(PAPER, "paper", seed=2, duration=15.0)
+    gone = ("WHEEL_SPEEDS_FRONT", "WHEEL_SPEEDS_REAR", "GNSS_VELOCITY")
+    ids = {sim.encoder.db.get_message_by_name(n).frame_id for n in gone}
+    path = tmp_path / "nowheels.log"
+    write_log((m for m in sim.frames() if m.arbitration_id not in ids), path)
+    res, pipe = replay_log(path, lambda: Pipeline(PAPER))
+    caps = res.capabilities
+    assert "wheel speeds" in caps["1"] and "never carried WHEEL_SPEEDS_FRONT, WHEEL_SPEEDS_REAR" in caps["1"]
+    assert "GNSS_VELOCITY" in caps["1"] and "GNSS_VELOCITY" in caps["2"]
+    stages = res.coaching["stages"]
+    assert stages["1"]["can_run"] is False and stages["2"]["can_run"] is False
+    assert all(p.status == "not_run" for p in res.parameters.values())
+    assert Pipeline(PAPER).capabilities() == {"1": None, "2": None, "I_x": None}  # before any frame: the profile's
