@@ -310,3 +310,43 @@ def test_a_stage_whose_messages_never_came_cannot_run_and_names_them(tmp_path):
     assert stages["1"]["can_run"] is False and stages["2"]["can_run"] is False
     assert all(p.status == "not_run" for p in res.parameters.values())
     assert Pipeline(PAPER).capabilities() == {"1": None, "2": None, "I_x": None}  # before any frame: the profile's
+
+
+def parking(reverse_runs: int, seed: int = 1):
+    """Samples of a drive on wheel speeds that carry no direction (|v|, as most ABS units send):
+    20 s forwards at 4-8 m/s, then ``reverse_runs`` reversings of 5 s each, up to 4 m/s."""
+    import numpy as np
+
+    from vdp import channels as ch
+
+    rng = np.random.default_rng(seed)
+    dt = 0.02
+    t1 = np.arange(0, 20, dt)
+    parts = [(6 + 2 * np.sin(2 * np.pi * t1 / 8)) * np.minimum(t1 / 3, 1) * np.minimum((20 - t1) / 3, 1)]
+    tr = np.arange(0, 5, dt)
+    parts += [-4.0 * np.sin(np.pi * tr / 5) ** 2] * reverse_runs
+    v = np.concatenate(parts)
+    t = np.arange(len(v)) * dt
+    y = np.full((len(t), ch.N), np.nan)
+    for w in WHEELS:
+        y[:, ch.INDEX[w]] = (np.abs(v) + np.abs(rng.normal(0, 0.05, len(v)))) / PAPER.vehicle.wheel_radius
+    y[:, ch.AX] = np.gradient(v, t) + rng.normal(0, 0.05, len(v))
+    return t, y
+
+
+def test_reversing_on_speeds_without_direction_is_no_unit_or_sign_mistake():
+    """Reversing on wheel speeds that carry no direction turns d|v|/dt round: a parking drive
+    came out "accel_x looks sign-flipped" (and elsewhere "0.429x dv/dt (m/s read as mph)").
+    The runs that went the other way than the fastest count with dv/dt turned round."""
+    from vdp import channels as ch
+    from vdp.profilecheck import check_samples
+
+    wheels_only = dataclasses.replace(PAPER, channels={k: v for k, v in PAPER.channels.items() if k != "speed"})
+    t, y = parking(16)
+    rep = check_samples(wheels_only, t, y)
+    assert not any(f.subject == "accel_x" for f in rep.findings), [f.message for f in rep.findings]
+    assert abs(rep.measured["accel_x_per_dv_dt"] - 1) < 0.05 and rep.measured["accel_x_reversing_s"] > 40
+    # an a_x that is sign-flipped indeed is still found so on the same drive
+    y[:, ch.AX] = -y[:, ch.AX]
+    f = one(check_samples(wheels_only, t, y))
+    assert f.subject == "accel_x" and "sign-flipped" in f.message

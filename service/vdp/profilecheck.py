@@ -132,15 +132,59 @@ def _smooth(x: np.ndarray, n: int) -> np.ndarray:
     return np.convolve(x, k, mode="same")
 
 
-def _ax_per_dv_dt(v: np.ndarray, ax: np.ndarray, t: np.ndarray, win: int, min_n: int) -> tuple[float, float] | None:
+REVERSE_MAX = 4.0  # m/s: no car reverses faster; a run beyond this went forwards
+
+
+def _directions(v: np.ndarray, dv: np.ndarray, ax: np.ndarray, ok: np.ndarray, win: int) -> np.ndarray | str | None:
+    """With wheel speeds that carry no direction, a reversing run's d|v|/dt is -a_x: per sample
+    -1 in the runs (between stops) that went the other way than the fast ones, +1 elsewhere.
+    None where no run disagrees (or the speeds are signed); "ambiguous" where runs disagree but
+    none was fast enough to be surely forwards."""
+    if not np.any(np.isfinite(v)) or np.nanmin(v) < -0.1:
+        return None  # signed: reversing shows as a negative speed, and dv/dt keeps its sign
+    moving = np.nan_to_num(_smooth(v, win)) > 0.5
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], moving.astype(np.int8), [0]))))
+    runs = []  # (start, end, correlation, top speed)
+    for a, b in zip(edges[::2], edges[1::2]):
+        m = ok[a:b]
+        if m.sum() < 10 or not (np.std(dv[a:b][m]) > 0 and np.std(ax[a:b][m]) > 0):
+            continue
+        runs.append((a, b, float(np.corrcoef(dv[a:b][m], ax[a:b][m])[0, 1]), float(np.nanmax(v[a:b]))))
+    if not any(r[2] > 0.3 for r in runs) or not any(r[2] < -0.3 for r in runs):
+        return None
+    sure = [r for r in runs if abs(r[2]) > 0.3]
+    top = max(sure, key=lambda r: r[3])  # the fastest run went forwards, if any was fast
+    if top[3] < REVERSE_MAX:
+        return "ambiguous"
+    flip = np.ones(len(v))
+    for a, b, rho, _ in sure:
+        if rho * top[2] < 0:
+            flip[a:b] = -1.0
+    return flip
+
+
+def _ax_per_dv_dt(
+    v: np.ndarray, ax: np.ndarray, t: np.ndarray, win: int, min_n: int, note: dict | None = None
+) -> tuple[float, float] | None:
     """(a_x per dv/dt of the speed ``v``, their correlation), or None where the drive has too little
     acceleration or braking to say.  Both sides are noisy (dv/dt of a quantised speed too), so a
     least-squares slope would be biased low: the ratio of the spreads with the correlation's sign
     (reduced major axis); means removed, for the road's grade and the sensor's offset.  ``ax``
-    smoothed as ``v`` is, over ``win`` samples."""
+    smoothed as ``v`` is, over ``win`` samples.  Runs reversed with speeds that carry no direction
+    count with dv/dt turned round (:func:`_directions`); ``note`` gets "reversing_s" (samples) or
+    "ambiguous"."""
     dv = np.gradient(_smooth(v, win), t)
     ok = np.isfinite(dv) & np.isfinite(ax) & (v > 1.0)
     ok[:win] = ok[-win:] = False
+    flip = _directions(v, dv, ax, ok, win)
+    if isinstance(flip, str):
+        if note is not None:
+            note["ambiguous"] = True
+        return None
+    if flip is not None:
+        dv = dv * flip
+        if note is not None:
+            note["reversing_s"] = int(((flip < 0) & ok).sum())
     strong = ok & (np.abs(dv) > 0.3)
     if strong.sum() < min_n or not np.std(dv[ok]) > 0.2:
         return None
@@ -287,8 +331,16 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
     # 2. a_x against dv/dt (of the wheels when their scale is right: a coarse GNSS steps)
     if v is not None and "accel_x" in have:
         v_d = v_wheel if v_wheel is not None and not wheel_bad else v
-        fit = _ax_per_dv_dt(v_d, _smooth(y[:, ch.AX], win), t, win, min_n)
-        if fit is not None:
+        note: dict = {}
+        fit = _ax_per_dv_dt(v_d, _smooth(y[:, ch.AX], win), t, win, min_n, note)
+        if "reversing_s" in note:
+            rep.measured["accel_x_reversing_s"] = note["reversing_s"] * dt
+        if note.get("ambiguous"):
+            rep.skipped["accel_x"] = (
+                "a_x against dv/dt: the speeds carry no direction and the drive went both ways at low speed "
+                "(reversing), with no run fast enough to be surely forwards: not judged"
+            )
+        elif fit is not None:
             k, rho = fit
             rep.measured["accel_x_dv_dt_correlation"] = rho
             rep.measured["accel_x_per_dv_dt"] = k
@@ -302,7 +354,8 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
                     DEPENDS["accel_x"],
                 )
             elif not 0.8 < abs(k) < 1.25:
-                why = _factor_name(abs(k))
+                # after reversing with speeds that carry no direction, a ratio is no unit's mistake
+                why = None if "reversing_s" in note else _factor_name(abs(k))
                 subject = "accel_x" if v_ref is not None or wheel_bad else "accel_x or wheel_speed"
                 rep.add(
                     "accel_x_scale",
