@@ -350,3 +350,17 @@ def test_reversing_on_speeds_without_direction_is_no_unit_or_sign_mistake():
     y[:, ch.AX] = -y[:, ch.AX]
     f = one(check_samples(wheels_only, t, y))
     assert f.subject == "accel_x" and "sign-flipped" in f.message
+
+
+@pytest.mark.filterwarnings("error")
+def test_a_bus_without_wheel_speeds_gives_no_library_warning(tmp_path, capfd):
+    """numpy's "RuntimeWarning: Mean of empty slice" had reached the user's terminal from the
+    check of a log whose wheel-speed messages never came."""
+    sim = Simulation(PAPER, "paper", seed=2, duration=15.0)
+    ids = {sim.encoder.db.get_message_by_name(n).frame_id for n in ("WHEEL_SPEEDS_FRONT", "WHEEL_SPEEDS_REAR")}
+    path = tmp_path / "nowheels.log"
+    write_log((m for m in sim.frames() if m.arbitration_id not in ids), path)
+    rep, cov = check_log(path, PAPER)
+    assert cov.missing == ["WHEEL_SPEEDS_FRONT", "WHEEL_SPEEDS_REAR"]
+    assert "WHEEL_SPEEDS_FRONT missing" in rep.skipped["wheel_speed_scale"]
+    assert "Warning" not in capfd.readouterr().err

@@ -192,6 +192,13 @@ def _ax_per_dv_dt(
     return math.copysign(float(np.std(ax[ok]) / np.std(dv[ok])), rho), rho
 
 
+def _mean_of(a: np.ndarray) -> np.ndarray:
+    """The mean over the rows of ``a`` of the finite values, NaN where there is none (np.nanmean
+    without its "Mean of empty slice" warning, which reached the user's terminal)."""
+    n = np.isfinite(a).sum(axis=0)
+    return np.where(n > 0, np.nansum(a, axis=0) / np.maximum(n, 1), np.nan)
+
+
 def _fit(x: np.ndarray, y: np.ndarray) -> float:
     """Least-squares slope of y = k x through the origin."""
     d = float(np.dot(x, x))
@@ -277,7 +284,7 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
     wheels = [c for c in ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr") if c in have]
     v_wheel = None
     if wheels:
-        v_wheel = np.nanmean(np.stack([y[:, ch.INDEX[c]] for c in wheels]), axis=0) * veh.wheel_radius
+        v_wheel = _mean_of(np.stack([y[:, ch.INDEX[c]] for c in wheels])) * veh.wheel_radius
     v_ref = y[:, ch.SPEED] if "speed" in have else None
 
     # 1. wheel speeds against the ground speed
