@@ -265,3 +265,20 @@ def test_simulate_repeat_makes_one_long_log_of_one_car(tmp_path, capsys):
     assert len(gaps) == 2  # the silence between drives
     assert main(["simulate", "--model", "brush", "--repeat", "2", "--out", str(tmp_path / "b.log")]) == 2
     assert "--repeat applies to --model vdp only" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "argv, usage, hint",
+    [
+        (["replay", "drive.log", "--profle", "P"], "usage: vdp replay", "--profle (did you mean --profile?)"),
+        (["profile", "check", "d.log", "--profile", "P", "--jsn", "o"], "usage: vdp profile check", "--jsn (did"),
+        (["replay", "drive.log", "--per_axle"], "usage: vdp replay", "--per_axle (did you mean --per-axle?)"),
+    ],
+)
+def test_an_unknown_flag_gets_the_subcommands_usage_and_a_did_you_mean(capsys, argv, usage, hint):
+    """`vdp replay drive.log --profle P` had printed vdp's top-level usage, which names no
+    option of replay, and no guess."""
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.startswith(usage) and hint in err
