@@ -192,13 +192,15 @@ def run(args) -> int:
             print(f"vdp serve: raw CAN log in {settings.raw_log.dir}", file=sys.stderr, flush=True)
         server.run(sockets=[sock])
     finally:
-        service.stop()
+        # a saturated queue holds ~32,000 frames, 7-10 s of estimation: a stop gives them STOP_BUDGET
+        service.stop(budget=STOP_BUDGET, say=lambda words: print(f"vdp serve: {words}", file=sys.stderr, flush=True))
         sock.close()
         lock.release()
         signal.signal(signal.SIGTERM, previous)
     return 0
 
 
+STOP_BUDGET = 1.0  # s a stop spends receiving's end and the queued frames: Ctrl-C exits within 2 s
 LIMIT_CONCURRENCY = 2048  # connections and requests in flight at most; beyond, uvicorn answers 503 at once
 FD_RESERVE = 256  # open files kept for everything but API sockets: raw logs, the store, the bus
 TIMEOUT_KEEP_ALIVE = 5  # s an idle connection stays open, also one that never sends a request
