@@ -44,7 +44,9 @@ def add_parser(sub):
     )
     p.add_argument("--noise", choices=NOISE_MODELS, help="--simulate: sensor noise model (default: the simulator's)")
     p.add_argument("--seed", type=int, default=1, help="--simulate: random seed (default 1)")
-    p.add_argument("--loop", action="store_true", help="--simulate: drive the scenario again and again")
+    p.add_argument(
+        "--loop", action="store_true", help="--simulate: drive the scenario again and again, the seed one up each time"
+    )
     p.add_argument("--profile", help="--simulate: vehicle profile (default: profiles/paper.toml)")
     p.add_argument(
         "--db", type=Path, help=f"estimate database (--simulate default: {SIM_DIR}/state.sqlite, in the current folder)"
