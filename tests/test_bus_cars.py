@@ -327,3 +327,16 @@ def test_the_log_facts_count_only_what_the_draft_maps(tmp_path):
     assert facts.channel == "can0" and facts.short == {}
     text = draft(dbc, cands, facts=facts)
     assert 'channel = "can0"' in text and "pad_short" not in text and "brake_torque =" not in text
+
+
+def test_profile_new_takes_an_opendbc_name_and_the_draft_names_it_so(tmp_path, capsys):
+    """`vdp profile new --dbc opendbc:NAME` had said "no such file"; the draft's [can] dbc is the
+    same opendbc:NAME a profile uses (not the installed package's path), and loads."""
+    from vdp.cli import main
+
+    out = tmp_path / "draft.toml"
+    assert main(["profile", "new", "--dbc", "opendbc:ford_lincoln_base_pt", "--out", str(out)]) == 0
+    assert 'dbc = "opendbc:ford_lincoln_base_pt"' in out.read_text().splitlines()
+    assert load_profile(out).dbc.name == "ford_lincoln_base_pt.dbc"
+    assert main(["profile", "new", "--dbc", "opendbc:ford_lincoln_base_ptt", "--out", str(out)]) == 2
+    assert "similar: ford_lincoln_base_pt" in capsys.readouterr().err

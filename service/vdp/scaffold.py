@@ -279,8 +279,15 @@ def _drafted(ch: str, has_sources: bool) -> bool:
     return has_sources if ch in SOURCES else True
 
 
-def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", facts: LogFacts | None = None) -> str:
-    """A commented TOML profile: the best candidate per channel mapped, the others as comments."""
+def draft(
+    dbc: Path,
+    cands: dict[str, list[Candidate]],
+    name: str = "my-car",
+    facts: LogFacts | None = None,
+    ref: str | None = None,
+) -> str:
+    """A commented TOML profile: the best candidate per channel mapped, the others as comments.
+    ``ref``: how [can] dbc names the DBC (``opendbc:NAME``), if not by its path."""
     L = [
         f"# Draft profile for {name}, written by `vdp profile new` from {dbc.name}.",
         "# Every value marked EDIT is a placeholder: put in your car's numbers, then run",
@@ -307,7 +314,7 @@ def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", fa
         "I_x     = { value = 600.0,   std = 400.0 }",
         "",
         "[can]",
-        f'dbc = "{dbc}"',
+        f'dbc = "{ref or dbc}"',
     ]
     if facts is not None and facts.channel:
         L.append(
