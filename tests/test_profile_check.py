@@ -364,3 +364,18 @@ def test_a_bus_without_wheel_speeds_gives_no_library_warning(tmp_path, capfd):
     assert cov.missing == ["WHEEL_SPEEDS_FRONT", "WHEEL_SPEEDS_REAR"]
     assert "WHEEL_SPEEDS_FRONT missing" in rep.skipped["wheel_speed_scale"]
     assert "Warning" not in capfd.readouterr().err
+
+
+def test_a_message_that_keeps_failing_its_counter_is_warned_of_once(drive, caplog):
+    """A counter that never counts as [checks] says flipped the message invalid and back on every
+    lucky frame: 39 warnings in 70 s beside the check's one finding."""
+    import logging
+
+    from vdp.profile import MessageCheck
+
+    checks = dict(PAPER.checks)
+    checks["IMU_ACCEL"] = MessageCheck("IMU_ACCEL", counter="CHECKSUM", checksum=None)
+    caplog.set_level(logging.WARNING, logger="vdp.io.decoder")
+    check_log(drive, dataclasses.replace(PAPER, checks=checks))
+    said = [r.getMessage() for r in caplog.records if "bad counter/checksum" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("IMU_ACCEL (0x0E0)") and "said once" in said[0]

@@ -149,6 +149,7 @@ class _Plan:
         "cs_pos",
         "extract",
         "fixed_period",
+        "flagged",
         "frame_id",
         "good",
         "invalid",
@@ -172,6 +173,7 @@ class _Plan:
         self.cnt_mod = 16
         self.prev_count: int | None = None
         self.bad_run = 0
+        self.flagged = 0  # times it was flagged invalid
         self.invalid = False
         self.last_good: float | None = None
         self.last_seen: float | None = None
@@ -543,15 +545,19 @@ class FrameDecoder:
             plan.invalid = invalid
             self.stats.invalid = tuple(sorted(self.invalid_channels))
         if invalid:
-            log.warning(
-                "%s (%s): %d bad counter/checksum frames in a row; channels %s invalid",
+            plan.flagged += 1
+            # said once per message: a counter that never counts as [checks] says flips the message
+            # invalid and back on every lucky frame (39 lines for 70 s); the profile check sums it up
+            (log.warning if plan.flagged == 1 else log.debug)(
+                "%s (%s): %d bad counter/checksum frames in a row; channels %s invalid%s",
                 plan.name,
                 _hex(plan.key),
                 plan.bad_run,
                 ", ".join(plan.channels) or "-",
+                " (said once; the decode stats count every bad frame)" if plan.flagged == 1 else "",
             )
         else:
-            log.info(
+            (log.info if plan.flagged == 1 else log.debug)(
                 "%s (%s): good frames again; channels %s valid",
                 plan.name,
                 _hex(plan.key),
