@@ -309,6 +309,7 @@ def test_a_stage_whose_messages_never_came_cannot_run_and_names_them(tmp_path):
     stages = res.coaching["stages"]
     assert stages["1"]["can_run"] is False and stages["2"]["can_run"] is False
     assert all(p.status == "not_run" for p in res.parameters.values())
+    assert res.parameters["l_f"].hint.startswith("cannot be learnt from this bus: no wheel speeds")
     assert Pipeline(PAPER).capabilities() == {"1": None, "2": None, "I_x": None}  # before any frame: the profile's
 
 
