@@ -421,3 +421,30 @@ def test_profile_new_never_proposes_counters_checks_status_or_signals_that_never
     import tomllib
 
     tomllib.loads(text)  # valid TOML
+
+
+def test_a_brake_pressure_beyond_what_a_brake_system_holds_is_a_finding_with_its_range(tmp_path):
+    """The brake pressure read 1000x too high (a unit mistake): the values beyond 300 bar were
+    dropped by the plausible range, but nothing said so; now the check names them and their range.
+    A profile's own narrower plausible range stays as it was."""
+    import re
+
+    from vdp.profilecheck import check_log
+    from vdp.sim.run import write_log
+
+    prof = load_profile(ROOT / "profiles" / "hyundai_elantra_2017.toml")
+    assert prof.sources["brake_pressure"].plausible == (0.0, 2.5e7)
+    golf = load_profile(ROOT / "profiles" / "vw_golf_mk7.toml")  # no plausible range of its own
+    assert golf.sources["brake_pressure"].plausible == (-5e5, 3e7)  # -5 to 300 bar
+    log = tmp_path / "h.log"
+    write_log(Simulation(prof, "stage1", seed=2, duration=40.0).frames(), log)
+    assert not any(f.subject == "brake_pressure" for f in check_log(log, prof)[0].findings)
+    text = (ROOT / "profiles" / "hyundai_elantra_2017.toml").read_text()
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text(
+        text.replace('signal = "CYL_PRES", unit = "bar",', 'signal = "CYL_PRES", unit = "bar", scale = 1000.0,')
+    )
+    rep, _ = check_log(log, load_profile(wrong))
+    f = next(f for f in rep.findings if f.subject == "brake_pressure")
+    lo, hi = (float(x) for x in re.search(r"seen ([\d.e+]+) to ([\d.e+]+) bar", f.message).groups())
+    assert 250 < lo <= hi and "outside 0 to 250 bar" in f.message

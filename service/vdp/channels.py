@@ -82,6 +82,7 @@ RATE_MAX = 2.0  # rad/s of yaw or roll: 115 deg/s, beyond a spin at parking spee
 ROAD_WHEEL_MAX = math.radians(45.0)  # rad: no road car's front wheels turn further
 SPEED_MAX = 100.0  # m/s (360 km/h), forwards or reversing
 TORQUE_ACCEL = 15.0  # m/s^2: an axle torque beyond mass * wheel radius * this would lift the car off
+BRAKE_PRESSURE = (-5e5, 3e7)  # Pa: -5 to 300 bar, a master cylinder's offset to beyond any ABS pump
 
 
 def limits(vehicle) -> tuple[list[float], list[float]]:

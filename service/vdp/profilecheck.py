@@ -243,6 +243,31 @@ def check_bounds(refused: Mapping[int, list], decoded: list[int] | None, report:
     return report
 
 
+def check_brake_pressure(profile: Profile, dec, report: Report) -> Report:
+    """A finding when brake-pressure values went beyond what a brake system holds (or the profile's
+    plausible range, which the loader narrows to channels.BRAKE_PRESSURE): the decoder dropped them."""
+    bp = getattr(profile, "sources", {}).get("brake_pressure")
+    if bp is None or getattr(bp, "plausible", None) is None:
+        return report
+    label = f"{bp.message}.{bp.signal}: implausible"
+    key = next((k for k in dec.stats.invalid_samples if k[1] == label), None)  # one per axle: the same values
+    if key is None:
+        return report
+    n, (lo, hi) = dec.stats.invalid_samples[key], dec.stats.invalid_range[key]
+    good = sum(p.good for p in dec._plans.values() if p.name == bp.message)
+    share = n / good if good else 1.0
+    a, b = bp.plausible
+    report.add(
+        "brake_pressure_bounds",
+        "brake_pressure",
+        f"brake_pressure: {n} value{'s' if n > 1 else ''} ({100 * share:.0f} % of {bp.message}'s frames) outside "
+        f"{a / 1e5:g} to {b / 1e5:g} bar (seen {lo / 1e5:.4g} to {hi / 1e5:.4g} bar), kept from the estimator: "
+        f"check the signal's unit ({bp.unit}), scale and offset",
+        DEPENDS["wheel_torque"] if share > BOUNDS_SHARE else (),
+    )
+    return report
+
+
 def check_profile(profile: Profile, report: Report | None = None) -> Report:
     """The checks that need no data: priors against geometry."""
     rep = report or Report()
@@ -699,6 +724,7 @@ def check_log(
     else:
         check_profile(profile, rep)
     check_bounds(al.refused, dec.stats.samples, rep)
+    check_brake_pressure(profile, dec, rep)
     check_refused(profile, cov, dec.db, rep)
     for key, figure, needs, what in CHECKS:
         chans = [c for n in needs for c in (ch.NAMES[:4] if n == "wheel_speed" else (n,)) if c in lost]

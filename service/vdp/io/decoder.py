@@ -67,6 +67,7 @@ class DecodeStats:
         self._plain = plain  # plans that emit every output of every good frame: counted per frame
         self.invalid: tuple[str, ...] = ()  # channels flagged invalid right now
         self.invalid_samples: dict[tuple[str, str], int] = {}  # (channel, reason) -> values dropped
+        self.invalid_range: dict[tuple[str, str], tuple[float, float]] = {}  # ... and the range they spanned
         self.padded = 0  # short frames given their trailing zero bytes back ([can] pad_short)
         self._names = names  # plan key -> DBC message name
 
@@ -521,6 +522,8 @@ class FrameDecoder:
                     else:
                         k = (channels.NAMES[idx], why)
                     st.invalid_samples[k] = st.invalid_samples.get(k, 0) + 1
+                    r = st.invalid_range.get(k)
+                    st.invalid_range[k] = (v, v) if r is None else (min(r[0], v), max(r[1], v))
                     continue
             if idx >= channels.N:
                 comp, j = self._virtual[idx - channels.N]
