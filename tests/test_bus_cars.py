@@ -327,3 +327,124 @@ def test_the_log_facts_count_only_what_the_draft_maps(tmp_path):
     assert facts.channel == "can0" and facts.short == {}
     text = draft(dbc, cands, facts=facts)
     assert 'channel = "can0"' in text and "pad_short" not in text and "brake_torque =" not in text
+
+
+def test_profile_new_takes_an_opendbc_name_and_the_draft_names_it_so(tmp_path, capsys):
+    """`vdp profile new --dbc opendbc:NAME` had said "no such file"; the draft's [can] dbc is the
+    same opendbc:NAME a profile uses (not the installed package's path), and loads."""
+    from vdp.cli import main
+
+    out = tmp_path / "draft.toml"
+    assert main(["profile", "new", "--dbc", "opendbc:ford_lincoln_base_pt", "--out", str(out)]) == 0
+    assert 'dbc = "opendbc:ford_lincoln_base_pt"' in out.read_text().splitlines()
+    assert load_profile(out).dbc.name == "ford_lincoln_base_pt.dbc"
+    assert main(["profile", "new", "--dbc", "opendbc:ford_lincoln_base_ptt", "--out", str(out)]) == 2
+    assert "similar: ford_lincoln_base_pt" in capsys.readouterr().err
+
+
+def test_profile_new_never_proposes_counters_checks_status_or_signals_that_never_move(tmp_path):
+    """Signals that are no measurement (a message counter, a validity or quality byte, a speed
+    limit, the steering's torque as a drive torque, a status with a value table) are never
+    candidates; with a log, neither is one that never moves; a signed, centred angle beats an
+    unsigned one, a torque that moves with dv/dt one that does not, and a pressure in kPa and a
+    torque in per cent are found."""
+    import numpy as np
+
+    from vdp.scaffold import behaviour, candidates, draft
+
+    dbc, db = tiny_dbc(
+        tmp_path,
+        "BO_ 100 WHEELS: 8 ECU\n"
+        ' SG_ WHL_SPD_FL : 0|16@1+ (0.01,0) [0|300] "km/h" ECU\n'
+        ' SG_ WHL_SPD_FR : 16|16@1+ (0.01,0) [0|300] "km/h" ECU\n'
+        ' SG_ WHL_FL_MsgCount : 32|8@1+ (1,0) [0|255] "km/h" ECU\n'
+        ' SG_ WHL_FL_Valid : 40|8@1+ (1,0) [0|255] "km/h" ECU\n'
+        ' SG_ WHL_FR_Qual : 48|8@1+ (1,0) [0|255] "km/h" ECU\n\n'
+        "BO_ 101 STEERING: 8 ECU\n"
+        ' SG_ STEER_ANG_SIGNED : 0|16@1- (0.1,0) [-3000|3000] "deg" ECU\n'
+        ' SG_ STEER_ANG_MAG : 16|16@1+ (0.1,0) [0|6000] "deg" ECU\n'
+        ' SG_ STEER_ANG_SPARE : 32|16@1- (0.1,0) [-3000|3000] "deg" ECU\n'
+        ' SG_ STEER_ANG_MODE : 48|8@1+ (1,0) [0|255] "deg" ECU\n\n'
+        "BO_ 102 POWER: 8 ECU\n"
+        ' SG_ DRIVE_TQ : 0|16@1- (1,0) [-5000|5000] "Nm" ECU\n'
+        ' SG_ WHL_TQ_TOT : 16|16@1- (1,0) [-5000|5000] "Nm" ECU\n'
+        ' SG_ MDPS_StrTq : 32|16@1- (1,0) [-5000|5000] "Nm" ECU\n'
+        ' SG_ ENG_TQ_PCT : 48|8@1+ (0.5,0) [0|100] "%" ECU\n\n'
+        "BO_ 103 BRAKE: 8 ECU\n"
+        ' SG_ BRAKE_PRES : 0|16@1+ (1,0) [0|20000] "kPa" ECU\n\n'
+        "BO_ 104 NAV: 8 ECU\n"
+        ' SG_ NAV_SpeedLim : 0|16@1+ (0.01,0) [0|300] "km/h" ECU\n'
+        ' SG_ GPS_SPEED : 16|16@1+ (0.01,0) [0|300] "km/h" ECU\n\n'
+        'VAL_ 101 STEER_ANG_MODE 0 "off" 1 "on" ;\n',
+    )
+    cands = candidates(db, top=10)
+    named = {ch: {c.signal for c in cs} for ch, cs in cands.items()}
+    assert named["wheel_speed_fl"] == {"WHL_SPD_FL"} and named["wheel_speed_fr"] == {"WHL_SPD_FR"}
+    assert "STEER_ANG_MODE" not in named["steering_angle"] and named["speed"] == {"GPS_SPEED"}
+    assert "MDPS_StrTq" not in named["drive_torque"] and named["brake_pressure"] == {"BRAKE_PRES"}
+    pct = next(c for c in cands["drive_torque"] if c.signal == "ENG_TQ_PCT")
+    assert pct.percent and not pct.wrong_kind and not pct.mapped
+
+    rng = np.random.default_rng(1)
+    t = np.arange(0, 60, 0.02)
+    v = 12 + 5 * np.sin(2 * np.pi * t / 15)  # m/s: speeding up and slowing down
+    a = np.gradient(v, t)
+    lines = []
+    msgs = {m.name: m for m in db.messages}
+    for i, ti in enumerate(t):
+        vals = {
+            "WHEELS": {"WHL_SPD_FL": v[i] * 3.6, "WHL_SPD_FR": v[i] * 3.6 + 0.02},
+            "STEERING": {
+                "STEER_ANG_SIGNED": 90 * np.sin(2 * np.pi * ti / 7),
+                "STEER_ANG_MAG": abs(90 * np.sin(2 * np.pi * ti / 7)) + 5,
+                "STEER_ANG_SPARE": 0,
+            },
+            "POWER": {"DRIVE_TQ": 1500 * a[i] + 200, "WHL_TQ_TOT": rng.normal(300, 150), "ENG_TQ_PCT": 40},
+            "BRAKE": {"BRAKE_PRES": max(-a[i], 0) * 2000},
+            "NAV": {"GPS_SPEED": v[i] * 3.6},
+        }
+        for name, sig in vals.items():
+            m = msgs[name]
+            full = {s.name: 0 for s in m.signals} | sig
+            data = m.encode(full, strict=False).hex().upper()
+            lines.append(f"({1700000000 + ti:.6f}) can0 {m.frame_id:03X}#{data}")
+    log = tmp_path / "car.log"
+    log.write_text("\n".join(lines) + "\n")
+    facts = behaviour(db, cands, log)
+    assert cands["steering_angle"][0].signal == "STEER_ANG_SIGNED"
+    assert "STEER_ANG_SPARE" in " ".join(facts.still["steering_angle"])
+    assert all(c.signal != "STEER_ANG_SPARE" for c in cands["steering_angle"])
+    assert cands["drive_torque"][0].signal == "DRIVE_TQ" and "moves with dv/dt" in cands["drive_torque"][0].note
+    text = draft(dbc, cands, facts=facts)
+    assert 'signal = "STEER_ANG_SIGNED"' in text and "never moved in the log, so not proposed" in text
+    assert 'brake_pressure = { message = "BRAKE", signal = "BRAKE_PRES", unit = "kPa" }' in text
+    import tomllib
+
+    tomllib.loads(text)  # valid TOML
+
+
+def test_a_brake_pressure_beyond_what_a_brake_system_holds_is_a_finding_with_its_range(tmp_path):
+    """The brake pressure read 1000x too high (a unit mistake): the values beyond 300 bar were
+    dropped by the plausible range, but nothing said so; now the check names them and their range.
+    A profile's own narrower plausible range stays as it was."""
+    import re
+
+    from vdp.profilecheck import check_log
+    from vdp.sim.run import write_log
+
+    prof = load_profile(ROOT / "profiles" / "hyundai_elantra_2017.toml")
+    assert prof.sources["brake_pressure"].plausible == (0.0, 2.5e7)
+    golf = load_profile(ROOT / "profiles" / "vw_golf_mk7.toml")  # no plausible range of its own
+    assert golf.sources["brake_pressure"].plausible == (-5e5, 3e7)  # -5 to 300 bar
+    log = tmp_path / "h.log"
+    write_log(Simulation(prof, "stage1", seed=2, duration=40.0).frames(), log)
+    assert not any(f.subject == "brake_pressure" for f in check_log(log, prof)[0].findings)
+    text = (ROOT / "profiles" / "hyundai_elantra_2017.toml").read_text()
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text(
+        text.replace('signal = "CYL_PRES", unit = "bar",', 'signal = "CYL_PRES", unit = "bar", scale = 1000.0,')
+    )
+    rep, _ = check_log(log, load_profile(wrong))
+    f = next(f for f in rep.findings if f.subject == "brake_pressure")
+    lo, hi = (float(x) for x in re.search(r"seen ([\d.e+]+) to ([\d.e+]+) bar", f.message).groups())
+    assert 250 < lo <= hi and "outside 0 to 250 bar" in f.message

@@ -342,3 +342,27 @@ def test_the_free_space_floor_is_read_from_the_config(tmp_path):
     assert s.raw_log.min_free_mb == 256
     s = replace(s, raw_log=replace(s.raw_log, dir=tmp_path / "raw"))
     assert Ingest(s, load_profile(PROFILE)).rawlog.min_free == 256 << 20
+
+
+def test_each_loop_of_the_simulated_demo_drives_with_the_next_seed(monkeypatch):
+    """`vdp serve --simulate --loop` fed the very same drive (one seed) on every loop."""
+    import vdp.sim.run as run_mod
+
+    made = []
+
+    class Short(Simulation):
+        def __init__(self, profile, scenario, seed, **kw):
+            made.append(seed)
+            super().__init__(profile, scenario, seed, **dict(kw, duration=1.0))
+
+    monkeypatch.setattr(run_mod, "Simulation", Short)
+    cfg = SimulateSettings(enabled=True, scenario="stage1", speed=0.0, seed=7, loop=True)
+    feed = SimFeed(PROFILE, cfg, "rel-simfeed-seed", backlog=lambda: 0.0)
+    feed.start(ready=lambda: True)
+    try:
+        deadline = time.monotonic() + 60
+        while len(made) < 3 and time.monotonic() < deadline and feed._thread.is_alive():
+            time.sleep(0.02)
+    finally:
+        feed.stop()
+    assert made[:3] == [7, 8, 9] and feed.status()["seed"] == 7 + feed.loops >= 9

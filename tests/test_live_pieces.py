@@ -92,6 +92,46 @@ def test_a_dead_estimation_worker_is_started_again():
         est.stop()
 
 
+def test_a_stop_estimates_the_queued_frames_for_its_budget_then_drops_and_counts_the_rest():
+    """Ctrl-C on `vdp serve --simulate` drained ~32,000 queued frames (7-10 s) in silence. The worker
+    is held on the first frame until the stop has been asked for, with no time left: the 999 frames
+    queued behind it are dropped and counted, and a command among them is refused, not left waiting."""
+    import threading
+
+    go = threading.Event()
+
+    class Held(FakePipeline):
+        def feed(self, msg):
+            go.wait(10)
+            super().feed(msg)
+
+    frames: queue.Queue = queue.Queue()
+    est = Estimation(Held(), frames, publish_interval=0.05)
+    est.start()
+    for k in range(1000):
+        frames.put(frame(k))
+    wait_for(lambda: frames.qsize() == 999, "the worker to take the first frame")
+    from vdp.live.estimation import _Command
+
+    cmd = _Command(lambda p: p.frames)
+    frames.put(cmd)
+    stopper = threading.Thread(target=est.stop, kwargs={"budget": 0.0})
+    stopper.start()
+    wait_for(lambda: est._stop_by is not None, "the stop to be asked for")
+    go.set()
+    stopper.join(10)
+    assert not est.alive
+    assert est.fed == 1 and est.dropped == 999 and isinstance(cmd.future.exception(), Unavailable)
+    # without a budget every queued frame is estimated, as before
+    frames2: queue.Queue = queue.Queue()
+    est2 = Estimation(FakePipeline(), frames2, publish_interval=0.05)
+    for k in range(50):
+        frames2.put(frame(k))
+    est2.start()
+    est2.stop()
+    assert est2.fed == 50 and est2.dropped == 0
+
+
 def test_restoring_checks_the_estimator_took_the_values():
     class Deaf(FakePipeline):
         def restore(self, params):
@@ -185,3 +225,24 @@ def test_a_raw_log_whose_last_flush_fails_is_still_closed_and_named(tmp_path, mo
     (closed,) = raw.closed_files()
     text = closed.read_bytes()
     assert text.endswith(b"\n") and text.count(b"\n") == 50  # the 50 whole lines, the cut one dropped
+
+
+def test_a_check_still_solving_does_not_hold_the_process_exit(tmp_path):
+    """The stage-2 checks ran on a ThreadPoolExecutor, whose worker the interpreter joins at exit:
+    a fit still solving held Ctrl-C's exit after "service stopped".  Here the check never ends;
+    the process must end anyway (the limit only guards against a hang)."""
+    import subprocess
+    import sys
+
+    script = (
+        "import threading\n"
+        "from vdp.live.service import CheckThread\n"
+        "c = CheckThread()\n"
+        "c.submit(threading.Event().wait)\n"
+        "later = c.submit(print, 'never')\n"
+        "c.shutdown(wait=False, cancel_futures=True)\n"
+        "assert later.cancelled()\n"
+        "print('exiting')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stdout == "exiting\n", out.stderr

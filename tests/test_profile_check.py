@@ -191,3 +191,192 @@ def test_coverage_names_the_logs_other_ids_only_where_they_say_something():
     other = Coverage({"A": 10, "B": 5}, [("0x3A0", 1200)])
     # every message there: the other ids are information, not worded as a clue to a fault
     assert other.message().endswith(" (the log holds other ids too, which the profile does not use: 0x3A0 (1200))")
+
+
+def test_a_channel_beyond_what_a_car_can_read_is_a_finding_and_never_reaches_the_estimator(drive):
+    """A real Honda's KINEMATICS.LAT_ACCEL decoded at -502...-498 m/s^2 (a wrong offset): 1,003
+    such samples reached the estimator and nothing flagged them.  Here a_y read 500 m/s^2 low."""
+    low = chan(PAPER, "accel_y", offset=-500.0)
+    rep, _ = check_log(drive, low)
+    f = next(f for f in rep.findings if f.subject == "accel_y")
+    assert f.check == "accel_y_bounds" and set(f.params) == set(STAGE2)
+    lo, hi = (float(x) for x in re.search(r"seen (-?[\d.]+) to (-?[\d.]+) m/s\^2", f.message).groups())
+    assert -510 < lo < hi < -490 and "(100 %)" in f.message
+    assert not any(f.subject == "accel_y" for f in check_log(drive, PAPER)[0].findings)
+
+
+@pytest.mark.parametrize("bulk", [True, False])
+def test_values_beyond_the_limits_are_dropped_and_counted_on_both_replay_paths(tmp_path, bulk):
+    import math
+
+    from vdp.channels import AY
+    from vdp.io.bulk import replay_log
+    from vdp.pipeline import Pipeline
+
+    low = chan(PAPER, "accel_y", offset=-500.0)
+    seen = []
+
+    def make():
+        pipe = Pipeline(low)
+        pipe.tap(lambda s: seen.append(s.values[AY]))
+        return pipe
+
+    drive = tmp_path / "short.log"
+    write_log(Simulation(PAPER, "paper", seed=2, duration=15.0).frames(), drive)
+    res, pipe = replay_log(drive, make, bulk=bulk)
+    assert seen and all(math.isnan(v) for v in seen)  # no a_y at all, never -500
+    oob = res.decode["out_of_bounds"]["accel_y"]
+    assert oob["values"] == pipe.decoder.stats.samples[AY] > 500 and -510 < oob["min"] < oob["max"] < -490
+    assert list(res.decode["out_of_bounds"]) == ["accel_y"]
+
+
+def test_a_message_the_decoder_mostly_refuses_is_a_finding_naming_the_share_the_cause_and_the_fix(
+    drive, tmp_path, capsys
+):
+    """A Hyundai bus through profiles/hyundai_elantra_2017.toml: the decoder refused 3,619 of
+    ~3,642 ESP12 frames, yet the check said "no mismatch found" (exit 0), its JSON findings and
+    coverage.refused were empty and ESP12 counted as seen.  Here IMU_ACCEL's [checks] names a
+    counter that does not count (its checksum byte)."""
+    from vdp.profile import MessageCheck
+
+    checks = dict(PAPER.checks)
+    checks["IMU_ACCEL"] = MessageCheck("IMU_ACCEL", counter="CHECKSUM", checksum=None)
+    bad = dataclasses.replace(PAPER, checks=checks)
+    rep, cov = check_log(drive, bad)
+    f = next(f for f in rep.findings if f.subject == "IMU_ACCEL")
+    share = int(re.search(r"\((\d+) %: counter \d+\)", f.message).group(1))
+    assert share > 90 and "counter CHECKSUM does not step by one" in f.message
+    assert "IMU_ACCEL = { check = false }" in f.message and set(f.params) == set(PARAMETERS)
+    assert "IMU_ACCEL" in cov.refused and "IMU_ACCEL" in cov.missing and cov.seen == 6
+    assert check_log(drive, PAPER)[1].refused == {}
+
+
+def test_profile_check_cli_exits_1_and_its_json_names_the_refused_message(drive, tmp_path, capsys):
+    text = (ROOT / "profiles" / "paper.toml").read_text()
+    text = text.replace(
+        'IMU_ACCEL          = { counter = "COUNTER", checksum = "CHECKSUM" }', 'IMU_ACCEL = { counter = "CHECKSUM" }'
+    )
+    text = text.replace('dbc = "../dbc/vdp.dbc"', f'dbc = "{ROOT / "dbc" / "vdp.dbc"}"')
+    prof = tmp_path / "refused.toml"
+    prof.write_text(text)
+    out = tmp_path / "c.json"
+    assert main(["profile", "check", str(drive), "--profile", str(prof), "--json", str(out)]) == 1
+    printed = capsys.readouterr().out
+    assert "no mismatch found" not in printed and "refused" in printed
+    doc = json.loads(out.read_text())
+    assert [f["subject"] for f in doc["findings"]] == ["IMU_ACCEL"]
+    assert "IMU_ACCEL" in doc["coverage"]["refused"] and "IMU_ACCEL" in doc["coverage"]["missing"]
+
+
+def test_every_check_that_could_not_be_made_is_listed_with_why(drive):
+    """Without a yaw rate, a_y = v r and the steering checks cannot be made: the report had said
+    nothing of them (a clean report read as "a_y checked and fine")."""
+    chans = {k: v for k, v in PAPER.channels.items() if k != "yaw_rate"}
+    rep, _ = check_log(drive, dataclasses.replace(PAPER, channels=chans))
+    assert "no yaw rate to compare with" in rep.skipped["accel_y"]
+    assert "no yaw rate to compare with" in rep.skipped["steering_angle"]
+    assert "accel_y_per_v_r" not in rep.measured
+    # the right profile on a drive with turns: every check made, none listed as skipped
+    full = check_log(drive, PAPER)[0]
+    assert full.skipped == {} and {"accel_y_per_v_r", "steer_per_kinematic", "mass_fit"} <= set(full.measured)
+
+
+def test_a_check_whose_channel_lost_its_message_says_so(drive):
+    from vdp.profile import MessageCheck
+
+    checks = dict(PAPER.checks)
+    checks["IMU_ACCEL"] = MessageCheck("IMU_ACCEL", counter="CHECKSUM", checksum=None)
+    rep, _ = check_log(drive, dataclasses.replace(PAPER, checks=checks))
+    assert "accel_x had next to no values (its message IMU_ACCEL refused)" in rep.skipped["accel_x"]
+    assert "IMU_ACCEL refused" in rep.skipped["accel_y"] and "IMU_ACCEL refused" in rep.skipped["mass"]
+
+
+def test_a_stage_whose_messages_never_came_cannot_run_and_names_them(tmp_path):
+    """A bus with no wheel-speed message at all (nor the gear, on the Hyundai) had said both
+    stages can run: the profile maps the channels, but the log never carried them."""
+    from vdp.io.bulk import replay_log
+    from vdp.pipeline import Pipeline
+
+    sim = Simulation(PAPER, "paper", seed=2, duration=15.0)
+    gone = ("WHEEL_SPEEDS_FRONT", "WHEEL_SPEEDS_REAR", "GNSS_VELOCITY")
+    ids = {sim.encoder.db.get_message_by_name(n).frame_id for n in gone}
+    path = tmp_path / "nowheels.log"
+    write_log((m for m in sim.frames() if m.arbitration_id not in ids), path)
+    res, pipe = replay_log(path, lambda: Pipeline(PAPER))
+    caps = res.capabilities
+    assert "wheel speeds" in caps["1"] and "never carried WHEEL_SPEEDS_FRONT, WHEEL_SPEEDS_REAR" in caps["1"]
+    assert "GNSS_VELOCITY" in caps["1"] and "GNSS_VELOCITY" in caps["2"]
+    stages = res.coaching["stages"]
+    assert stages["1"]["can_run"] is False and stages["2"]["can_run"] is False
+    assert all(p.status == "not_run" for p in res.parameters.values())
+    assert res.parameters["l_f"].hint.startswith("cannot be learnt from this bus: no wheel speeds")
+    assert Pipeline(PAPER).capabilities() == {"1": None, "2": None, "I_x": None}  # before any frame: the profile's
+
+
+def parking(reverse_runs: int, seed: int = 1):
+    """Samples of a drive on wheel speeds that carry no direction (|v|, as most ABS units send):
+    20 s forwards at 4-8 m/s, then ``reverse_runs`` reversings of 5 s each, up to 4 m/s."""
+    import numpy as np
+
+    from vdp import channels as ch
+
+    rng = np.random.default_rng(seed)
+    dt = 0.02
+    t1 = np.arange(0, 20, dt)
+    parts = [(6 + 2 * np.sin(2 * np.pi * t1 / 8)) * np.minimum(t1 / 3, 1) * np.minimum((20 - t1) / 3, 1)]
+    tr = np.arange(0, 5, dt)
+    parts += [-4.0 * np.sin(np.pi * tr / 5) ** 2] * reverse_runs
+    v = np.concatenate(parts)
+    t = np.arange(len(v)) * dt
+    y = np.full((len(t), ch.N), np.nan)
+    for w in WHEELS:
+        y[:, ch.INDEX[w]] = (np.abs(v) + np.abs(rng.normal(0, 0.05, len(v)))) / PAPER.vehicle.wheel_radius
+    y[:, ch.AX] = np.gradient(v, t) + rng.normal(0, 0.05, len(v))
+    return t, y
+
+
+def test_reversing_on_speeds_without_direction_is_no_unit_or_sign_mistake():
+    """Reversing on wheel speeds that carry no direction turns d|v|/dt round: a parking drive
+    came out "accel_x looks sign-flipped" (and elsewhere "0.429x dv/dt (m/s read as mph)").
+    The runs that went the other way than the fastest count with dv/dt turned round."""
+    from vdp import channels as ch
+    from vdp.profilecheck import check_samples
+
+    wheels_only = dataclasses.replace(PAPER, channels={k: v for k, v in PAPER.channels.items() if k != "speed"})
+    t, y = parking(16)
+    rep = check_samples(wheels_only, t, y)
+    assert not any(f.subject == "accel_x" for f in rep.findings), [f.message for f in rep.findings]
+    assert abs(rep.measured["accel_x_per_dv_dt"] - 1) < 0.05 and rep.measured["accel_x_reversing_s"] > 40
+    # an a_x that is sign-flipped indeed is still found so on the same drive
+    y[:, ch.AX] = -y[:, ch.AX]
+    f = one(check_samples(wheels_only, t, y))
+    assert f.subject == "accel_x" and "sign-flipped" in f.message
+
+
+@pytest.mark.filterwarnings("error")
+def test_a_bus_without_wheel_speeds_gives_no_library_warning(tmp_path, capfd):
+    """numpy's "RuntimeWarning: Mean of empty slice" had reached the user's terminal from the
+    check of a log whose wheel-speed messages never came."""
+    sim = Simulation(PAPER, "paper", seed=2, duration=15.0)
+    ids = {sim.encoder.db.get_message_by_name(n).frame_id for n in ("WHEEL_SPEEDS_FRONT", "WHEEL_SPEEDS_REAR")}
+    path = tmp_path / "nowheels.log"
+    write_log((m for m in sim.frames() if m.arbitration_id not in ids), path)
+    rep, cov = check_log(path, PAPER)
+    assert cov.missing == ["WHEEL_SPEEDS_FRONT", "WHEEL_SPEEDS_REAR"]
+    assert "WHEEL_SPEEDS_FRONT missing" in rep.skipped["wheel_speed_scale"]
+    assert "Warning" not in capfd.readouterr().err
+
+
+def test_a_message_that_keeps_failing_its_counter_is_warned_of_once(drive, caplog):
+    """A counter that never counts as [checks] says flipped the message invalid and back on every
+    lucky frame: 39 warnings in 70 s beside the check's one finding."""
+    import logging
+
+    from vdp.profile import MessageCheck
+
+    checks = dict(PAPER.checks)
+    checks["IMU_ACCEL"] = MessageCheck("IMU_ACCEL", counter="CHECKSUM", checksum=None)
+    caplog.set_level(logging.WARNING, logger="vdp.io.decoder")
+    check_log(drive, dataclasses.replace(PAPER, checks=checks))
+    said = [r.getMessage() for r in caplog.records if "bad counter/checksum" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("IMU_ACCEL (0x0E0)") and "said once" in said[0]

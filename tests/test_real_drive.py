@@ -174,3 +174,16 @@ def test_a_fleet_row_gives_the_reason_the_car_cannot_learn_a_parameter():
     rows = {r["parameter"]: r for r in fleet.rows_from_result(res, fleet.Task(str(TRIMMED), "rav4", str(PROFILE)))}
     assert rows["I_x"]["status"] == "not_run" and "no roll-rate gyro" in rows["I_x"]["reason"]
     assert "no per-axle wheel torque" in rows["h"]["reason"]  # its stage cannot run on this car
+
+
+def test_the_readme_says_where_the_real_rav4_capture_is_and_what_it_shows():
+    """A new user looked for the real drive the tests replay: the README never named it."""
+    from conftest import ROOT
+
+    text = " ".join((ROOT / "README.md").read_text().split())
+    assert "../shared/data/real/rav4-2018-highway-60s.log.gz" in text
+    assert (
+        "tests/data/rav4-2018-highway-15s.log.gz" in text
+        and (ROOT / "tests/data/rav4-2018-highway-15s.log.gz").is_file()
+    )
+    assert "--profile profiles/toyota_rav4.toml" in text and "stage 1 cannot run" in text

@@ -320,3 +320,33 @@ def test_two_outputs_on_one_file_are_refused(drive, tmp_path, capsys):
     assert main(["replay", str(log), "--series", str(same), "--channels", str(same), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip()
     assert "--channels" in err and "is also the file of --series" in err and not same.exists()
+
+
+@pytest.mark.parametrize(
+    "argv, usage, hint",
+    [
+        (["replay", "drive.log", "--profle", "P"], "usage: vdp replay", "--profle (did you mean --profile?)"),
+        (["profile", "check", "d.log", "--profile", "P", "--jsn", "o"], "usage: vdp profile check", "--jsn (did"),
+        (["replay", "drive.log", "--per_axle"], "usage: vdp replay", "--per_axle (did you mean --per-axle?)"),
+    ],
+)
+def test_an_unknown_flag_gets_the_subcommands_usage_and_a_did_you_mean(capsys, argv, usage, hint):
+    """`vdp replay drive.log --profle P` had printed vdp's top-level usage, which names no
+    option of replay, and no guess."""
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.startswith(usage) and hint in err
+
+
+def test_a_log_that_does_not_fit_the_default_profile_says_it_was_only_the_default(tmp_path, capsys):
+    """`vdp replay LOG` without --profile had failed with "does not fit profile .../paper.toml",
+    as though the user had chosen paper.toml."""
+    log = tmp_path / "other.log"
+    log.write_text("".join(f"({1000 + 0.01 * i:.6f}) can0 3A0#0000000000000000\n" for i in range(500)))
+    assert main(["replay", str(log), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "does not fit profile" in err and "no --profile was given" in err and "taken by default" in err
+    assert "\n" not in err.strip()
+    assert main(["replay", str(log), "--no-progress", "--profile", "profiles/paper.toml"]) == 2
+    assert "taken by default" not in capsys.readouterr().err  # a profile chosen is not called the default

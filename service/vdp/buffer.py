@@ -38,14 +38,50 @@ _MAX_T = 1e10  # s (year 2286): bus times beyond are refused; near 1e21 floats a
 
 class Aligner:
     def __init__(
-        self, stale_after: np.ndarray | None = None, tick: float = 0.01, delay: float = 0.012, max_gap: float = 1.0
+        self,
+        stale_after: np.ndarray | None = None,
+        tick: float = 0.01,
+        delay: float = 0.012,
+        max_gap: float = 1.0,
+        limits: tuple[list[float], list[float]] | None = None,
     ):
         self.tick = tick
         self.delay = delay
         self.max_gap = max_gap
         self.stale_after = np.full(channels.N, 0.1) if stale_after is None else np.asarray(stale_after, dtype=float)
         self._stale = [float(x) for x in self.stale_after]
+        # per channel, the lowest and highest value taken (channels.limits): beyond is dropped
+        lo, hi = limits if limits is not None else ([-math.inf] * channels.N, [math.inf] * channels.N)
+        self._lo, self._hi = [float(x) for x in lo], [float(x) for x in hi]
+        self.refused: dict[int, list[float]] = {}  # channel -> [values dropped, lowest, highest]
         self.reset()
+
+    def _refuse(self, ch: int, lo: float, hi: float, n: int = 1) -> None:
+        r = self.refused.get(ch)
+        if r is None:
+            self.refused[ch] = [n, lo, hi]
+        else:
+            r[0] += n
+            r[1], r[2] = min(r[1], lo), max(r[2], hi)
+
+    def keep_block(self, per_channel: dict) -> dict:
+        """``per_channel`` (channel -> (frame indices, values), vdp.io.bulk's) without the values
+        beyond the channel's limits, which are counted as :meth:`push` counts them."""
+        out = {}
+        for c, (fi, fv) in per_channel.items():
+            bad = (fv < self._lo[c]) | (fv > self._hi[c])  # NaN goes on, as in push
+            if bad.any():
+                self._refuse(c, float(fv[bad].min()), float(fv[bad].max()), int(bad.sum()))
+                fi, fv = fi[~bad], fv[~bad]
+            out[c] = (fi, fv)
+        return out
+
+    def refused_dict(self) -> dict[str, dict]:
+        """Values dropped per channel name: how many, the range they spanned, the channel's limits."""
+        return {
+            channels.NAMES[c]: {"values": int(n), "min": lo, "max": hi, "limits": [self._lo[c], self._hi[c]]}
+            for c, (n, lo, hi) in sorted(self.refused.items())
+        }
 
     def reset(self) -> None:
         # per channel: the last _DEPTH (time, value) pairs, oldest first (plain
@@ -105,7 +141,11 @@ class Aligner:
                 self._n += 1
                 self.next_tick = self._n * self.tick
         self.last_time = max(self.last_time, t)
+        lo, hi = self._lo, self._hi
         for ch, value in pairs:
+            if value < lo[ch] or value > hi[ch]:  # beyond what a car can read (NaN goes on)
+                self._refuse(ch, value, value)
+                continue
             th, vh = self._t[ch], self._v[ch]
             del th[0], vh[0]
             th.append(t)

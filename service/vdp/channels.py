@@ -6,6 +6,8 @@ the decoder sees only these names and units.
 
 from __future__ import annotations
 
+import math
+
 # (name, SI unit) in the fixed order used by sample arrays.
 CHANNELS: tuple[tuple[str, str], ...] = (
     ("wheel_speed_fl", "rad/s"),
@@ -71,3 +73,33 @@ STAGE2_SPEED = ("wheel_speed_rl", "wheel_speed_rr")
 # I_x: the roll mode is seen through the roll-rate gyro only (a_y has no roll term in eq 7),
 # so without one I_x is not_run while C_alpha and I_z are still estimated.
 IX_NEEDS = ("roll_rate",)
+
+# What a road car's sensors can read: a value beyond is a decoding or mapping fault (a
+# LAT_ACCEL decoded at -500 m/s^2), never driving, and never reaches the estimator
+# (vdp.buffer.Aligner drops and counts it).  Wheel speeds and torques scale with the car.
+ACCEL_MAX = 15.0  # m/s^2: 1.5 g, beyond any road tyre's grip
+RATE_MAX = 2.0  # rad/s of yaw or roll: 115 deg/s, beyond a spin at parking speed
+ROAD_WHEEL_MAX = math.radians(45.0)  # rad: no road car's front wheels turn further
+SPEED_MAX = 100.0  # m/s (360 km/h), forwards or reversing
+TORQUE_ACCEL = 15.0  # m/s^2: an axle torque beyond mass * wheel radius * this would lift the car off
+BRAKE_PRESSURE = (-5e5, 3e7)  # Pa: -5 to 300 bar, a master cylinder's offset to beyond any ABS pump
+
+
+def limits(vehicle) -> tuple[list[float], list[float]]:
+    """Per channel index, the lowest and highest value a road car's bus can carry (SI), for
+    ``vehicle`` (a vdp.profile.Vehicle: its wheel radius and mass scale wheel speeds and torques)."""
+    r = vehicle.wheel_radius
+    bound = {
+        "steering_angle": ROAD_WHEEL_MAX,
+        "accel_x": ACCEL_MAX,
+        "accel_y": ACCEL_MAX,
+        "yaw_rate": RATE_MAX,
+        "roll_rate": RATE_MAX,
+        "speed": SPEED_MAX,
+        "wheel_torque_front": vehicle.mass * r * TORQUE_ACCEL,
+        "wheel_torque_rear": vehicle.mass * r * TORQUE_ACCEL,
+    }
+    for w in ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr"):
+        bound[w] = SPEED_MAX / r  # rad/s
+    hi = [bound[n] for n in NAMES]
+    return [-b for b in hi], hi

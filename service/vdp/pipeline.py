@@ -43,13 +43,16 @@ class Pipeline:
         # the speed reference this car has: GNSS at its resolution, or the free-rolling axle
         cfg = estimator_config(profile, self.decoder.db, cfg)
         self.estimator = TwoStageEstimator(profile.vehicle, profile.priors, cfg)
-        self.aligner = Aligner(stale_after=self._stale_after(), tick=self.estimator.cfg.tick)
+        self.aligner = Aligner(
+            stale_after=self._stale_after(), tick=self.estimator.cfg.tick, limits=channels.limits(profile.vehicle)
+        )
         self.ring = SampleRing(ring_capacity)
         self._taps: list[Callable[[Sample], None]] = []
         # the profile self-check of a running service, on the samples the ring holds (profilecheck);
         # vdp replay checks the log's first minutes instead and sets this to None
-        self.monitor: Monitor | None = Monitor(profile, self.decoder)
+        self.monitor: Monitor | None = Monitor(profile, self.decoder, aligner=self.aligner)
         self.samples = 0
+        self.finished = False  # a whole log has been read (run)
         self.last_bus_time: float | None = None  # the newest decoded frame's
         self.first_frame_time: float | None = None  # of any frame fed, decoded or not: the self-check's clock
         self.frame_time: float | None = None
@@ -74,11 +77,15 @@ class Pipeline:
         channels (None: it can)."""
         p = self.profile
         out: dict[str, str | None] = {}
+        silent = self.silent()
         # stage 2's speed: GNSS, the speed filter's wheel reference, or the rear wheels
         has_speed = p.has("speed") or p.speed_reference or all(p.has(c) for c in channels.STAGE2_SPEED)
         needs2 = channels.STAGE2_NEEDS + (() if has_speed else ("speed",))
         for stage, needs in (("1", channels.STAGE1_NEEDS), ("2", needs2)):
             out[stage] = _lacks(p.missing(needs))
+            if out[stage] is None and silent:  # mapped, but the bus never carried it
+                rear = stage == "2" and all(p.has(c) and c not in silent for c in channels.STAGE2_SPEED)
+                out[stage] = _never(tuple(dict.fromkeys(needs + ("speed",))), silent, rear)
         if out["1"] and p.vehicle.l_f is None:
             tail = (
                 "it needs l_f, and stage 1 cannot run: give the measured l_f (axle scales) "
@@ -87,6 +94,29 @@ class Pipeline:
             out["2"] = f"{out['2']}; and {tail}" if out["2"] else tail
         ix = _lacks(p.missing(channels.IX_NEEDS))
         out["I_x"] = f"{ix}: the roll mode is unobservable, so I_x is not estimated" if ix else None
+        return out
+
+    def silent(self) -> dict[str, list[str]]:
+        """Mapped channels that got no value because the bus never carried their message (nor
+        an alternative's): channel -> the messages never decoded.  Known once a whole log is read
+        (``finished``) or once the running service's self-check has looked; empty before."""
+        mon = self.monitor
+        if not (self.finished or (mon is not None and mon.checks)) or not self.frames:
+            return {}
+        good = {p.name: p.good for p in self.decoder._plans.values()}
+        never = {name for name, n in good.items() if not n}
+        out: dict[str, list[str]] = {}
+        for name, cm in self.profile.channels.items():
+            if cm.message in never and (cm.alt is None or cm.alt.message in never):
+                out[name] = [cm.message] + ([cm.alt.message] if cm.alt is not None else [])
+        for name, comp in getattr(self.profile, "composites", {}).items():
+            absent = sorted(comp.messages & never)  # a composite needs every term current
+            if absent:
+                out[name] = absent
+        if self.profile.speed_reference == "wheels":  # the ground speed is the wheels'
+            wheels = [m for c in channels.NAMES[:4] for m in out.get(c, [])]
+            if wheels:
+                out["speed"] = list(dict.fromkeys(wheels))
         return out
 
     def feed(self, msg) -> None:
@@ -181,6 +211,7 @@ class Pipeline:
             source=stats,
         )
         self.estimator.finish()
+        self.finished = True
         return self.result(trace=True, t0=first, log=info)
 
     def result(self, trace: bool = False, t0: float | None = None, log: LogInfo | None = None) -> RunResult:
@@ -200,7 +231,7 @@ class Pipeline:
             dataclasses.replace(snap, parameters=params, baseline_ekf=ekf),
             capabilities=caps,
             coaching=coach,
-            decode=self.decoder.stats.as_dict(),
+            decode=self.decode_stats(),
             clock=Clock(a.clock_backwards, a.clock_jumps),
             channels=self.freshness(),
             frames=self.frames,
@@ -211,6 +242,12 @@ class Pipeline:
             log=log,
             profile_check=check,
         )
+
+    def decode_stats(self) -> dict:
+        """The decoder's counters, and the values beyond a car's limits the aligner dropped."""
+        out = self.decoder.stats.as_dict()
+        out["out_of_bounds"] = self.aligner.refused_dict()
+        return out
 
     def _coach(self, snap, caps) -> tuple[dict, dict[str, Estimate]]:
         """Progress and coaching from what the learners have (core.progress), and the UKF's
@@ -254,6 +291,17 @@ def _lacks(missing: list[str]) -> str | None:
         return None
     what = list(dict.fromkeys(channels.DESCRIPTIONS[m] for m in missing))
     return f"no {', no '.join(what)} (the profile maps no {', '.join(missing)})"
+
+
+def _never(needs: tuple[str, ...], silent: dict[str, list[str]], speed_ok: bool) -> str | None:
+    """'no wheel speeds (the bus never carried WHL_SPD11)' for needed channels whose messages
+    never came, or None."""
+    gone = [c for c in needs if c in silent and not (c == "speed" and speed_ok)]
+    if not gone:
+        return None
+    what = list(dict.fromkeys(channels.DESCRIPTIONS.get(c, c) for c in gone))
+    msgs = list(dict.fromkeys(m for c in gone for m in silent[c]))
+    return f"no {', no '.join(what)} (the bus never carried {', '.join(msgs)})"
 
 
 def speed_config(profile: Profile, db: Any, base: Any) -> Any:

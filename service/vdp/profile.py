@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -594,6 +594,11 @@ def load_profile(path: str | Path) -> Profile:
                 comps[name] = _composite(where, name, entry)
         elif name in SOURCES:
             sources[name] = _channel(where, name, entry)
+            if name == "brake_pressure":  # beyond what a brake system holds: a decoding or mapping fault
+                lo, hi = sources[name].plausible or (-math.inf, math.inf)
+                lo, hi = max(lo, channels.BRAKE_PRESSURE[0]), min(hi, channels.BRAKE_PRESSURE[1])
+                if lo < hi:
+                    sources[name] = replace(sources[name], plausible=(lo, hi))
         else:
             maps[name] = _channel(where, name, entry)
     drivetrain = _drivetrain(where, raw.get("drivetrain"))

@@ -132,15 +132,59 @@ def _smooth(x: np.ndarray, n: int) -> np.ndarray:
     return np.convolve(x, k, mode="same")
 
 
-def _ax_per_dv_dt(v: np.ndarray, ax: np.ndarray, t: np.ndarray, win: int, min_n: int) -> tuple[float, float] | None:
+REVERSE_MAX = 4.0  # m/s: no car reverses faster; a run beyond this went forwards
+
+
+def _directions(v: np.ndarray, dv: np.ndarray, ax: np.ndarray, ok: np.ndarray, win: int) -> np.ndarray | str | None:
+    """With wheel speeds that carry no direction, a reversing run's d|v|/dt is -a_x: per sample
+    -1 in the runs (between stops) that went the other way than the fast ones, +1 elsewhere.
+    None where no run disagrees (or the speeds are signed); "ambiguous" where runs disagree but
+    none was fast enough to be surely forwards."""
+    if not np.any(np.isfinite(v)) or np.nanmin(v) < -0.1:
+        return None  # signed: reversing shows as a negative speed, and dv/dt keeps its sign
+    moving = np.nan_to_num(_smooth(v, win)) > 0.5
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], moving.astype(np.int8), [0]))))
+    runs = []  # (start, end, correlation, top speed)
+    for a, b in zip(edges[::2], edges[1::2]):
+        m = ok[a:b]
+        if m.sum() < 10 or not (np.std(dv[a:b][m]) > 0 and np.std(ax[a:b][m]) > 0):
+            continue
+        runs.append((a, b, float(np.corrcoef(dv[a:b][m], ax[a:b][m])[0, 1]), float(np.nanmax(v[a:b]))))
+    if not any(r[2] > 0.3 for r in runs) or not any(r[2] < -0.3 for r in runs):
+        return None
+    sure = [r for r in runs if abs(r[2]) > 0.3]
+    top = max(sure, key=lambda r: r[3])  # the fastest run went forwards, if any was fast
+    if top[3] < REVERSE_MAX:
+        return "ambiguous"
+    flip = np.ones(len(v))
+    for a, b, rho, _ in sure:
+        if rho * top[2] < 0:
+            flip[a:b] = -1.0
+    return flip
+
+
+def _ax_per_dv_dt(
+    v: np.ndarray, ax: np.ndarray, t: np.ndarray, win: int, min_n: int, note: dict | None = None
+) -> tuple[float, float] | None:
     """(a_x per dv/dt of the speed ``v``, their correlation), or None where the drive has too little
     acceleration or braking to say.  Both sides are noisy (dv/dt of a quantised speed too), so a
     least-squares slope would be biased low: the ratio of the spreads with the correlation's sign
     (reduced major axis); means removed, for the road's grade and the sensor's offset.  ``ax``
-    smoothed as ``v`` is, over ``win`` samples."""
+    smoothed as ``v`` is, over ``win`` samples.  Runs reversed with speeds that carry no direction
+    count with dv/dt turned round (:func:`_directions`); ``note`` gets "reversing_s" (samples) or
+    "ambiguous"."""
     dv = np.gradient(_smooth(v, win), t)
     ok = np.isfinite(dv) & np.isfinite(ax) & (v > 1.0)
     ok[:win] = ok[-win:] = False
+    flip = _directions(v, dv, ax, ok, win)
+    if isinstance(flip, str):
+        if note is not None:
+            note["ambiguous"] = True
+        return None
+    if flip is not None:
+        dv = dv * flip
+        if note is not None:
+            note["reversing_s"] = int(((flip < 0) & ok).sum())
     strong = ok & (np.abs(dv) > 0.3)
     if strong.sum() < min_n or not np.std(dv[ok]) > 0.2:
         return None
@@ -148,10 +192,80 @@ def _ax_per_dv_dt(v: np.ndarray, ax: np.ndarray, t: np.ndarray, win: int, min_n:
     return math.copysign(float(np.std(ax[ok]) / np.std(dv[ok])), rho), rho
 
 
+def _mean_of(a: np.ndarray) -> np.ndarray:
+    """The mean over the rows of ``a`` of the finite values, NaN where there is none (np.nanmean
+    without its "Mean of empty slice" warning, which reached the user's terminal)."""
+    n = np.isfinite(a).sum(axis=0)
+    return np.where(n > 0, np.nansum(a, axis=0) / np.maximum(n, 1), np.nan)
+
+
 def _fit(x: np.ndarray, y: np.ndarray) -> float:
     """Least-squares slope of y = k x through the origin."""
     d = float(np.dot(x, x))
     return float(np.dot(x, y) / d) if d > 0 else math.nan
+
+
+BOUNDS_SHARE = 0.01  # values beyond a car's limits: above this share of a channel's, its parameters are doubted
+
+
+def _subject(name: str) -> str:
+    """The DEPENDS key of a channel: the four wheel speeds are one, both axle torques one."""
+    for head in ("wheel_speed", "wheel_torque"):
+        if name.startswith(head):
+            return head
+    return name
+
+
+def check_bounds(refused: Mapping[int, list], decoded: list[int] | None, report: Report) -> Report:
+    """A finding per channel whose values went beyond what a road car's bus can carry
+    (channels.limits; the aligner dropped them: ``refused``, channel -> [count, lowest, highest]).
+    ``decoded``: values decoded per channel (DecodeStats.samples), for the share."""
+    for c, (n, lo, hi) in sorted(refused.items()):
+        name = ch.NAMES[c]
+        of = decoded[c] if decoded is not None and c < len(decoded) and decoded[c] >= n else None
+        share = n / of if of else 1.0
+        if any(f.subject == name for f in report.findings):  # a finding says what is wrong with it already
+            report.measured[f"{name}_beyond_limits"] = n
+            continue
+        unit = ch.UNITS[name]
+        extra = ""
+        if name.startswith("wheel_torque"):
+            extra = " (the drive torque, or the brake pressure times brake_gain, that make it)"
+        report.add(
+            f"{name}_bounds",
+            name,
+            f"{name}{extra}: {n} value{'s' if n > 1 else ''}"
+            + (f" of {of} ({100 * share:.0f} %)" if of else "")
+            + f" beyond what a car can read (seen {lo:.4g} to {hi:.4g} {unit}), kept from the estimator: "
+            f"check the signal's unit, scale, offset and layout in the profile and the DBC",
+            DEPENDS.get(_subject(name), ("I_x",)) if share > BOUNDS_SHARE else (),
+        )
+    return report
+
+
+def check_brake_pressure(profile: Profile, dec, report: Report) -> Report:
+    """A finding when brake-pressure values went beyond what a brake system holds (or the profile's
+    plausible range, which the loader narrows to channels.BRAKE_PRESSURE): the decoder dropped them."""
+    bp = getattr(profile, "sources", {}).get("brake_pressure")
+    if bp is None or getattr(bp, "plausible", None) is None:
+        return report
+    label = f"{bp.message}.{bp.signal}: implausible"
+    key = next((k for k in dec.stats.invalid_samples if k[1] == label), None)  # one per axle: the same values
+    if key is None:
+        return report
+    n, (lo, hi) = dec.stats.invalid_samples[key], dec.stats.invalid_range[key]
+    good = sum(p.good for p in dec._plans.values() if p.name == bp.message)
+    share = n / good if good else 1.0
+    a, b = bp.plausible
+    report.add(
+        "brake_pressure_bounds",
+        "brake_pressure",
+        f"brake_pressure: {n} value{'s' if n > 1 else ''} ({100 * share:.0f} % of {bp.message}'s frames) outside "
+        f"{a / 1e5:g} to {b / 1e5:g} bar (seen {lo / 1e5:.4g} to {hi / 1e5:.4g} bar), kept from the estimator: "
+        f"check the signal's unit ({bp.unit}), scale and offset",
+        DEPENDS["wheel_torque"] if share > BOUNDS_SHARE else (),
+    )
+    return report
 
 
 def check_profile(profile: Profile, report: Report | None = None) -> Report:
@@ -195,7 +309,7 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
     wheels = [c for c in ("wheel_speed_fl", "wheel_speed_fr", "wheel_speed_rl", "wheel_speed_rr") if c in have]
     v_wheel = None
     if wheels:
-        v_wheel = np.nanmean(np.stack([y[:, ch.INDEX[c]] for c in wheels]), axis=0) * veh.wheel_radius
+        v_wheel = _mean_of(np.stack([y[:, ch.INDEX[c]] for c in wheels])) * veh.wheel_radius
     v_ref = y[:, ch.SPEED] if "speed" in have else None
 
     # 1. wheel speeds against the ground speed
@@ -249,8 +363,16 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
     # 2. a_x against dv/dt (of the wheels when their scale is right: a coarse GNSS steps)
     if v is not None and "accel_x" in have:
         v_d = v_wheel if v_wheel is not None and not wheel_bad else v
-        fit = _ax_per_dv_dt(v_d, _smooth(y[:, ch.AX], win), t, win, min_n)
-        if fit is not None:
+        note: dict = {}
+        fit = _ax_per_dv_dt(v_d, _smooth(y[:, ch.AX], win), t, win, min_n, note)
+        if "reversing_s" in note:
+            rep.measured["accel_x_reversing_s"] = note["reversing_s"] * dt
+        if note.get("ambiguous"):
+            rep.skipped["accel_x"] = (
+                "a_x against dv/dt: the speeds carry no direction and the drive went both ways at low speed "
+                "(reversing), with no run fast enough to be surely forwards: not judged"
+            )
+        elif fit is not None:
             k, rho = fit
             rep.measured["accel_x_dv_dt_correlation"] = rho
             rep.measured["accel_x_per_dv_dt"] = k
@@ -264,7 +386,8 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
                     DEPENDS["accel_x"],
                 )
             elif not 0.8 < abs(k) < 1.25:
-                why = _factor_name(abs(k))
+                # after reversing with speeds that carry no direction, a ratio is no unit's mistake
+                why = None if "reversing_s" in note else _factor_name(abs(k))
                 subject = "accel_x" if v_ref is not None or wheel_bad else "accel_x or wheel_speed"
                 rep.add(
                     "accel_x_scale",
@@ -418,7 +541,58 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
                     )
             else:
                 rep.skipped["mass"] = "no acceleration or braking above 0.5 m/s^2 with both axle torques"
+    _not_checked(rep, have, y, v is not None)
     return rep
+
+
+# Each check the samples allow: the figure it measures when made, and the channels it needs.
+CHECKS = (
+    ("wheel_speed_scale", "wheel_speed_scale", ("wheel_speed", "speed"), "the wheel speeds against the ground speed"),
+    ("accel_x", "accel_x_per_dv_dt", ("accel_x", "v"), "a_x against dv/dt"),
+    ("accel_y", "accel_y_per_v_r", ("accel_y", "yaw_rate", "v"), "a_y against v r in steady turns"),
+    ("steering_angle", "steer_per_kinematic", ("steering_angle", "yaw_rate", "v"), "steering against the yaw rate"),
+    ("mass", "mass_fit", ("wheel_torque_front", "wheel_torque_rear", "accel_x", "v"), "the mass from torque and a_x"),
+)
+_TO_COMPARE = {  # what a missing channel leaves a check without
+    "speed": "no ground speed (speed) to compare with",
+    "yaw_rate": "no yaw rate to compare with",
+    "v": "no speed (neither speed nor wheel speeds) to compare with",
+}
+
+
+def _not_checked(rep: Report, have: set[str], y: np.ndarray, has_v: bool) -> None:
+    """Name every check of CHECKS that was not made, with why: a missing channel, one without
+    values, or the driving (the check's own reason, or the steady turns' for the lateral ones)."""
+    turns = rep.skipped.pop("turns", None)
+    for key, figure, needs, what in CHECKS:
+        if figure in rep.measured:
+            continue
+        why = None
+        for n in needs:
+            if n == "v":
+                present = has_v
+                cols = [ch.SPEED] if "speed" in have else [ch.INDEX[w] for w in ch.NAMES[:4] if w in have]
+            elif n == "wheel_speed":
+                cols = [ch.INDEX[w] for w in ch.NAMES[:4] if w in have]
+                present = bool(cols)
+            else:
+                present, cols = n in have, [ch.INDEX[n]]
+            if not present:
+                why = _TO_COMPARE.get(n, f"no {n}") + f" (the profile maps no {'wheel speeds' if n == 'v' else n})"
+                break
+            k = max((int(np.isfinite(y[:, c]).sum()) for c in cols), default=0)
+            if k < MIN_SAMPLES:
+                name = {"v": "speed", "wheel_speed": "wheel speed"}.get(n, n)
+                why = (
+                    f"{'no' if not k else f'only {k}'} {name} values in the samples (its frames refused, "
+                    f"or its values beyond what a car can read)"
+                )
+                break
+        if why is None and key in rep.skipped:
+            continue  # the check's own reason: the driving did not allow it
+        if why is None:
+            why = turns if turns and key in ("accel_y", "steering_angle") else "too little driving where it applies"
+        rep.skipped[key] = f"{what}: {why}"
 
 
 @dataclass
@@ -432,13 +606,19 @@ class Coverage:
     other_channels: dict[str, int] = field(default_factory=dict)  # frames left out: on another bus channel
     bus_channel: str | None = None  # the profile's [can] channel
 
+    def refused_share(self, name: str) -> float:
+        """The share of a message's frames the decoder refused (counter, checksum, length, layout)."""
+        bad = sum(self.refused.get(name, {}).values())
+        return bad / (bad + self.wanted.get(name, 0)) if bad else 0.0
+
     @property
     def seen(self) -> int:
-        return sum(1 for n in self.wanted.values() if n)
+        return len(self.wanted) - len(self.missing)
 
     @property
     def missing(self) -> list[str]:
-        return [m for m, n in self.wanted.items() if not n]
+        """Messages never decoded, or refused for most of their frames (the decoder had next to no values)."""
+        return [m for m, n in self.wanted.items() if not n or self.refused_share(m) > 0.5]
 
     def message(self, top: bool = True) -> str:
         """One line: "0 of 7 of the profile's messages seen (missing: ...); the ids the log holds most: ..."."""
@@ -446,10 +626,14 @@ class Coverage:
         out = f"{self.seen} of {len(self.wanted)} of the profile's messages seen" + (
             f" (missing: {', '.join(missing)})" if missing else ""
         )
-        for name, kinds in self.refused.items():  # the id is there, but no frame of it decodes
+        for name, kinds in self.refused.items():  # the id is there, but its frames are refused
             n = sum(kinds.values())
             why = ", ".join(f"{k} {c}" for k, c in sorted(kinds.items(), key=lambda kv: -kv[1]))
-            out += f"; {name} came {n} time{'s' if n > 1 else ''}, none decoded ({why})"
+            good = self.wanted.get(name, 0)
+            if good:
+                out += f"; {name} came {n + good} times, {n} refused ({why})"
+            else:
+                out += f"; {name} came {n} time{'s' if n > 1 else ''}, none decoded ({why})"
         if self.other_channels and self.seen < len(self.wanted):
             n = sum(self.other_channels.values())
             names = ", ".join(f"{c} ({k})" for c, k in sorted(self.other_channels.items(), key=lambda kv: -kv[1]))
@@ -502,7 +686,7 @@ def check_log(
         cycle = dec.db.get_message_by_name(cm.message).cycle_time
         if cycle:
             stale[ch.INDEX[name]] = max(5.0 * cycle / 1000.0, 0.5)
-    al = Aligner(stale_after=stale, tick=TICK)
+    al = Aligner(stale_after=stale, tick=TICK, limits=ch.limits(profile.vehicle))
     ts: list[float] = []
     rows: list[np.ndarray] = []
     t0 = None
@@ -524,12 +708,94 @@ def check_log(
         cov.other_channels = {", ".join(names) or "?": st.skipped}
     if strict_coverage and cov.seen * 2 < len(cov.wanted):
         raise ProfileError(f"{path}: the log does not fit profile {profile.path}: {cov.message()}")
+    # a channel whose message is missing or refused for most frames (and no alternative stands in):
+    # its few values are not judged, and its checks say why
+    lost = {
+        c: cm.message
+        for c, cm in profile.channels.items()
+        if cm.message in cov.missing and (cm.alt is None or cm.alt.message in cov.missing)
+    }
     rep = Report()
     if rows:
-        check_samples(profile, np.asarray(ts), np.vstack(rows), rep)
+        y = np.vstack(rows)
+        for c in lost:
+            y[:, ch.INDEX[c]] = np.nan
+        check_samples(profile, np.asarray(ts), y, rep)
     else:
         check_profile(profile, rep)
+    check_bounds(al.refused, dec.stats.samples, rep)
+    check_brake_pressure(profile, dec, rep)
+    check_refused(profile, cov, dec.db, rep)
+    for key, figure, needs, what in CHECKS:
+        chans = [c for n in needs for c in (ch.NAMES[:4] if n == "wheel_speed" else (n,)) if c in lost]
+        if figure not in rep.measured and chans:
+            m = lost[chans[0]]
+            how = "refused" if m in cov.refused else "missing"
+            rep.skipped[key] = f"{what}: {chans[0]} had next to no values (its message {m} {how})"
     return rep, cov
+
+
+REFUSED_SHARE = 0.03  # a message whose frames the decoder refuses more often than this is a finding
+
+# Why the decoder refuses a message's frames, by the kind it counts most, and what to do.
+_REFUSED_WHY = {
+    "counter": (
+        "its counter {counter} does not step by one per frame, as [checks] says (another signal, step or width)",
+        "name the right counter in [checks] {name}, or leave the message unchecked: {name} = {{ check = false }}",
+    ),
+    "checksum": (
+        "its checksum {checksum} is not computed as checksum_kind says",
+        'set checksum_kind = "none" in [checks] {name}, or {name} = {{ check = false }}',
+    ),
+    "dlc": (
+        "its frames are not the length the DBC gives ({length} bytes): the DBC describes another model or year",
+        "use the DBC of this car; if a converter dropped trailing zero bytes, set pad_short = true in [can]",
+    ),
+}
+_LAYOUT = (
+    "its values lie outside the DBC's ranges or its layout differs (kinds: {kinds}): the DBC describes "
+    "another model or year",
+    "use the DBC of this car, or widen the signal's range in the profile",
+)
+
+
+def check_refused(profile: Profile, cov: Coverage, db, report: Report) -> Report:
+    """A finding per message the decoder refuses for more than REFUSED_SHARE of its frames: the
+    share, the likely cause and the fix; the parameters resting on its channels are doubted."""
+    for name, kinds in cov.refused.items():
+        share = cov.refused_share(name)
+        if share <= REFUSED_SHARE:
+            continue
+        bad = sum(kinds.values())
+        top = max(kinds, key=kinds.get)
+        chk = profile.checks.get(name)
+        try:
+            length = db.get_message_by_name(name).length
+        except KeyError:
+            length = "?"
+        fill = {
+            "name": name,
+            "counter": getattr(chk, "counter", None) or "",
+            "checksum": getattr(chk, "checksum", None) or "",
+            "length": length,
+            "kinds": ", ".join(sorted(kinds)),
+        }
+        why, fix = _REFUSED_WHY.get(top, _LAYOUT)
+        chans = [c for c, cm in profile.channels.items() if cm.message == name]
+        chans += [c for c, comp in getattr(profile, "composites", {}).items() if name in comp.messages]
+        params = tuple(dict.fromkeys(p for c in chans for p in DEPENDS.get(_subject(c), ("I_x",))))
+        counts = ", ".join(f"{k} {n}" for k, n in sorted(kinds.items(), key=lambda kv: -kv[1]))
+        report.add(
+            f"{name}_refused",
+            name,
+            f"the decoder refused {bad} of {bad + cov.wanted.get(name, 0)} frames of {name} ({100 * share:.0f} %: "
+            f"{counts}), and {', '.join(chans) or 'its channels'} lost their values: likely "
+            + why.format(**fill)
+            + "; fix: "
+            + fix.format(**fill),
+            params,
+        )
+    return report
 
 
 def primary_messages(profile: Profile) -> set[str]:
@@ -550,10 +816,9 @@ def coverage(dec, source: str = "log") -> Coverage:
     errors = dec.stats.errors.copy()
     refused: dict[str, dict[str, int]] = {}
     for p in plans:
-        if not p.good:
-            kinds = {kind: n for (key, kind), n in errors.items() if key == p.key}
-            if kinds:
-                refused[p.name] = kinds
+        kinds = {kind: n for (key, kind), n in errors.items() if key == p.key}
+        if kinds and sum(kinds.values()) > REFUSED_SHARE * (p.good + sum(kinds.values())):
+            refused[p.name] = kinds
     other = sorted(dec.stats.unknown.copy().items(), key=lambda kv: -kv[1])
     return Coverage(
         wanted,
@@ -567,7 +832,13 @@ def coverage(dec, source: str = "log") -> Coverage:
 
 def lines(rep: Report) -> list[str]:
     """What the CLI prints: one warning line per finding."""
-    return [f"profile check: {f.message} (not valid: {', '.join(f.params)})" for f in rep.findings]
+    return lines_of(rep.findings)
+
+
+def lines_of(findings: list[Finding]) -> list[str]:
+    return [
+        f"profile check: {f.message}" + (f" (not valid: {', '.join(f.params)})" if f.params else "") for f in findings
+    ]
 
 
 START_AFTER = 10.0  # s of bus time before a running service's first check
@@ -596,7 +867,9 @@ class Monitor:
         every: float = 30.0,
         rate: float = 0.1,
         start: float | None = None,
+        aligner=None,
     ):
+        self.aligner = aligner  # its values beyond a car's limits are findings too
         self.profile, self.decoder, self.keep, self.every, self.rate = profile, decoder, keep, every, rate
         self.start = start if start is not None else start_after(profile, decoder)
         self.t: list[float] = []
@@ -657,13 +930,18 @@ class Monitor:
             self.coverage = coverage(self.decoder, source="bus")
         y = np.vstack(self.y) if self.y else np.empty((0, ch.N))
         self.report = check_samples(self.profile, np.asarray(self.t), y)
+        if self.aligner is not None:
+            decoded = None if self.decoder is None else self.decoder.stats.samples
+            check_bounds(self.aligner.refused, decoded, self.report)
+        if self.coverage is not None and self.error is None:  # (a bus of another car: the error says it all)
+            check_refused(self.profile, self.coverage, self.decoder.db, self.report)
         self._say()
 
     def _say(self) -> None:
         for f in self.report.findings:
             if f.check not in self._said:
                 self._said.add(f.check)
-                log.warning("profile check: %s (not valid: %s)", f.message, ", ".join(f.params))
+                log.warning("%s", lines_of([f])[0])
         cov = self.coverage
         if cov is None:
             return

@@ -48,7 +48,7 @@ _PATTERNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "speed": ((r"gps|gnss|nav",), (r"sp(ee)?d|vel|_v_",)),
     "drive_torque": ((r"tq|torq|moment",), (r"wh(ee)?l|whl|prpl|drive|axle|rad", r"tot|actl|ist")),
     "brake_torque": ((r"tq|torq|moment", r"brk|brake|brems"), (r"tot|actl|ist",)),
-    "brake_pressure": ((r"press|druck", r"brk|brake|brems|esp"), (r"mc|master|haupt|bremsdruck",)),
+    "brake_pressure": ((r"pres|druck", r"brk|brake|brems|esp|cyl"), (r"mc|master|haupt|bremsdruck|cyl",)),
     "wheel_torque_front": ((r"tq|torq", rf"front|vorder|{_B}(fa|va){_E}"), (r"wh(ee)?l|axle|achs",)),
     "wheel_torque_rear": ((r"tq|torq", rf"rear|hinter|{_B}(ra|ha){_E}"), (r"wh(ee)?l|axle|achs",)),
 }
@@ -59,7 +59,12 @@ ENGINE_NOTE = (
     "an engine torque? vdp needs the torque at the wheels: map drive_torque as this times the gear "
     "ratio (a product, docs/PROFILES.md; profiles/vw_golf_mk7.toml does it)"
 )
-_NOT = re.compile(r"counter|_cnt|checksum|_cs\b|crc|alive|_qf|stat|warn|req|rq|lamp|btn|button|cmd|target|trg|max|min")
+# never a channel's value: counters, checksums and CRCs, status, validity and quality bits, errors,
+# requests and targets, limits, and (Hyundai's DATC/FATC) the air conditioning's temperatures and torques
+_NOT = re.compile(
+    r"count|cnt|checksum|chksum|chks|_cs\b|crc|alive|parity|_qf|qual|valid|vld|stat|err(or)?\b|fault|diag|"
+    r"warn|req|rq|lamp|btn|button|cmd|target|trg|max|min|lim|temp|acn|aircon|hvac"
+)
 UNIT_GUESS = {  # DBC unit spellings vdp's table does not hold
     "radians/second": "rad/s",
     "rad/sec": "rad/s",
@@ -89,12 +94,22 @@ class Candidate:
     engine: bool = False  # a drive torque named for the engine: before the gearbox (ENGINE_NOTE)
     fine: str | None = None  # a finer signal of the same message that completes this one (_fine)
     wrong_kind: bool = False  # its DBC unit is of another quantity (an angle for a torque)
+    percent: bool = False  # a torque in per cent of a reference torque (PERCENT_NOTE)
 
     @property
     def mapped(self) -> bool:
         """Whether the draft maps it as the channel's best (an uncommented line): a unit vdp knows,
         of the channel's quantity, and not an engine's torque."""
-        return self.unit is not None and not self.engine and not self.wrong_kind
+        return self.unit is not None and not self.engine and not self.wrong_kind and not self.percent
+
+
+PERCENT_NOTE = (
+    "a torque in per cent: map it as a term whose weight is the reference torque in N m (times the "
+    'gear ratio, for an engine\'s), e.g. [channels.drive_torque] terms = [{{ message = "{message}", '
+    'signal = "{signal}", unit = "%", weight = EDIT }}] (profiles/hyundai_elantra_2017.toml does it)'
+)
+_STEERING = re.compile(r"steer|str(?!nd)|mdps|eps|lkas|lenk")
+_TORQUES = ("drive_torque", "brake_torque", "wheel_torque_front", "wheel_torque_rear")
 
 
 def unit_of(dbc_unit: str | None) -> str | None:
@@ -137,12 +152,22 @@ def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
                 name = f"{m.name}.{s.name}".lower()
                 if not all(re.search(p, name) for p in must) or _NOT.search(s.name.lower()) or s.length < 6:
                     continue
+                if s.choices and (s.length <= 8 or 2 * len(s.choices) >= 2**s.length):
+                    continue  # a value table over a short field: a state or a mode, not a measured quantity
                 unit = unit_of(s.unit)
+                if (
+                    ch in _TORQUES
+                    and unit in UNIT_FACTORS
+                    and UNIT_FACTORS[unit][1] == "torque"
+                    and _STEERING.search(name)
+                ):
+                    continue  # the steering's torque (an EPS's, a driver's) drives no wheel
                 score = 1.0 + sum(1.0 for p in more if re.search(p, name))
+                percent = unit == "%" and ch in _TORQUES  # per cent of a reference torque: a term's weight
                 if unit is not None:
-                    score += 2.0 if UNIT_FACTORS[unit][1] in kinds else -3.0
-                c = Candidate(m.name, s.name, unit, s.unit or "", score)
-                c.wrong_kind = unit is not None and UNIT_FACTORS[unit][1] not in kinds
+                    score += 2.0 if UNIT_FACTORS[unit][1] in kinds or percent else -3.0
+                c = Candidate(m.name, s.name, unit, s.unit or "", score, percent=percent)
+                c.wrong_kind = unit is not None and UNIT_FACTORS[unit][1] not in kinds and not percent
                 c.fine = _fine(m, s)
                 if ch == "drive_torque" and _ENGINE.search(s.name.lower()):
                     c.engine = True
@@ -162,6 +187,7 @@ class LogFacts:
     channel: str | None = None
     also: list[str] = field(default_factory=list)  # the log's other channels
     short: dict[str, int] = field(default_factory=dict)
+    still: dict[str, list[str]] = field(default_factory=dict)  # channel -> its candidates that never move
 
 
 def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, seconds: float = 120.0) -> LogFacts:
@@ -218,15 +244,30 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
             return 0.0
         return float(np.corrcoef(a[:n], b[:n])[0, 1])
 
-    for cs in cands.values():
-        for c in cs:
+    still: dict[str, list[str]] = {}
+    for ch, cs in cands.items():
+        for c in list(cs):
             g = on_grid((c.message, c.signal))
             if g is None:
                 c.score -= 2.0
                 c.note = "not in the log"
-            elif np.std(g) == 0:
-                c.score -= 2.0
-                c.note = "never moves in the log"
+            elif np.std(g) == 0:  # a constant, or a signal this car does not send: never proposed
+                cs.remove(c)
+                still.setdefault(ch, []).append(f"{c.message}.{c.signal}")
+    for c in cands.get("steering_angle", []):  # an angle is signed and centred near 0 on a drive
+        g = on_grid((c.message, c.signal))
+        if g is None:
+            continue
+        lo, mid, hi = np.percentile(g, [5, 50, 95])
+        if lo >= 0 or hi <= 0:
+            c.score -= 1.5
+            c.note = "never changes sign in the log: not a signed angle (or one with an offset)"
+        elif abs(mid) > 0.25 * (hi - lo):
+            c.score -= 1.0
+            c.note = f"centred at {mid:.3g}, not near 0"
+        else:
+            c.score += 1.0
+            c.note = "signed, centred near 0"
     wheels = [on_grid((c.message, c.signal)) for w in ("fl", "fr", "rl", "rr") for c in cands[f"wheel_speed_{w}"][:1]]
     wheels = [w for w in wheels if w is not None]
     if wheels:
@@ -239,6 +280,15 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
                     r = corr(g, ref)
                     c.score += 2.0 * r
                     c.note = c.note or f"follows the wheel speeds (r = {r:.2f})"
+        # a drive torque moves with dv/dt of the wheels, a brake's torque or pressure against it
+        dvdt = np.gradient(np.convolve(ref, np.ones(10) / 10, mode="same"), grid[:n])
+        for ch, sign in (("drive_torque", 1), ("wheel_torque_front", 1), ("wheel_torque_rear", 1)):
+            for c in cands.get(ch, []):
+                _with_dvdt(c, on_grid((c.message, c.signal)), dvdt, sign, corr)
+        for ch in ("brake_torque", "brake_pressure"):
+            for c in cands.get(ch, []):
+                _with_dvdt(c, on_grid((c.message, c.signal)), dvdt, -1, corr)
+        cands["steering_angle"].sort(key=lambda c: -c.score)
         steer = next((on_grid((c.message, c.signal)) for c in cands["steering_angle"][:1]), None)
         if steer is not None:
             n = min(len(steer), len(ref))
@@ -251,7 +301,7 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
                     c.note = c.note or f"looks like a yaw rate (r = {r:+.2f} with steering x speed)"
     for cs in cands.values():
         cs.sort(key=lambda c: -c.score)
-    facts = LogFacts()
+    facts = LogFacts(still=still)
     # the messages the draft maps (the best candidate of each channel it writes uncommented)
     src = _has_sources(cands)
     mapped = {cs[0].message for ch, cs in cands.items() if cs and _drafted(ch, src) and cs[0].mapped}
@@ -268,6 +318,15 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
     return facts
 
 
+def _with_dvdt(c: Candidate, g, dvdt, sign: int, corr) -> None:
+    """Score a torque or pressure by how it follows ``sign`` x dv/dt (braking: -dv/dt)."""
+    if g is None:
+        return
+    r = sign * corr(g, dvdt)
+    c.score += 2.0 * max(r, 0.0)
+    c.note = c.note or (f"moves with {'-' if sign < 0 else ''}dv/dt (r = {r:.2f})" if r > 0.3 else c.note)
+
+
 def _has_sources(cands: dict[str, list[Candidate]]) -> bool:
     """Whether the draft maps a drive torque and brake sources (no per-axle wheel torques)."""
     return bool(cands.get("drive_torque")) and not cands.get("wheel_torque_front")
@@ -280,8 +339,15 @@ def _drafted(ch: str, has_sources: bool) -> bool:
     return has_sources if ch in SOURCES else True
 
 
-def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", facts: LogFacts | None = None) -> str:
-    """A commented TOML profile: the best candidate per channel mapped, the others as comments."""
+def draft(
+    dbc: Path,
+    cands: dict[str, list[Candidate]],
+    name: str = "my-car",
+    facts: LogFacts | None = None,
+    ref: str | None = None,
+) -> str:
+    """A commented TOML profile: the best candidate per channel mapped, the others as comments.
+    ``ref``: how [can] dbc names the DBC (``opendbc:NAME``), if not by its path."""
     L = [
         f"# Draft profile for {one_line(name)}, written by `vdp profile new` from {one_line(dbc.name)}.",
         "# Every value marked EDIT is a placeholder: put in your car's numbers, then run",
@@ -308,7 +374,7 @@ def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", fa
         "I_x     = { value = 600.0,   std = 400.0 }",
         "",
         "[can]",
-        f"dbc = {toml_str(dbc)}",
+        f"dbc = {toml_str(ref or str(dbc))}",
     ]
     if facts is not None and facts.channel:
         L.append(
@@ -336,8 +402,11 @@ def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", fa
         cs = cands.get(ch) or []
         if not _drafted(ch, has_sources):
             continue
+        gone = (facts.still.get(ch) if facts is not None else None) or []
+        if gone:
+            L.append(f"# {ch}: never moved in the log, so not proposed: {', '.join(gone[:4])}")
         if not cs:
-            L.append(f"# {ch}: no candidate in the DBC")
+            L.append(f"# {ch}: no candidate in the DBC" + (" that moves in the log" if gone else ""))
             continue
         best = cs[0]
         unit = best.unit or "EDIT"
@@ -349,7 +418,9 @@ def draft(dbc: Path, cands: dict[str, list[Candidate]], name: str = "my-car", fa
             f"{ch} = {{ message = {toml_str(best.message)}, signal = {toml_str(best.signal)}, "
             f"unit = {toml_str(unit)}{extra} }}"
         )
-        if best.engine:  # left out: mapped as it is, stage 1 would read the gearbox's ratio as mass
+        if best.percent:  # a term of a composite, its weight the reference torque: the user's to give
+            L.append(f"# {ch}: {best.message}.{best.signal} [%]: " + PERCENT_NOTE.format(**vars(best)))
+        elif best.engine:  # left out: mapped as it is, stage 1 would read the gearbox's ratio as mass
             L.append(f"# {line}  # {ENGINE_NOTE}")
         elif best.wrong_kind:  # a name that matches, a unit that does not (STEER_TORQUE_SENSOR.STEER_ANGLE)
             L.append(

@@ -8,6 +8,7 @@ exit status 2, never a traceback.
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import logging
 import sys
@@ -18,8 +19,29 @@ from ..errors import VdpError
 SUBCOMMANDS = ("simulate", "replay", "serve", "export", "batch", "profile")
 
 
+class Parser(argparse.ArgumentParser):
+    """A parser that refuses the arguments it does not know itself, with its own usage and the
+    option they most look like: argparse hands a subcommand's unknown ones up to ``vdp``, whose
+    usage says nothing of the subcommand's options (``vdp replay --profle P``)."""
+
+    def parse_known_args(self, args=None, namespace=None):
+        ns, extras = super().parse_known_args(args, namespace)
+        if extras and self._subparsers is None:  # a subcommand (the top level's are its own)
+            hints = []
+            for a in extras:
+                flag = a.split("=", 1)[0]
+                if flag.startswith("-"):
+                    close = difflib.get_close_matches(flag, list(self._option_string_actions), n=1, cutoff=0.6)
+                    if close:
+                        hints.append(f"{flag} (did you mean {close[0]}?)")
+                        continue
+                hints.append(a)
+            self.error(f"unrecognized arguments: {' '.join(hints)}")
+        return ns, extras
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="vdp", description="Vehicle dynamic parameter estimation from CAN data.")
+    parser = Parser(prog="vdp", description="Vehicle dynamic parameter estimation from CAN data.")
     parser.add_argument("--version", action="version", version=f"vdp {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")

@@ -32,7 +32,7 @@ def add_parser(sub):
     c.add_argument("--seconds", type=float, default=300.0, help="bus time read from the log's start (default 300)")
     c.add_argument("--json", dest="json_out", metavar="PATH", help="write the findings as JSON")
     n = s.add_parser("new", help="draft a profile from a DBC (and a log): candidate signals per channel")
-    n.add_argument("--dbc", required=True, help="the car's DBC file")
+    n.add_argument("--dbc", required=True, help="the car's DBC file, or opendbc:NAME for one of the opendbc package")
     n.add_argument("--log", help="a CAN log of the car: rank the candidates by how their values behave")
     n.add_argument("--out", default="draft.toml", help="where to write the TOML draft (default draft.toml)")
     n.add_argument("--name", default="my-car", help="the vehicle's name in the draft")
@@ -45,17 +45,26 @@ def run_new(args) -> int:
     from ..scaffold import behaviour, candidates, draft
 
     check_output(args.out, "--out", (".toml",))
-    dbc = Path(args.dbc).resolve()
-    if not dbc.is_file():
-        raise ConfigError(f"--dbc {args.dbc}: no such file")
-    check_apart({"--out": args.out}, {"--dbc": args.dbc, "--log": args.log})
+    if args.dbc.startswith("opendbc:"):  # as a profile names it: the draft says it the same way
+        from ..opendbc import opendbc_path
+
+        dbc, ref = opendbc_path(f"--dbc {args.dbc}", args.dbc[len("opendbc:") :]), args.dbc
+    else:
+        dbc = ref = Path(args.dbc).resolve()
+        if not dbc.is_file():
+            raise ConfigError(
+                f"--dbc {args.dbc}: no such file (for a DBC of the opendbc package, say opendbc:NAME, "
+                f"e.g. opendbc:hyundai_kia_generic)"
+            )
+    dbc_input = {} if args.dbc.startswith("opendbc:") else {"--dbc": args.dbc}
+    check_apart({"--out": args.out}, {"--log": args.log, **dbc_input})
     db = dbcfix.load(dbc)
     cands = candidates(db)
     facts = behaviour(db, cands, args.log) if args.log else None
     for ch, cs in cands.items():
         best = ", ".join(f"{c.message}.{c.signal} [{c.dbc_unit or '-'}]" for c in cs[:3]) or "none"
         print(f"{ch:20} {best}")
-    write_text(args.out, draft(dbc, cands, args.name, facts))
+    write_text(args.out, draft(dbc, cands, args.name, facts, ref=str(ref)))
     print(f"wrote {args.out}: edit the values marked EDIT, then run vdp profile check LOG --profile {args.out}")
     return 0
 
@@ -86,7 +95,7 @@ def run(args) -> int:
         print("profile check: no mismatch found")
     if args.json_out:
         doc = rep.as_dict()
-        doc["coverage"] = {"messages": cov.wanted, "other_ids": cov.other[:20]}
+        doc["coverage"] = dict(cov.as_dict(), messages=cov.wanted, other_ids=cov.other[:20])
         write_text(args.json_out, json.dumps(doc, indent=2))
         print(f"wrote {args.json_out}")
     return 1 if out else 0

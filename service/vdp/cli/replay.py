@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from ..core.result import CONVERGED
-from ..errors import ConfigError
+from ..errors import ConfigError, ProfileError
 from .paths import check_apart, check_output, profile_inputs
 
 PLOT_ROWS = 20_000  # trace rows kept for --plot: a 4-hour log's 144,000 rows took ~140 MB
@@ -157,12 +157,22 @@ def run(args) -> int:
     ):
         if path:
             check_output(path, flag, suffixes)
-    profile = load_profile(profile_path(args.profile) if args.profile else default_profile())
+    path = profile_path(args.profile) if args.profile else default_profile()
+    profile = load_profile(path)
     outputs = {"--json": args.json_out, "--plot": args.plot, "--series": args.series, "--channels": args.channels}
     check_apart(outputs, {"the log": args.log, **profile_inputs(profile), "--truth": args.truth})
     # the profile self-check reads the log's first minutes; a log of another car stops here
     # quiet: the replay below reads the same lines and warns of what it skips, once
-    check, cov = profilecheck.check_log(args.log, profile, quiet=True)
+    try:
+        check, cov = profilecheck.check_log(args.log, profile, quiet=True)
+    except ProfileError as exc:
+        if args.profile:
+            raise
+        # the user chose no profile: say that this one was only the default
+        raise ProfileError(
+            f"{exc} (no --profile was given, so {path} was taken by default: it is vdp's simulated car; "
+            f"pass --profile with your car's profile, or draft one with vdp profile new)"
+        ) from None
     if cov.missing:  # fewer than half seen stopped check_log; a few missing still cost their channels
         print(f"profile check: {args.log}: {cov.message()}")
     for line in profilecheck.lines(check):

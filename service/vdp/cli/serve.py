@@ -44,7 +44,9 @@ def add_parser(sub):
     )
     p.add_argument("--noise", choices=NOISE_MODELS, help="--simulate: sensor noise model (default: the simulator's)")
     p.add_argument("--seed", type=int, default=1, help="--simulate: random seed (default 1)")
-    p.add_argument("--loop", action="store_true", help="--simulate: drive the scenario again and again")
+    p.add_argument(
+        "--loop", action="store_true", help="--simulate: drive the scenario again and again, the seed one up each time"
+    )
     p.add_argument("--profile", help="--simulate: vehicle profile (default: profiles/paper.toml)")
     p.add_argument(
         "--db", type=Path, help=f"estimate database (--simulate default: {SIM_DIR}/state.sqlite, in the current folder)"
@@ -204,13 +206,15 @@ def run(args) -> int:
             print(f"vdp serve: raw CAN log in {settings.raw_log.dir}", file=sys.stderr, flush=True)
         server.run(sockets=[sock])
     finally:
-        service.stop()
+        # a saturated queue holds ~32,000 frames, 7-10 s of estimation: a stop gives them STOP_BUDGET
+        service.stop(budget=STOP_BUDGET, say=lambda words: print(f"vdp serve: {words}", file=sys.stderr, flush=True))
         sock.close()
         lock.release()
         signal.signal(signal.SIGTERM, previous)
     return 0
 
 
+STOP_BUDGET = 1.0  # s a stop spends receiving's end and the queued frames: Ctrl-C exits within 2 s
 LIMIT_CONCURRENCY = 2048  # connections at most (fewer under a low open-file limit)
 HEALTH_RESERVE = 8  # of those, kept for GET /health: other requests in flight beyond the rest get 503
 FD_RESERVE = 256  # open files kept for everything but API sockets: raw logs, the store, the bus

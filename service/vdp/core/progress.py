@@ -197,7 +197,9 @@ def _too_hard(stage1: dict) -> str | None:
 
 def _hint(name, stage, status, p, to_go, prior_std, why_not, reasons, excitation, handed_over) -> str:
     if why_not:
-        return f"cannot be learnt on this car: {why_not}"
+        # a message the bus never carried may be the log's (another bus channel, a short log), not the car's
+        where = "from this bus" if "never carried" in why_not else "on this car"
+        return f"cannot be learnt {where}: {why_not}"
     if p.get("reason") is not None and not p.get("valid", status == CONVERGED) and status != INVALID:
         if "mismatch" not in p["reason"]:
             # e.g. I_x's "roll not excited: ...": other driving can fix it, and its reason says which

@@ -627,6 +627,7 @@ def align(al: Any, t: np.ndarray, per_channel: dict[int, tuple[np.ndarray, np.nd
     from .. import buffer
 
     depth, eps = buffer._DEPTH, buffer._EPS
+    per_channel = al.keep_block(per_channel)  # values beyond a car's limits: dropped, as push() does
     n_ch = len(al._t)
     out: list = []
     m = len(t)

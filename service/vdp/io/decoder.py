@@ -67,6 +67,7 @@ class DecodeStats:
         self._plain = plain  # plans that emit every output of every good frame: counted per frame
         self.invalid: tuple[str, ...] = ()  # channels flagged invalid right now
         self.invalid_samples: dict[tuple[str, str], int] = {}  # (channel, reason) -> values dropped
+        self.invalid_range: dict[tuple[str, str], tuple[float, float]] = {}  # ... and the range they spanned
         self.padded = 0  # short frames given their trailing zero bytes back ([can] pad_short)
         self._names = names  # plan key -> DBC message name
 
@@ -149,6 +150,7 @@ class _Plan:
         "cs_pos",
         "extract",
         "fixed_period",
+        "flagged",
         "frame_id",
         "good",
         "invalid",
@@ -172,6 +174,7 @@ class _Plan:
         self.cnt_mod = 16
         self.prev_count: int | None = None
         self.bad_run = 0
+        self.flagged = 0  # times it was flagged invalid
         self.invalid = False
         self.last_good: float | None = None
         self.last_seen: float | None = None
@@ -519,6 +522,8 @@ class FrameDecoder:
                     else:
                         k = (channels.NAMES[idx], why)
                     st.invalid_samples[k] = st.invalid_samples.get(k, 0) + 1
+                    r = st.invalid_range.get(k)
+                    st.invalid_range[k] = (v, v) if r is None else (min(r[0], v), max(r[1], v))
                     continue
             if idx >= channels.N:
                 comp, j = self._virtual[idx - channels.N]
@@ -543,15 +548,19 @@ class FrameDecoder:
             plan.invalid = invalid
             self.stats.invalid = tuple(sorted(self.invalid_channels))
         if invalid:
-            log.warning(
-                "%s (%s): %d bad counter/checksum frames in a row; channels %s invalid",
+            plan.flagged += 1
+            # said once per message: a counter that never counts as [checks] says flips the message
+            # invalid and back on every lucky frame (39 lines for 70 s); the profile check sums it up
+            (log.warning if plan.flagged == 1 else log.debug)(
+                "%s (%s): %d bad counter/checksum frames in a row; channels %s invalid%s",
                 plan.name,
                 _hex(plan.key),
                 plan.bad_run,
                 ", ".join(plan.channels) or "-",
+                " (said once; the decode stats count every bad frame)" if plan.flagged == 1 else "",
             )
         else:
-            log.info(
+            (log.info if plan.flagged == 1 else log.debug)(
                 "%s (%s): good frames again; channels %s valid",
                 plan.name,
                 _hex(plan.key),

@@ -65,6 +65,8 @@ class Estimation:
         self.publish_interval = publish_interval
         self.errors = 0  # frames on which estimation raised, and failed snapshots
         self.fed = 0
+        self.dropped = 0  # frames queued at a stop that ran out of time, not estimated
+        self._stop_by: float | None = None  # monotonic time by which a stop must be done
         self.restarts = 0
         self.restored = False  # the estimator started from stored estimates
         self._seq = itertools.count(1)
@@ -106,11 +108,26 @@ class Estimation:
             log.error("the estimation worker stopped; starting it again (restart %d)", self.restarts)
             self._spawn()
 
-    def stop(self, timeout: float = 60.0) -> None:
-        """Estimate what is queued, publish, and end the worker."""
+    def stop(self, timeout: float = 60.0, budget: float | None = None) -> None:
+        """Estimate what is queued, publish, and end the worker.  ``budget``: seconds to spend on
+        the queued frames at most; those left then are dropped and counted (:attr:`dropped`)."""
         if self.alive:
+            if budget is not None:
+                self._stop_by = time.monotonic() + budget
             self.queue.put(_STOP)
             self._thread.join(timeout=timeout)
+
+    def _drop_rest(self, item) -> None:
+        """Drop ``item`` and every frame queued before the stop; refuse the commands among them."""
+        q = self.queue
+        while item is not _STOP:
+            if isinstance(item, _Command):
+                if item.future.set_running_or_notify_cancel():
+                    item.future.set_exception(Unavailable("the service is stopping"))
+            else:
+                self.dropped += 1
+            item = q.get()
+        self.publish()
 
     # -- the worker --------------------------------------------------------------------------------
     def _work(self) -> None:
@@ -130,6 +147,9 @@ class Estimation:
                 next_pub = time.monotonic() + interval
                 continue
             if item is not None:
+                if self._stop_by is not None and time.monotonic() > self._stop_by:
+                    self._drop_rest(item)  # out of time to stop in: the rest is not estimated
+                    return
                 try:
                     # candump logs keep microseconds: rounding here makes the live estimate
                     # and a replay of the raw log see the very same numbers.

@@ -19,10 +19,11 @@ HTTP answers.
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future
 from typing import Any
 
 from .. import channels
@@ -73,7 +74,7 @@ class Service:
         # to the service's RSS (BENCHMARKS.md, "Compiled estimator").
         # Stage 2's batch check solves in a background thread: numpy's ~20 s for a full record of a
         # bending tyre would stop this worker, whose queue holds ~8 s of a saturated bus.
-        self.checks = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vdp-check")
+        self.checks = CheckThread()
         learner = LearnerConfig(per_axle=settings.service.per_axle, compiled=False, check_executor=self.checks)
         cfg = EstimatorConfig(trace_len=600, learner=learner)
         pipe = pipeline if pipeline is not None else Pipeline(self.profile, cfg)
@@ -111,22 +112,42 @@ class Service:
         self._keeper.start()
         self.running = True
 
-    def stop(self) -> None:
-        """Stop receiving, estimate what is queued, commit, close the files."""
+    def stop(self, budget: float | None = None, say: Callable[[str], None] | None = None) -> None:
+        """Stop receiving, estimate what is queued (``budget``: seconds for both at most; the frames
+        left then are dropped and counted in ``estimation.dropped``), commit, close the files.  ``say``: told
+        what the stop is finishing, and what it left (the CLI prints it)."""
         if not self.running:
             return
+        t0 = time.monotonic()
         self.running = False
         self.ingest.stop()
         self._stop.set()
         if self._keeper is not None:
             self._keeper.join(timeout=10.0)
-        self.estimation.stop()
+        queued = self.ingest.queue.qsize()
+        left = None if budget is None else max(budget - (time.monotonic() - t0), 0.0)  # receiving took its share
+        closing = ", closing the raw log" if self.ingest.rawlog is not None else ""
+        head = f"estimating the {queued} frames still queued" + (f" (for {left:.1f} s at most)" if left else "")
+        (say or log.info)(f"stopping: {head}, saving the estimates{closing}")
+        self.estimation.stop(budget=left)
+        if self.estimation.dropped:
+            (say or log.info)(
+                f"{self.estimation.dropped} of the {queued} queued frames were not estimated ({self.dropped_note()})"
+            )
         # a check still solving is not waited for: its fit would come after the last commit
         self.checks.shutdown(wait=False, cancel_futures=True)
         self.commit()
         self.ingest.close()
         self.writer.close()
         log.info("service stopped")
+
+    def dropped_note(self) -> str:
+        """What the frames a stop left unestimated cost."""
+        if self.sim is not None:
+            return "simulated frames: nothing is lost"
+        if self.settings.raw_log.enabled:
+            return f"the raw log in {self.settings.raw_log.dir} has them: vdp replay it to estimate them too"
+        return "they are lost: enable the raw log to keep every frame"
 
     def _restore(self, stored: dict) -> None:
         if not stored:
@@ -367,3 +388,52 @@ class Service:
             "channels_stale": sum(1 for f in r.channels.values() if f.stale),
             "channels": len(channels.NAMES),
         }
+
+
+class CheckThread:
+    """The background batch checks' executor: one daemon thread, the checks in turn.
+
+    Not a ThreadPoolExecutor: the interpreter joins its workers at exit, so a fit still solving
+    when the service stopped held Ctrl-C's exit for seconds after "service stopped".  A daemon
+    thread ends with the process; the fit it was solving comes after the last commit anyway.
+    """
+
+    def __init__(self):
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._down = False
+        self._thread = threading.Thread(target=self._run, name="vdp-check", daemon=True)
+        self._thread.start()
+
+    def submit(self, fn: Callable, *args) -> Future:
+        if self._down:
+            raise RuntimeError("the checks' thread is shut down")
+        fut: Future = Future()
+        self._jobs.put((fut, fn, args))
+        return fut
+
+    def shutdown(self, wait: bool = False, cancel_futures: bool = True) -> None:
+        """No new checks; those not begun are cancelled; ``wait``: for the one solving to end."""
+        self._down = True
+        while True:
+            try:
+                job = self._jobs.get_nowait()
+            except queue.Empty:
+                break
+            if job is not None and cancel_futures:
+                job[0].cancel()
+        self._jobs.put(None)
+        if wait:
+            self._thread.join()
+
+    def _run(self) -> None:
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            fut, fn, args = job
+            if not fut.set_running_or_notify_cancel():
+                continue
+            try:
+                fut.set_result(fn(*args))
+            except BaseException as exc:
+                fut.set_exception(exc)

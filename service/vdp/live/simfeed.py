@@ -36,7 +36,10 @@ class SimFeed:
         self.channel = channel
         self.backlog = backlog
         kw = {} if cfg.noise is None else {"noise": cfg.noise}
-        self._make = lambda start: Simulation(profile, cfg.scenario, cfg.seed, start_time=start, **kw)
+        # each loop drives with the next seed (SEED, SEED + 1, ...): the live demo's noise and
+        # driving differ from loop to loop, as a car's drives do, instead of repeating one drive
+        self.seed = cfg.seed
+        self._make = lambda start: Simulation(profile, cfg.scenario, self.seed, start_time=start, **kw)
         # Start on a whole second: the estimator's sample grid then sits at the same phase
         # of the frames every run, so a simulated drive gives the same numbers each time.
         self._sim = self._make(float(int(time.time())))  # validates scenario and noise now
@@ -78,7 +81,7 @@ class SimFeed:
         return {
             "scenario": self.cfg.scenario,
             "speed": self.cfg.speed,
-            "seed": self.cfg.seed,
+            "seed": self.seed,  # the current loop's (--seed, plus one per loop)
             "noise": self.truth.get("noise", {}).get("model", self.cfg.noise),
             "sim_time": self.sim_time,
             "duration": self.duration,
@@ -111,7 +114,8 @@ class SimFeed:
                 if self._stop.is_set() or not self.cfg.loop or last is None:
                     break
                 self.loops += 1
-                log.info("simulation: scenario %s done; starting it again", self.cfg.scenario)
+                self.seed = self.cfg.seed + self.loops
+                log.info("simulation: scenario %s done; starting it again (seed %d)", self.cfg.scenario, self.seed)
                 sim = self._remake(float(int(last) + 2))
                 if sim is None:
                     break
