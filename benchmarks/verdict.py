@@ -60,9 +60,8 @@ def table(title: str, by: dict[str, list[dict]]) -> list[str]:
             f"| {off} | {beyond} | {cover} ({100 * cover / len(cs):.0f} %) |"
         )
     n = max(tot[0], 1)
-    rows.append(
-        f"| all | {tot[0]} | {tot[1]} ({100 * tot[1] / n:.0f} %) | {tot[2]} | {tot[3]} | {tot[4]} ({100 * tot[4] / n:.0f} %) |"
-    )
+    share = f"{tot[1]} ({100 * tot[1] / n:.0f} %)"
+    rows.append(f"| all | {tot[0]} | {share} | {tot[2]} | {tot[3]} | {tot[4]} ({100 * tot[4] / n:.0f} %) |")
     return [*rows, ""]
 
 

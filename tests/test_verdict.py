@@ -140,3 +140,16 @@ def test_per_axle_values_follow_the_same_verdict(repo_root):
     assert x["per_axle_valid"], x
     spec = BY_NAME["C_alpha"]
     assert x["C_alpha_front_std"] >= spec.floor_rel * x["C_alpha_front"]
+
+
+def test_the_colour_costs_in_proportion_to_the_residuals_size():
+    """The sandwich: the filter's variance times the residuals' size (1: as a matching model
+    leaves them) times their AR(1) variance inflation, never below the filter's own."""
+    from vdp.core.learner import _widen
+
+    assert _widen(0.9, 1.0) == pytest.approx(math.sqrt(19.0))
+    # residuals a tenth of the noise (a noise-free drive of a car vdp does not model): a tenth of it
+    assert _widen(0.9, 0.1) == pytest.approx(math.sqrt(1.9))
+    assert _widen(0.0, 0.1) == 1.0 and _widen(None, 3.0) == pytest.approx(math.sqrt(3.0))
+    # continuous across every limit: a whiteness statistic at 0.449 or 0.452 costs the same
+    assert _widen(0.452, 1.0) / _widen(0.449, 1.0) == pytest.approx(1.0, abs=0.01)

@@ -78,6 +78,10 @@ LOAD_SENSITIVITY = 0.1
 # noise-free drive) and their colour is numerical: 0.003 and 0.011 on vdp's own noise-free
 # drives, where the lag-1 correlation reached 0.27; 0.06-0.22 on the independent models'.
 CHI2_QUIET = 0.03
+# The reduced chi-square of stage 1's batch residuals that a matching model leaves with realistic
+# noise (R is the sensors' noise inflated by Noise.inflate): 0.22 and 0.32 on vdp/paper seed 1 and
+# vdp/small seed 2 (the tuning cases, docs/decisions/0001-honest-std.md).  The size in _widen.
+CHI2_MATCHED = 0.3
 RHO_MISMATCH_2 = 0.45  # stage 2's a_y innovations (0.31 on one vdp seed with its a_y bias, 0.65 on brush tyres)
 # I_x's model error when the roll-rate innovations show a mismatch (relative, 1 sigma): eq (9)
 # puts the whole mass at the CG height h, rolling about the ground.  A car rolls its sprung
@@ -235,15 +239,20 @@ def quad_form(y: list[float], S: list[list[float]]) -> float | None:
     return total
 
 
-def _widen(rho: float | None, nis: float | None = None) -> float:
-    """Factor on the stds for correlated residuals (rho) and innovations larger than predicted."""
-    k = 1.0
+def _widen(rho: float | None, size: float = 1.0) -> float:
+    """Factor on the stds: the square root of the sandwich's factor on the filter's variance,
+    the residuals' ``size`` against what a matching model leaves (1) times what their colour
+    costs, (1 + rho) / (1 - rho): a mean over AR(1) residuals holds n (1 - rho) / (1 + rho)
+    independent ones (the effective sample size).  Never below 1: the filter's own std is the
+    least.  Continuous in both: no statistic crossing a limit makes the std jump (issue 24).
+    Residuals far below the noise (a noise-free drive) cost their colour in proportion: before,
+    their colour was either ignored or charged in full, and a noise-free drive of a car vdp
+    does not model could sit with l_f's std 6x too wide and stage 2 never starting."""
+    k = size
     if rho is not None and rho > 0.0:
         r = min(rho, 0.95)
         k *= (1.0 + r) / (1.0 - r)
-    if nis is not None and nis > NIS_MATCHED:
-        k *= nis / NIS_MATCHED
-    return math.sqrt(k)
+    return math.sqrt(max(k, 1.0))
 
 
 class Consistency:
@@ -354,14 +363,14 @@ def _verdict(c: Consistency, size: str, colour: str, kind: str) -> tuple[float, 
     nis, rho = c.ratio, c.rho
     if nis is None or c.n < Consistency.RECENT:
         return 1.0, None
-    if nis < 0.5 * NIS_MATCHED:
-        rho = None  # residuals far below the noise (a noise-free drive): their colour says nothing
     why = []
     if nis > NIS_MISMATCH:
         why.append(f"{size} {math.sqrt(nis / NIS_MATCHED):.1f}x the size a matching model leaves")
-    if rho is not None and rho > RHO_MISMATCH_2:
+    # residuals far below the noise (a noise-free drive): their colour is no finding (the factor
+    # charges it in proportion to their size)
+    if rho is not None and rho > RHO_MISMATCH_2 and nis >= 0.5 * NIS_MATCHED:
         why.append(f"{colour} not white (lag-1 correlation {rho:.3f} > {RHO_MISMATCH_2})")
-    return _widen(rho, nis), (f"{kind}: " + "; ".join(why)) if why else None
+    return _widen(rho, nis / NIS_MATCHED), (f"{kind}: " + "; ".join(why)) if why else None
 
 
 class Hard(str):
@@ -753,7 +762,7 @@ class Stage1(StageLearner):
                 "the tyre's force-slip curve bends or is offset at zero torque (a real tyre): its "
                 "stiffness's load sensitivity, which the slips cannot tell from h, is not in the model"
             )
-        return (1.0 if quiet else _widen(f.rho)), ("model mismatch: " + "; ".join(why)) if why else None
+        return _widen(f.rho, f.chi2 / CHI2_MATCHED), ("model mismatch: " + "; ".join(why)) if why else None
 
     def model_error(self) -> np.ndarray | None:
         """How far apart the batch optima of the low- and the high-slip half of the blocks are.
