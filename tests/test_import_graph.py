@@ -29,6 +29,8 @@ STAGE = {
     "vdp.core.sample": 0,
     "vdp.result": 0,
     "vdp.io.dbcfix": 0,  # repairs DBC text as a profile is loaded
+    "vdp.text": 0,  # names escaped for the formats they go into (the standard library only)
+    "vdp.outfile": 0,  # every user file written whole (temporary file, rename; the standard library only)
     "vdp.io.logs": 1,  # source
     "vdp.io": 2,  # decode
     "vdp.io.bulk": 3,  # decodes and aligns blocks of a candump log

@@ -153,3 +153,16 @@ def test_the_colour_costs_in_proportion_to_the_residuals_size():
     assert _widen(0.0, 0.1) == 1.0 and _widen(None, 3.0) == pytest.approx(math.sqrt(3.0))
     # continuous across every limit: a whiteness statistic at 0.449 or 0.452 costs the same
     assert _widen(0.452, 1.0) / _widen(0.449, 1.0) == pytest.approx(1.0, abs=0.01)
+
+
+def test_a_restore_from_published_values_does_not_add_the_floor_twice(learner):
+    """A restart restores the published (value, std); the std holds the floor, which the next
+    snapshot adds: taken out at the restore, the std is the same after any number of restarts."""
+    with_rel_std(learner, 0.004)
+    first = learner.snapshot()
+    for _ in range(3):
+        snap = learner.snapshot()
+        names = learner.names  # C_alpha, I_z, I_x: what TwoStageEstimator.restore hands a learner
+        learner.set_params([snap[n].value for n in names], np.diag([snap[n].std ** 2 for n in names]), 5000)
+        for n in ("I_z", "I_x"):
+            assert learner.snapshot()[n].std == pytest.approx(first[n].std, rel=1e-9), n

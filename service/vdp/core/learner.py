@@ -447,7 +447,12 @@ class StageLearner:
 
     def set_params(self, theta, cov, samples: int) -> None:
         """Start from given estimates of the published parameters (a restart restoring stored values)."""
-        self.theta, self.theta_P = self._unpublish(np.asarray(theta, dtype=float), np.asarray(cov, dtype=float))
+        theta, cov = np.asarray(theta, dtype=float), np.array(cov, dtype=float)
+        if samples > 0:  # a published std holds the model's floor (honest_std): the snapshot adds it again
+            for i, name in enumerate(self.names):
+                f = BY_NAME[name].floor_rel * abs(theta[i])
+                cov[i, i] = max(cov[i, i] - f * f, 0.01 * cov[i, i])
+        self.theta, self.theta_P = self._unpublish(theta, cov)
         self.cross = None
         self._good = (self.theta.copy(), self.theta_P.copy(), None)
         self.samples = max(self.samples, int(samples))
