@@ -316,9 +316,10 @@ def test_per_axle_prior_and_a_drive_that_does_not_separate_the_axles(profile):
     l2.theta_P[:2, :2] = np.diag([m * m, m * m])
     e = l2.snapshot()["C_alpha"]
     assert e.valid and e.extra["per_axle_valid"] is True and e.extra["per_axle_reason"] is None
-    # a restore from the published mean keeps the mean's std; the difference is held (SPLIT_HELD of
-    # the prior's) until a window's data know the mean, then freed (test below)
-    l2.set_params([c.value, 2000.0, 500.0], np.diag(np.square([m, 20.0, 100.0])), 100)
+    # a restore from the published mean (its std holds the model's floor) keeps the mean's std; the
+    # difference is held (SPLIT_HELD of the prior's) until a window's data know the mean, then freed
+    # (test below)
+    l2.set_params([c.value, 2000.0, 500.0], np.diag(np.square([math.hypot(m, floor), 50.0, 100.0])), 100)
     diff = math.sqrt(l2.theta_P[0, 0] + l2.theta_P[1, 1] - 2 * l2.theta_P[0, 1])
     assert diff == pytest.approx(learner.SPLIT_HELD / learner.AXLE_SPLIT * l2.prior_diff_std)
     assert l2.snapshot()["C_alpha"].std == pytest.approx(math.hypot(m, floor))
