@@ -495,7 +495,7 @@ class StageLearner:
         pub, pcov = self._publish(theta, cov)
         out = {}
         factor, why = self.mismatch()
-        err = self.model_error() if why is not None else None
+        err = self.model_error()  # None, or weighted by how strongly the data show the mismatch
         for i, name in enumerate(self.names):
             spec = BY_NAME[name]
             value = float(pub[i])
@@ -774,9 +774,27 @@ class Stage1(StageLearner):
 
         A model that explains the data gives the same parameters on both halves (within
         noise); a bending tyre gives a lower C_K on the high-slip half, and l_f and h take
-        part of it.  The difference is the size of the model's error in this drive.
+        part of it.  The difference is the size of the model's error in this drive, taken in
+        full once the residuals' colour reaches RHO_MISMATCH (or the tyre's shape is free), and
+        from half of it in proportion: a std that steps up as a statistic crosses its limit
+        would flip l_f, h and C_K at once (issue 24).
         """
-        return self.spread
+        w = self.spread_weight()
+        return None if self.spread is None or w == 0.0 else w * self.spread
+
+    def spread_weight(self) -> float:
+        """0-1: how much of the halves' spread (model_error) the stds take."""
+        f = self.fit
+        if f is None:
+            return 0.0
+        if self.shaped:
+            return 1.0
+        colour = min(1.0, max(0.0, 2.0 * f.rho / RHO_MISMATCH - 1.0))
+        # residuals far below the noise (a noise-free drive: chi2 0.003-0.011 on vdp's own model,
+        # 0.06-0.22 on the independent ones) say nothing by their colour; from CHI2_QUIET to twice
+        # it the spread comes in
+        size = min(1.0, max(0.0, f.chi2 / CHI2_QUIET - 1.0))
+        return colour * size
 
     def _test_shape(self, U, Z, R, prior, fit):
         """Free the tyre's shape if the data demand it (SHAPE_LR): (fit, t0, P0) with it free, or None."""
@@ -1083,7 +1101,7 @@ class Stage1(StageLearner):
                 fit, t0, P0 = shaped
                 self.filter.set_state(fit.t, fit.cov)
         self.fit = fit
-        if self.mismatch()[1] is None:
+        if self.spread_weight() == 0.0:
             self.spread = None
         elif self.spread is None or far:
             # four more solves: the model's error in a drive changes slowly, so not at every check
