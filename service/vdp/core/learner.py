@@ -776,7 +776,7 @@ class Stage1(StageLearner):
         noise); a bending tyre gives a lower C_K on the high-slip half, and l_f and h take
         part of it.  The difference is the size of the model's error in this drive, taken in
         full once the residuals' colour reaches RHO_MISMATCH (or the tyre's shape is free), and
-        from half of it in proportion: a std that steps up as a statistic crosses its limit
+        from three quarters of it in proportion: a std that steps up as a statistic crosses its limit
         would flip l_f, h and C_K at once (issue 24).
         """
         w = self.spread_weight()
@@ -789,7 +789,9 @@ class Stage1(StageLearner):
             return 0.0
         if self.shaped:
             return 1.0
-        colour = min(1.0, max(0.0, 2.0 * f.rho / RHO_MISMATCH - 1.0))
+        # from 0.75 RHO_MISMATCH (0.09: vdp's own simulator's residuals reach 0.08, the tuning
+        # cases) to RHO_MISMATCH in proportion
+        colour = min(1.0, max(0.0, 4.0 * f.rho / RHO_MISMATCH - 3.0))
         # residuals far below the noise (a noise-free drive: chi2 0.003-0.011 on vdp's own model,
         # 0.06-0.22 on the independent ones) say nothing by their colour; from CHI2_QUIET to twice
         # it the spread comes in
