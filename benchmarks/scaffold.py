@@ -37,26 +37,28 @@ import re
 import sys
 import tempfile
 import time
-import tomllib
 from pathlib import Path
+
+import tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "service"))
 
 REAL = Path("/work/shared/data/real")
+WHEELS = ("fl", "fr", "rl", "rr")
 # Other opendbc cars: (DBC, [channels] lines) as openpilot's carstate reads the signals
 BUILT = {
     "subaru_global_2017": (
         "subaru_global_2017_generated",
         {
-            **{f"wheel_speed_{w}": ("Wheel_Speeds", w.upper(), "km/h") for w in ("fl", "fr", "rl", "rr")},
+            **{f"wheel_speed_{w}": ("Wheel_Speeds", w.upper(), "km/h") for w in WHEELS},
             "steering_angle": ("Steering_Torque", "Steering_Angle", "deg"),
         },
     ),
     "honda_civic_2016": (
         "honda_civic_touring_2016_can_generated",
         {
-            **{f"wheel_speed_{w}": ("WHEEL_SPEEDS", f"WHEEL_SPEED_{w.upper()}", "km/h") for w in ("fl", "fr", "rl", "rr")},
+            **{f"wheel_speed_{w}": ("WHEEL_SPEEDS", f"WHEEL_SPEED_{w.upper()}", "km/h") for w in WHEELS},
             "steering_angle": ("STEERING_SENSORS", "STEER_ANGLE", "deg"),
         },
     ),
@@ -102,16 +104,15 @@ def built_profile(name: str, dbc: str, chans: dict, where: Path) -> Path:
     return path
 
 
-def reference(prof) -> dict[str, tuple[set[tuple[str, str]], bool]]:
-    """channel -> (the (message, signal) pairs that count as right, whether a composite)."""
-    from vdp.profile import Composite
-
+def reference(path: Path) -> dict[str, tuple[set[tuple[str, str]], bool]]:
+    """channel -> (the (message, signal) pairs that count as right, whether a composite), as the
+    profile's [channels] writes them (not the axle torques its [drivetrain] derives)."""
     out = {}
-    for ch, cm in [*prof.channels.items(), *prof.sources.items(), *prof.composites.items()]:
-        if isinstance(cm, Composite):
-            out[ch] = ({(t.map.message, t.map.signal) for t in cm.terms}, True)
+    for ch, cm in tomllib.loads(path.read_text())["channels"].items():
+        if "terms" in cm:
+            out[ch] = ({(t["message"], t["signal"]) for t in cm["terms"]}, True)
         else:
-            out[ch] = ({(cm.message, cm.signal)}, False)
+            out[ch] = ({(cm["message"], cm["signal"])}, False)
     return out
 
 
@@ -143,30 +144,31 @@ def in_log(log: Path, db, channel: str | None, seconds: float) -> dict[str, tupl
     return span
 
 
-def junk_why(db, message: str, signal: str, span) -> str | None:
-    sig = db.get_message_by_name(message).get_signal_by_name(signal)
-    if JUNK.search(signal):
+def junk_why(db, c, span) -> str | None:
+    sig = db.get_message_by_name(c.message).get_signal_by_name(c.signal)
+    if JUNK.search(c.signal):
         return "name"
-    if sig.choices and sig.length <= 8:
-        return "value table"
-    lohi = span.get(f"{message}.{signal}")
-    if lohi is not None and lohi[0] == lohi[1]:
-        return "constant"
+    lo, hi = sig.minimum, sig.maximum
+    inside = [r for r in sig.choices or {} if lo is None or hi is None or lo <= r * sig.scale + sig.offset <= hi]
+    if inside and sig.length <= 8:
+        return "value table"  # named values within its range: a state (codes beyond it mark no value)
+    moves = [span.get(f"{c.message}.{s}") for s in (c.signal, c.fine) if s]
+    if moves[0] is not None and all(lohi is None or lohi[0] == lohi[1] for lohi in moves):
+        return "constant"  # (with its fine part, if it has one: STEER_ANGLE in 1.5 deg steps)
     return None
 
 
-def score(car: str, dbc: Path, prof, log: Path, channel: str | None, seconds: float) -> dict:
+def score(car: str, dbc: Path, path: Path, log: Path, channel: str | None, seconds: float) -> dict:
     from vdp.io import dbcfix
-    from vdp.scaffold import behaviour, candidates
+    from vdp.scaffold import propose
 
     db = dbcfix.load(dbc)
-    by_name = candidates(db)
+    by_name, _ = propose(db)
     first_name = {ch: (cs[0].message, cs[0].signal) for ch, cs in by_name.items() if cs}
-    cands = candidates(db)
-    behaviour(db, cands, log, seconds=seconds)
+    cands, _ = propose(db, log, seconds=seconds)  # as `vdp profile new --dbc DBC --log LOG` runs it
     first = {ch: (cs[0].message, cs[0].signal) for ch, cs in cands.items() if cs}
     span = in_log(log, db, channel, seconds)
-    ref = reference(prof)
+    ref = reference(path)
     row = {"car": car, "n": 0, "right": 0, "name_right": 0, "composites": 0, "wrong": [], "firsts": 0, "junk": []}
     for ch, (pairs, composite) in ref.items():
         if not all(f"{m}.{s}" in span for m, s in pairs):
@@ -178,11 +180,13 @@ def score(car: str, dbc: Path, prof, log: Path, channel: str | None, seconds: fl
         if first.get(ch) not in pairs:
             got = ".".join(first[ch]) if ch in first else "nothing"
             row["wrong"].append(f"{ch}: {got}")
-    for ch, (m, s) in first.items():
+    for ch, cs in cands.items():
+        if not cs:
+            continue
         row["firsts"] += 1
-        why = junk_why(db, m, s, span)
+        why = junk_why(db, cs[0], span)
         if why:
-            row["junk"].append(f"{ch}: {m}.{s} ({why})")
+            row["junk"].append(f"{ch}: {cs[0].message}.{cs[0].signal} ({why})")
     return row
 
 
@@ -193,7 +197,7 @@ def simulated(car: str, path: Path, tmp: Path, duration: float, seed: int) -> di
     prof = load_profile(path)
     log = tmp / f"{car}.log"
     write_log(Simulation(prof, "paper", seed=seed, duration=duration).frames(), log)
-    return score(car, prof.dbc, prof, log, None, duration + 1)
+    return score(car, prof.dbc, path, log, None, duration + 1)
 
 
 def main() -> int:
@@ -219,8 +223,9 @@ def main() -> int:
         if (REAL / "rav4-2018-highway-60s.log.gz").exists():
             drives.append((REAL / "rav4-2018-highway-60s.log.gz", REAL / "toyota_new_mc_pt_generated.dbc", 60.0))
         for log, dbc, secs in drives:
-            held.append(score(f"real RAV4, {secs:.0f} s (held out)", dbc, rav4, log, rav4.bus_channel, secs))
-    print(f"| car | channels in the log | right (with the log) | right (DBC alone) | composites | first choices | junk |")
+            held.append(score(f"real RAV4, {secs:.0f} s (held out)", dbc, rav4.path, log, rav4.bus_channel, secs))
+    head = ("car", "channels in the log", "right (with the log)", "right (DBC alone)", "composites", "first choices")
+    print("| " + " | ".join([*head, "junk"]) + " |")
     print("|---|---|---|---|---|---|---|")
 
     def line(r):

@@ -46,8 +46,9 @@ _PATTERNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # "rol" as in Ford's VehRol_W_Actl, not in CONTROL, sCROLL, ROLLing or contROLLER
     "roll_rate": ((r"(?<!cont)(?<!sc)rol(?!l(?:ing|er))|wank",), (r"rate|_w_|rt", r"veh|imu")),
     "speed": ((r"gps|gnss|nav",), (r"sp(ee)?d|vel|_v_",)),
-    "drive_torque": ((r"tq|torq|moment",), (r"wh(ee)?l|whl|prpl|drive|axle|rad", r"tot|actl|ist")),
-    "brake_torque": ((r"tq|torq|moment", r"brk|brake|brems"), (r"tot|actl|ist",)),
+    # "Mom" as in VW's MO_Mom_Ist_Summe: a token, not MOMentary
+    "drive_torque": ((rf"tq|torq|moment|{_B}mom{_E}",), (r"wh(ee)?l|whl|prpl|drive|axle|rad", r"tot|actl|ist")),
+    "brake_torque": ((rf"tq|torq|moment|{_B}mom{_E}", r"brk|brake|brems"), (r"tot|actl|ist",)),
     "brake_pressure": ((r"pres|druck", r"brk|brake|brems|esp|cyl"), (r"mc|master|haupt|bremsdruck|cyl",)),
     "wheel_torque_front": ((r"tq|torq", rf"front|vorder|{_B}(fa|va){_E}"), (r"wh(ee)?l|axle|achs",)),
     "wheel_torque_rear": ((r"tq|torq", rf"rear|hinter|{_B}(ra|ha){_E}"), (r"wh(ee)?l|axle|achs",)),
@@ -109,6 +110,7 @@ PERCENT_NOTE = (
     'signal = "{signal}", unit = "%", weight = EDIT }}] (profiles/hyundai_elantra_2017.toml does it)'
 )
 _STEERING = re.compile(r"steer|str(?!nd)|mdps|eps|lkas|lenk")
+_BRAKE = re.compile(r"brk|brake|brems")
 _TORQUES = ("drive_torque", "brake_torque", "wheel_torque_front", "wheel_torque_rear")
 
 
@@ -139,6 +141,25 @@ def _fine(msg, sig) -> str | None:
     return None
 
 
+def _sentinels(sig) -> bool:
+    """Whether the value table only names codes outside the signal's [min|max] (Ford's GPS_Speed:
+    254 Unknown, 255 Invalid): a measurement with its no-value codes, not a state."""
+    lo, hi = sig.minimum, sig.maximum
+    if lo is None or hi is None:
+        return False
+    return all(not lo <= raw * (sig.scale or 1.0) + (sig.offset or 0.0) <= hi for raw in sig.choices)
+
+
+def _elsewhere(ch: str, name: str) -> bool:
+    """Whether a signal's own name matches another channel's patterns and not ``ch``'s: it came in
+    by its message's name (Yaw_Data_FD1.VehRol_W_Actl for yaw_rate), and it is the other's."""
+    if all(re.search(p, name) for p in _PATTERNS[ch][0]):
+        return False
+    # the torques' patterns nest (every brake torque's name is also a drive torque's): not among them
+    others = [o for o in _PATTERNS if o != ch and not (ch in _TORQUES and o in _TORQUES)]
+    return any(all(re.search(p, name) for p in _PATTERNS[o][0]) for o in others)
+
+
 def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
     """Per channel (and source), the best-scoring signals of the DBC by name and unit."""
     out: dict[str, list[Candidate]] = {}
@@ -152,8 +173,12 @@ def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
                 name = f"{m.name}.{s.name}".lower()
                 if not all(re.search(p, name) for p in must) or _NOT.search(s.name.lower()) or s.length < 6:
                     continue
-                if s.choices and (s.length <= 8 or 2 * len(s.choices) >= 2**s.length):
+                if s.choices and (s.length <= 8 or 2 * len(s.choices) >= 2**s.length) and not _sentinels(s):
                     continue  # a value table over a short field: a state or a mode, not a measured quantity
+                if _elsewhere(ch, s.name.lower()):
+                    continue  # its own name is another channel's (FLWheelSpd in a "Front" message for fr)
+                if ch == "drive_torque" and _BRAKE.search(s.name.lower()):
+                    continue  # a brake's torque (VW's PLA_Bremsmoment) never drives
                 unit = unit_of(s.unit)
                 if (
                     ch in _TORQUES
@@ -178,6 +203,21 @@ def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
     return out
 
 
+def propose(
+    db, log_path: str | Path | None = None, top: int = 5, seconds: float = 120.0
+) -> tuple[dict[str, list[Candidate]], LogFacts | None]:
+    """The candidates ``vdp profile new`` shows: by name and unit, and with a log re-ranked by
+    behaviour (see :func:`behaviour`) from a longer list, so that a signal the names rank sixth
+    (Hyundai's EMS11.TQI_ACOR among five torques that tie) can still come first."""
+    if log_path is None:
+        return candidates(db, top), None
+    cands = candidates(db, top=4 * top)
+    facts = behaviour(db, cands, log_path, seconds)
+    for cs in cands.values():
+        del cs[top:]
+    return cands, facts
+
+
 @dataclass
 class LogFacts:
     """What the log says of the [can] section: the bus channel that carries every mapped message
@@ -196,6 +236,7 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
     from .io.logs import open_log
 
     wanted = {(c.message, c.signal) for cs in cands.values() for c in cs}
+    wanted |= {(c.message, c.fine) for cs in cands.values() for c in cs if c.fine}
     by_id = {}
     for m in db.messages:
         if any(msg == m.name for msg, _ in wanted):
@@ -244,10 +285,17 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
             return 0.0
         return float(np.corrcoef(a[:n], b[:n])[0, 1])
 
+    def whole(c):  # with its finer part: a coarse angle in 1.5 deg steps may sit still on a straight
+        g, f = on_grid((c.message, c.signal)), on_grid((c.message, c.fine)) if c.fine else None
+        if g is None or f is None:
+            return g
+        n = min(len(g), len(f))
+        return g[:n] + f[:n]
+
     still: dict[str, list[str]] = {}
     for ch, cs in cands.items():
         for c in list(cs):
-            g = on_grid((c.message, c.signal))
+            g = whole(c)
             if g is None:
                 c.score -= 2.0
                 c.note = "not in the log"
@@ -255,7 +303,7 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
                 cs.remove(c)
                 still.setdefault(ch, []).append(f"{c.message}.{c.signal}")
     for c in cands.get("steering_angle", []):  # an angle is signed and centred near 0 on a drive
-        g = on_grid((c.message, c.signal))
+        g = whole(c)
         if g is None:
             continue
         lo, mid, hi = np.percentile(g, [5, 50, 95])
@@ -289,7 +337,7 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
             for c in cands.get(ch, []):
                 _with_dvdt(c, on_grid((c.message, c.signal)), dvdt, -1, corr)
         cands["steering_angle"].sort(key=lambda c: -c.score)
-        steer = next((on_grid((c.message, c.signal)) for c in cands["steering_angle"][:1]), None)
+        steer = next((whole(c) for c in cands["steering_angle"][:1]), None)
         if steer is not None:
             n = min(len(steer), len(ref))
             turn = steer[:n] * ref[:n]
