@@ -169,7 +169,8 @@ def score(car: str, dbc: Path, path: Path, log: Path, channel: str | None, secon
     first = {ch: (cs[0].message, cs[0].signal) for ch, cs in cands.items() if cs}
     span = in_log(log, db, channel, seconds)
     ref = reference(path)
-    row = {"car": car, "n": 0, "right": 0, "name_right": 0, "composites": 0, "wrong": [], "firsts": 0, "junk": []}
+    row = {"car": car, "n": 0, "right": 0, "name_right": 0, "composites": 0, "firsts": 0}
+    row |= {"wrong": [], "junk": [], "extra": [], "name_wrong": []}
     for ch, (pairs, composite) in ref.items():
         if not all(f"{m}.{s}" in span for m, s in pairs):
             continue  # a channel the log does not carry: not counted
@@ -177,6 +178,9 @@ def score(car: str, dbc: Path, path: Path, log: Path, channel: str | None, secon
         row["composites"] += composite
         row["right"] += first.get(ch) in pairs
         row["name_right"] += first_name.get(ch) in pairs
+        if first_name.get(ch) not in pairs:
+            got = ".".join(first_name[ch]) if ch in first_name else "nothing"
+            row["name_wrong"].append(f"{ch}: {got}")
         if first.get(ch) not in pairs:
             got = ".".join(first[ch]) if ch in first else "nothing"
             row["wrong"].append(f"{ch}: {got}")
@@ -184,6 +188,8 @@ def score(car: str, dbc: Path, path: Path, log: Path, channel: str | None, secon
         if not cs:
             continue
         row["firsts"] += 1
+        if ch not in ref:
+            row["extra"].append(f"{ch}: {cs[0].message}.{cs[0].signal} [{cs[0].dbc_unit or '-'}]")
         why = junk_why(db, cs[0], span)
         if why:
             row["junk"].append(f"{ch}: {cs[0].message}.{cs[0].signal} ({why})")
@@ -204,6 +210,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--duration", type=float, default=60.0, help="seconds of each simulated drive (default 60)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--all", action="store_true", help="also list the first choices where the reference maps nothing")
     a = ap.parse_args()
     logging.getLogger("vdp").setLevel(logging.ERROR)
     from vdp.profile import load_profile
@@ -248,6 +255,10 @@ def main() -> int:
             print(f"- {r['car']}: wrong first choice, {w}")
         for j in r["junk"]:
             print(f"- {r['car']}: junk in first place, {j}")
+        for x in r["name_wrong"] if a.all else []:
+            print(f"- {r['car']}: from the DBC alone, wrong first choice, {x}")
+        for x in r["extra"] if a.all else []:
+            print(f"- {r['car']}: proposed where the reference maps nothing, {x}")
     print(f"\n({time.perf_counter() - t_start:.0f} s, {a.duration:.0f} s simulated drives, seed {a.seed})")
     return 0
 

@@ -459,7 +459,9 @@ def test_profile_new_takes_a_signal_by_its_own_name_and_a_measurement_with_no_va
     WHEEL_SPEEDS_FRONT.WHEEL_SPEED_FL), the roll rate of a message named for the yaw rate as the yaw
     rate (Ford's Yaw_Data_FD1.VehRol_W_Actl), a brake's torque as the drive torque (VW's
     PLA_Bremsmoment), VW's engine torque MO_Mom_Ist_Summe not found at all, and a GPS speed whose
-    value table names only its no-value codes (Ford's 254 Unknown, 255 Invalid) taken for a state."""
+    value table names only its no-value codes (Ford's 254 Unknown, 255 Invalid) taken for a state; and
+    where the profile maps nothing, GM's GPSLongitude as accel_x, Hyundai's traffic-sign speed shown
+    on a display as the speed, the Ioniq 5's steering torque as its drive torque."""
     from vdp.scaffold import candidates
 
     dbc, db = tiny_dbc(
@@ -476,6 +478,13 @@ def test_profile_new_takes_a_signal_by_its_own_name_and_a_measurement_with_no_va
         "BO_ 103 GPS_Nav: 8 ECU\n"
         ' SG_ GPS_Speed : 0|8@1+ (1,0) [0|253] "mph" ECU\n'
         ' SG_ GPS_Mode : 8|8@1+ (1,0) [0|255] "mph" ECU\n\n'
+        "BO_ 104 GPS_Position: 8 ECU\n"
+        ' SG_ GPS_Longitude : 0|32@1- (0.001,0) [-648000000|648000000] "milliarcsecond" ECU\n'
+        ' SG_ GPS_Latitude : 32|32@1- (0.001,0) [-324000000|324000000] "milliarcsecond" ECU\n\n'
+        "BO_ 105 LKAS12: 8 ECU\n"
+        ' SG_ TsrSpeed_Display_Navi : 0|8@1+ (1,0) [0|255] "" ECU\n\n'
+        "BO_ 106 MDPS: 8 ECU\n"
+        ' SG_ MDPS_StrTqSnsrVal : 0|12@1+ (0.1,-204.8) [-204.8|204.7] "" ECU\n\n'
         'VAL_ 103 GPS_Speed 254 "Unknown" 255 "Invalid" ;\n'
         'VAL_ 103 GPS_Mode 0 "off" 1 "2d" 2 "3d" ;\n',
     )
@@ -484,3 +493,7 @@ def test_profile_new_takes_a_signal_by_its_own_name_and_a_measurement_with_no_va
     assert named["yaw_rate"] == ["VehYaw_W_Actl"] and named["roll_rate"] == ["VehRol_W_Actl"]
     assert named["drive_torque"] == ["MO_Mom_Ist_Summe"] and "PLA_Bremsmoment" in named["brake_torque"]
     assert named["speed"] == ["GPS_Speed"]  # the mode, a state with values in its range, stays out
+    # and neither a GPS position (its "lon", "lat"), a speed on a display, nor the steering's torque
+    # given no unit (the Ioniq 5's MDPS_StrTqSnsrVal) is proposed at all
+    assert named["accel_x"] == [] and named["accel_y"] == []
+    assert all("StrTq" not in s for s in named["drive_torque"] + named["brake_torque"])

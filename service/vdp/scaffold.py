@@ -61,10 +61,12 @@ ENGINE_NOTE = (
     "ratio (a product, docs/PROFILES.md; profiles/vw_golf_mk7.toml does it)"
 )
 # never a channel's value: counters, checksums and CRCs, status, validity and quality bits, errors,
-# requests and targets, limits, and (Hyundai's DATC/FATC) the air conditioning's temperatures and torques
+# requests and targets, limits, (Hyundai's DATC/FATC) the air conditioning's temperatures and torques,
+# what a display shows the driver, and a GPS position (its "lon" and "lat" are no accelerations)
 _NOT = re.compile(
     r"count|cnt|checksum|chksum|chks|_cs\b|crc|alive|parity|_qf|qual|valid|vld|stat|err(or)?\b|fault|diag|"
-    r"warn|req|rq|lamp|btn|button|cmd|target|trg|max|min|lim|temp|acn|aircon|hvac"
+    r"warn|req|rq|lamp|btn|button|cmd|target|trg|max|min|lim|temp|acn|aircon|hvac|display|"
+    r"latitude|longitude|altitude"
 )
 UNIT_GUESS = {  # DBC unit spellings vdp's table does not hold
     "radians/second": "rad/s",
@@ -180,13 +182,8 @@ def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
                 if ch == "drive_torque" and _BRAKE.search(s.name.lower()):
                     continue  # a brake's torque (VW's PLA_Bremsmoment) never drives
                 unit = unit_of(s.unit)
-                if (
-                    ch in _TORQUES
-                    and unit in UNIT_FACTORS
-                    and UNIT_FACTORS[unit][1] == "torque"
-                    and _STEERING.search(name)
-                ):
-                    continue  # the steering's torque (an EPS's, a driver's) drives no wheel
+                if ch in _TORQUES and _STEERING.search(name):
+                    continue  # the steering's torque (an EPS's, a driver's, unit given or not) drives no wheel
                 score = 1.0 + sum(1.0 for p in more if re.search(p, name))
                 percent = unit == "%" and ch in _TORQUES  # per cent of a reference torque: a term's weight
                 if unit is not None:
