@@ -196,13 +196,54 @@ def score(car: str, dbc: Path, path: Path, log: Path, channel: str | None, secon
     return row
 
 
-def simulated(car: str, path: Path, tmp: Path, duration: float, seed: int) -> dict:
+def busy(log: Path, path: Path, seed: int) -> None:
+    """Add every other message of the DBC to a simulated log, 10 times a second, each signal a slow
+    wave across its range with its own period and phase: a bus where the signals the reference
+    does not map move too, unrelated to the drive (counters and checksums as well)."""
+    import numpy as np
+
+    from vdp.io import dbcfix
+    from vdp.profile import load_profile
+
+    rng = np.random.default_rng(seed)
+    db = dbcfix.load(load_profile(path).dbc)
+    mapped = {m for m, _ in (p for pairs, _ in reference(path).values() for p in pairs)}
+    lines = log.read_text().splitlines()
+    t0 = float(lines[0].split()[0][1:-1])
+    t_end = float(lines[-1].split()[0][1:-1])
+    extra = []
+    for m in db.messages:
+        if m.name in mapped:
+            continue
+        waves = {}
+        for sg in m.signals:
+            lo = sg.minimum if sg.minimum is not None else sg.offset
+            hi = sg.maximum if sg.maximum is not None else sg.offset + sg.scale * (2 ** min(sg.length, 16) - 1)
+            waves[sg.name] = (lo, hi, rng.uniform(4.0, 40.0), rng.uniform(0, 2 * np.pi))
+        ident = f"{m.frame_id:08X}" if m.is_extended_frame else f"{m.frame_id:03X}"
+        for t in np.arange(t0 + rng.uniform(0, 0.1), t_end, 0.1):
+            phase = 2 * np.pi * (t - t0)
+            vals = {n: lo + (hi - lo) * (0.5 + 0.5 * np.sin(phase / w + ph)) for n, (lo, hi, w, ph) in waves.items()}
+            try:
+                data = m.encode(vals, strict=False, scaling=True).hex().upper()
+            except Exception:  # a multiplexed or odd layout: leave the message out
+                break
+            sep = "#" if m.length <= 8 else "##0"
+            extra.append((t, f"({t:.6f}) can0 {ident}{sep}{data}"))
+    both = [(float(ln.split()[0][1:-1]), ln) for ln in lines] + extra
+    both.sort(key=lambda x: x[0])
+    log.write_text("\n".join(ln for _, ln in both) + "\n")
+
+
+def simulated(car: str, path: Path, tmp: Path, duration: float, seed: int, full_bus: bool) -> dict:
     from vdp.profile import load_profile
     from vdp.sim.run import Simulation, write_log
 
     prof = load_profile(path)
     log = tmp / f"{car}.log"
     write_log(Simulation(prof, "paper", seed=seed, duration=duration).frames(), log)
+    if full_bus:
+        busy(log, path, seed)
     return score(car, prof.dbc, path, log, None, duration + 1)
 
 
@@ -210,6 +251,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--duration", type=float, default=60.0, help="seconds of each simulated drive (default 60)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--busy", action="store_true", help="every other message of the DBC in the log too (busy)")
     ap.add_argument("--all", action="store_true", help="also list the first choices where the reference maps nothing")
     a = ap.parse_args()
     logging.getLogger("vdp").setLevel(logging.ERROR)
@@ -222,9 +264,10 @@ def main() -> int:
         for path in sorted((ROOT / "profiles").glob("*.toml")):
             dbc = tomllib.loads(path.read_text())["can"]["dbc"]
             if isinstance(dbc, str) and dbc.startswith("opendbc:"):
-                rows.append(simulated(path.stem, path, tmp, a.duration, a.seed))
+                rows.append(simulated(path.stem, path, tmp, a.duration, a.seed, a.busy))
         for car, (dbc, chans) in BUILT.items():
-            rows.append(simulated(car + " (built)", built_profile(car, dbc, chans, tmp), tmp, a.duration, a.seed))
+            path = built_profile(car, dbc, chans, tmp)
+            rows.append(simulated(f"{car} (built)", path, tmp, a.duration, a.seed, a.busy))
         rav4 = load_profile(ROOT / "profiles" / "toyota_rav4.toml")
         drives = [(ROOT / "tests/data/rav4-2018-highway-15s.log.gz", rav4.dbc, 15.0)]
         if (REAL / "rav4-2018-highway-60s.log.gz").exists():

@@ -497,3 +497,47 @@ def test_profile_new_takes_a_signal_by_its_own_name_and_a_measurement_with_no_va
     # given no unit (the Ioniq 5's MDPS_StrTqSnsrVal) is proposed at all
     assert named["accel_x"] == [] and named["accel_y"] == []
     assert all("StrTq" not in s for s in named["drive_torque"] + named["brake_torque"])
+
+
+def test_profile_new_ranks_accelerations_and_torques_by_how_they_follow_the_drive(tmp_path):
+    """Two longitudinal accelerations or two torques alike by name and unit: the one that follows
+    dv/dt of the wheels comes first, though it comes second in the DBC, and an engine's torque that
+    does beats a wheel torque that moves unrelated to the drive (benchmarks/scaffold.py --busy)."""
+    import numpy as np
+
+    from vdp.scaffold import propose
+
+    dbc, db = tiny_dbc(
+        tmp_path,
+        "BO_ 100 WHEELS: 8 ECU\n"
+        ' SG_ WHL_SPD_FL : 0|16@1+ (0.01,0) [0|300] "km/h" ECU\n'
+        ' SG_ WHL_SPD_FR : 16|16@1+ (0.01,0) [0|300] "km/h" ECU\n\n'
+        "BO_ 101 DYN_A: 8 ECU\n"
+        ' SG_ LONG_ACCEL : 0|16@1- (0.01,0) [-20|20] "m/s^2" ECU\n'
+        ' SG_ WHL_TQ : 16|16@1- (1,0) [-5000|5000] "Nm" ECU\n\n'
+        "BO_ 102 DYN_B: 8 ECU\n"
+        ' SG_ LONG_ACCEL : 0|16@1- (0.01,0) [-20|20] "m/s^2" ECU\n'
+        ' SG_ ENG_TQ : 16|16@1- (1,0) [-5000|5000] "Nm" ECU\n',
+    )
+    t = np.arange(0, 60, 0.02)
+    v = 12 + 5 * np.sin(2 * np.pi * t / 15)  # m/s
+    a = np.gradient(v, t)
+    wave = np.sin(2 * np.pi * t / 4.3 + 1.0)  # moves, unrelated to the drive
+    msgs = {m.name: m for m in db.messages}
+    lines = []
+    for i, ti in enumerate(t):
+        vals = {
+            "WHEELS": {"WHL_SPD_FL": v[i] * 3.6, "WHL_SPD_FR": v[i] * 3.6},
+            "DYN_A": {"LONG_ACCEL": 3 * wave[i], "WHL_TQ": 800 * wave[i]},
+            "DYN_B": {"LONG_ACCEL": a[i], "ENG_TQ": 100 * a[i] + 80},
+        }
+        for name, sig in vals.items():
+            m = msgs[name]
+            lines.append(f"({1700000000 + ti:.6f}) can0 {m.frame_id:03X}#{m.encode(sig).hex().upper()}")
+    log = tmp_path / "car.log"
+    log.write_text("\n".join(lines) + "\n")
+    by_name, _ = propose(db)
+    assert by_name["accel_x"][0].message == "DYN_A" and by_name["drive_torque"][0].signal == "WHL_TQ"
+    cands, _ = propose(db, log)
+    assert cands["accel_x"][0].message == "DYN_B" and "follows dv/dt" in cands["accel_x"][0].note
+    assert cands["drive_torque"][0].signal == "ENG_TQ" and cands["drive_torque"][0].engine

@@ -333,17 +333,26 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
         for ch in ("brake_torque", "brake_pressure"):
             for c in cands.get(ch, []):
                 _with_dvdt(c, on_grid((c.message, c.signal)), dvdt, -1, corr)
+        # a longitudinal acceleration is dv/dt, either way round (Toyota's KINEMATICS.ACCEL_X points back)
+        for c in cands.get("accel_x", []):
+            g = on_grid((c.message, c.signal))
+            if g is not None:
+                r = corr(g, dvdt)
+                c.score += 2.0 * abs(r)
+                c.note = c.note or f"follows dv/dt of the wheels (r = {r:+.2f})"
         cands["steering_angle"].sort(key=lambda c: -c.score)
         steer = next((whole(c) for c in cands["steering_angle"][:1]), None)
         if steer is not None:
             n = min(len(steer), len(ref))
             turn = steer[:n] * ref[:n]
-            for c in cands["yaw_rate"]:
-                g = on_grid((c.message, c.signal))
-                if g is not None:
-                    r = corr(g, turn)
-                    c.score += 2.0 * abs(r)
-                    c.note = c.note or f"looks like a yaw rate (r = {r:+.2f} with steering x speed)"
+            for ch in ("yaw_rate", "accel_y"):  # both go with steering x speed, the lateral one x speed again
+                for c in cands[ch]:
+                    g = on_grid((c.message, c.signal))
+                    if g is not None:
+                        r = corr(g, turn * ref[:n] if ch == "accel_y" else turn)
+                        c.score += 2.0 * abs(r)
+                        what = "a yaw rate" if ch == "yaw_rate" else "a lateral acceleration"
+                        c.note = c.note or f"looks like {what} (r = {r:+.2f} with steering x speed)"
     for cs in cands.values():
         cs.sort(key=lambda c: -c.score)
     facts = LogFacts(still=still)
@@ -370,6 +379,8 @@ def _with_dvdt(c: Candidate, g, dvdt, sign: int, corr) -> None:
     r = sign * corr(g, dvdt)
     c.score += 2.0 * max(r, 0.0)
     c.note = c.note or (f"moves with {'-' if sign < 0 else ''}dv/dt (r = {r:.2f})" if r > 0.3 else c.note)
+    if r < 0.2:  # it moves, but not with the car's acceleration: outweighs a name's points (an engine's -2)
+        c.score -= 2.0
 
 
 def _has_sources(cands: dict[str, list[Candidate]]) -> bool:
