@@ -1,6 +1,6 @@
 """Scaffold: what `vdp profile new` proposes, against a profile written by hand (issue 25).
 
-    nice -n 10 python benchmarks/scaffold.py [--duration 60] [--seed 1]
+    nice -n 10 python benchmarks/scaffold.py [--busy] [--seed 1] [--duration 112] [--all]
 
 Per car, a drive of the paper's scenario is simulated through the car's profile (the
 reference) into its opendbc DBC; the scaffold (vdp.scaffold's ``candidates`` and
@@ -26,7 +26,11 @@ How it counts:
 
 A simulated log holds only the messages the reference maps (their other signals as the
 simulator fills them): a candidate in another message is "not in the log" and ranks lower.
-The by-name column shows what the DBC alone gives; the real drives have every message.
+``--busy`` puts every other message of the DBC on the bus as well (``busy``), each signal a
+slow wave across its range: then the log has to rank candidates that all move.  The by-name
+column shows what the DBC alone gives; the real drives have every message.  The drive is the
+paper's whole scenario (112 s) by default: its turns come after 52 s, and a yaw rate or a
+lateral acceleration is ranked by how it follows steering x speed.
 """
 
 from __future__ import annotations
@@ -249,7 +253,7 @@ def simulated(car: str, path: Path, tmp: Path, duration: float, seed: int, full_
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--duration", type=float, default=60.0, help="seconds of each simulated drive (default 60)")
+    ap.add_argument("--duration", type=float, default=112.0, help="seconds of each simulated drive (default 112)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--busy", action="store_true", help="every other message of the DBC in the log too (busy)")
     ap.add_argument("--all", action="store_true", help="also list the first choices where the reference maps nothing")
