@@ -169,12 +169,15 @@ def test_profile_new_does_not_map_an_engine_torque_as_the_wheels(tmp_path):
         tmp_path,
         "BO_ 100 GAS_PEDAL: 8 ECU\n"
         ' SG_ ETQLVSC : 0|16@1- (1,0) [-500|500] "Nm" ECU\n\n'
-        "BO_ 101 STEER_TORQUE_SENSOR: 8 ECU\n"
+        "BO_ 101 TORQUE_SENSOR: 8 ECU\n"
+        ' SG_ TQ_ANGLE : 0|16@1- (0.1,0) [-500|500] "deg" ECU\n\n'
+        "BO_ 102 STEER_TORQUE_SENSOR: 8 ECU\n"
         ' SG_ STEER_ANGLE : 0|16@1- (0.1,0) [-500|500] "deg" ECU\n',
     )
     cands = candidates(db)
     got = {c.signal: c for c in cands["drive_torque"]}
-    assert got["ETQLVSC"].engine and not got["STEER_ANGLE"].engine and got["STEER_ANGLE"].wrong_kind
+    assert got["ETQLVSC"].engine and not got["TQ_ANGLE"].engine and got["TQ_ANGLE"].wrong_kind
+    assert "STEER_ANGLE" not in got  # a steering angle by its own name: the steering's, not a torque
     text = draft(dbc, cands)
     mapped = [ln for ln in text.splitlines() if ln.startswith("drive_torque")]
     assert mapped == []  # nothing mapped as the wheels' torque
@@ -448,3 +451,93 @@ def test_a_brake_pressure_beyond_what_a_brake_system_holds_is_a_finding_with_its
     f = next(f for f in rep.findings if f.subject == "brake_pressure")
     lo, hi = (float(x) for x in re.search(r"seen ([\d.e+]+) to ([\d.e+]+) bar", f.message).groups())
     assert 250 < lo <= hi and "outside 0 to 250 bar" in f.message
+
+
+def test_profile_new_takes_a_signal_by_its_own_name_and_a_measurement_with_no_value_codes(tmp_path):
+    """benchmarks/scaffold.py found these first choices wrong: a front-left wheel speed in a message
+    named for the front axle proposed for front right (GM's EBCMWheelSpdFront.FLWheelSpd, Nissan's
+    WHEEL_SPEEDS_FRONT.WHEEL_SPEED_FL), the roll rate of a message named for the yaw rate as the yaw
+    rate (Ford's Yaw_Data_FD1.VehRol_W_Actl), a brake's torque as the drive torque (VW's
+    PLA_Bremsmoment), VW's engine torque MO_Mom_Ist_Summe not found at all, and a GPS speed whose
+    value table names only its no-value codes (Ford's 254 Unknown, 255 Invalid) taken for a state; and
+    where the profile maps nothing, GM's GPSLongitude as accel_x, Hyundai's traffic-sign speed shown
+    on a display as the speed, the Ioniq 5's steering torque as its drive torque."""
+    from vdp.scaffold import candidates
+
+    dbc, db = tiny_dbc(
+        tmp_path,
+        "BO_ 100 WheelSpdFront: 8 ECU\n"
+        ' SG_ FLWheelSpd : 0|16@1+ (0.01,0) [0|300] "km/h" ECU\n'
+        ' SG_ FRWheelSpd : 16|16@1+ (0.01,0) [0|300] "km/h" ECU\n\n'
+        "BO_ 101 Yaw_Data: 8 ECU\n"
+        ' SG_ VehYaw_W_Actl : 0|16@1- (0.001,0) [-6|6] "rad/s" ECU\n'
+        ' SG_ VehRol_W_Actl : 16|16@1- (0.001,0) [-6|6] "rad/s" ECU\n\n'
+        "BO_ 102 Motor_11: 8 ECU\n"
+        ' SG_ MO_Mom_Ist_Summe : 0|16@1- (1,0) [-5000|5000] "Nm" ECU\n'
+        ' SG_ PLA_Bremsmoment : 16|16@1- (1,0) [-5000|5000] "Nm" ECU\n\n'
+        "BO_ 103 GPS_Nav: 8 ECU\n"
+        ' SG_ GPS_Speed : 0|8@1+ (1,0) [0|253] "mph" ECU\n'
+        ' SG_ GPS_Mode : 8|8@1+ (1,0) [0|255] "mph" ECU\n\n'
+        "BO_ 104 GPS_Position: 8 ECU\n"
+        ' SG_ GPS_Longitude : 0|32@1- (0.001,0) [-648000000|648000000] "milliarcsecond" ECU\n'
+        ' SG_ GPS_Latitude : 32|32@1- (0.001,0) [-324000000|324000000] "milliarcsecond" ECU\n\n'
+        "BO_ 105 LKAS12: 8 ECU\n"
+        ' SG_ TsrSpeed_Display_Navi : 0|8@1+ (1,0) [0|255] "" ECU\n\n'
+        "BO_ 106 MDPS: 8 ECU\n"
+        ' SG_ MDPS_StrTqSnsrVal : 0|12@1+ (0.1,-204.8) [-204.8|204.7] "" ECU\n\n'
+        'VAL_ 103 GPS_Speed 254 "Unknown" 255 "Invalid" ;\n'
+        'VAL_ 103 GPS_Mode 0 "off" 1 "2d" 2 "3d" ;\n',
+    )
+    named = {ch: [c.signal for c in cs] for ch, cs in candidates(db, top=10).items()}
+    assert named["wheel_speed_fl"] == ["FLWheelSpd"] and named["wheel_speed_fr"] == ["FRWheelSpd"]
+    assert named["yaw_rate"] == ["VehYaw_W_Actl"] and named["roll_rate"] == ["VehRol_W_Actl"]
+    assert named["drive_torque"] == ["MO_Mom_Ist_Summe"] and "PLA_Bremsmoment" in named["brake_torque"]
+    assert named["speed"] == ["GPS_Speed"]  # the mode, a state with values in its range, stays out
+    # and neither a GPS position (its "lon", "lat"), a speed on a display, nor the steering's torque
+    # given no unit (the Ioniq 5's MDPS_StrTqSnsrVal) is proposed at all
+    assert named["accel_x"] == [] and named["accel_y"] == []
+    assert all("StrTq" not in s for s in named["drive_torque"] + named["brake_torque"])
+
+
+def test_profile_new_ranks_accelerations_and_torques_by_how_they_follow_the_drive(tmp_path):
+    """Two longitudinal accelerations or two torques alike by name and unit: the one that follows
+    dv/dt of the wheels comes first, though it comes second in the DBC, and an engine's torque that
+    does beats a wheel torque that moves unrelated to the drive (benchmarks/scaffold.py --busy)."""
+    import numpy as np
+
+    from vdp.scaffold import propose
+
+    dbc, db = tiny_dbc(
+        tmp_path,
+        "BO_ 100 WHEELS: 8 ECU\n"
+        ' SG_ WHL_SPD_FL : 0|16@1+ (0.01,0) [0|300] "km/h" ECU\n'
+        ' SG_ WHL_SPD_FR : 16|16@1+ (0.01,0) [0|300] "km/h" ECU\n\n'
+        "BO_ 101 DYN_A: 8 ECU\n"
+        ' SG_ LONG_ACCEL : 0|16@1- (0.01,0) [-20|20] "m/s^2" ECU\n'
+        ' SG_ WHL_TQ : 16|16@1- (1,0) [-5000|5000] "Nm" ECU\n\n'
+        "BO_ 102 DYN_B: 8 ECU\n"
+        ' SG_ LONG_ACCEL : 0|16@1- (0.01,0) [-20|20] "m/s^2" ECU\n'
+        ' SG_ ENG_TQ : 16|16@1- (1,0) [-5000|5000] "Nm" ECU\n',
+    )
+    t = np.arange(0, 60, 0.02)
+    v = 12 + 5 * np.sin(2 * np.pi * t / 15)  # m/s
+    a = np.gradient(v, t)
+    wave = np.sin(2 * np.pi * t / 4.3 + 1.0)  # moves, unrelated to the drive
+    msgs = {m.name: m for m in db.messages}
+    lines = []
+    for i, ti in enumerate(t):
+        vals = {
+            "WHEELS": {"WHL_SPD_FL": v[i] * 3.6, "WHL_SPD_FR": v[i] * 3.6},
+            "DYN_A": {"LONG_ACCEL": 3 * wave[i], "WHL_TQ": 800 * wave[i]},
+            "DYN_B": {"LONG_ACCEL": a[i], "ENG_TQ": 100 * a[i] + 80},
+        }
+        for name, sig in vals.items():
+            m = msgs[name]
+            lines.append(f"({1700000000 + ti:.6f}) can0 {m.frame_id:03X}#{m.encode(sig).hex().upper()}")
+    log = tmp_path / "car.log"
+    log.write_text("\n".join(lines) + "\n")
+    by_name, _ = propose(db)
+    assert by_name["accel_x"][0].message == "DYN_A" and by_name["drive_torque"][0].signal == "WHL_TQ"
+    cands, _ = propose(db, log)
+    assert cands["accel_x"][0].message == "DYN_B" and "follows dv/dt" in cands["accel_x"][0].note
+    assert cands["drive_torque"][0].signal == "ENG_TQ" and cands["drive_torque"][0].engine

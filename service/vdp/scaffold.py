@@ -46,8 +46,9 @@ _PATTERNS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     # "rol" as in Ford's VehRol_W_Actl, not in CONTROL, sCROLL, ROLLing or contROLLER
     "roll_rate": ((r"(?<!cont)(?<!sc)rol(?!l(?:ing|er))|wank",), (r"rate|_w_|rt", r"veh|imu")),
     "speed": ((r"gps|gnss|nav",), (r"sp(ee)?d|vel|_v_",)),
-    "drive_torque": ((r"tq|torq|moment",), (r"wh(ee)?l|whl|prpl|drive|axle|rad", r"tot|actl|ist")),
-    "brake_torque": ((r"tq|torq|moment", r"brk|brake|brems"), (r"tot|actl|ist",)),
+    # "Mom" as in VW's MO_Mom_Ist_Summe: a token, not MOMentary
+    "drive_torque": ((rf"tq|torq|moment|{_B}mom{_E}",), (r"wh(ee)?l|whl|prpl|drive|axle|rad", r"tot|actl|ist")),
+    "brake_torque": ((rf"tq|torq|moment|{_B}mom{_E}", r"brk|brake|brems"), (r"tot|actl|ist",)),
     "brake_pressure": ((r"pres|druck", r"brk|brake|brems|esp|cyl"), (r"mc|master|haupt|bremsdruck|cyl",)),
     "wheel_torque_front": ((r"tq|torq", rf"front|vorder|{_B}(fa|va){_E}"), (r"wh(ee)?l|axle|achs",)),
     "wheel_torque_rear": ((r"tq|torq", rf"rear|hinter|{_B}(ra|ha){_E}"), (r"wh(ee)?l|axle|achs",)),
@@ -60,10 +61,12 @@ ENGINE_NOTE = (
     "ratio (a product, docs/PROFILES.md; profiles/vw_golf_mk7.toml does it)"
 )
 # never a channel's value: counters, checksums and CRCs, status, validity and quality bits, errors,
-# requests and targets, limits, and (Hyundai's DATC/FATC) the air conditioning's temperatures and torques
+# requests and targets, limits, (Hyundai's DATC/FATC) the air conditioning's temperatures and torques,
+# what a display shows the driver, and a GPS position (its "lon" and "lat" are no accelerations)
 _NOT = re.compile(
     r"count|cnt|checksum|chksum|chks|_cs\b|crc|alive|parity|_qf|qual|valid|vld|stat|err(or)?\b|fault|diag|"
-    r"warn|req|rq|lamp|btn|button|cmd|target|trg|max|min|lim|temp|acn|aircon|hvac"
+    r"warn|req|rq|lamp|btn|button|cmd|target|trg|max|min|lim|temp|acn|aircon|hvac|display|"
+    r"latitude|longitude|altitude"
 )
 UNIT_GUESS = {  # DBC unit spellings vdp's table does not hold
     "radians/second": "rad/s",
@@ -109,6 +112,7 @@ PERCENT_NOTE = (
     'signal = "{signal}", unit = "%", weight = EDIT }}] (profiles/hyundai_elantra_2017.toml does it)'
 )
 _STEERING = re.compile(r"steer|str(?!nd)|mdps|eps|lkas|lenk")
+_BRAKE = re.compile(r"brk|brake|brems")
 _TORQUES = ("drive_torque", "brake_torque", "wheel_torque_front", "wheel_torque_rear")
 
 
@@ -139,6 +143,25 @@ def _fine(msg, sig) -> str | None:
     return None
 
 
+def _sentinels(sig) -> bool:
+    """Whether the value table only names codes outside the signal's [min|max] (Ford's GPS_Speed:
+    254 Unknown, 255 Invalid): a measurement with its no-value codes, not a state."""
+    lo, hi = sig.minimum, sig.maximum
+    if lo is None or hi is None:
+        return False
+    return all(not lo <= raw * (sig.scale or 1.0) + (sig.offset or 0.0) <= hi for raw in sig.choices)
+
+
+def _elsewhere(ch: str, name: str) -> bool:
+    """Whether a signal's own name matches another channel's patterns and not ``ch``'s: it came in
+    by its message's name (Yaw_Data_FD1.VehRol_W_Actl for yaw_rate), and it is the other's."""
+    if all(re.search(p, name) for p in _PATTERNS[ch][0]):
+        return False
+    # the torques' patterns nest (every brake torque's name is also a drive torque's): not among them
+    others = [o for o in _PATTERNS if o != ch and not (ch in _TORQUES and o in _TORQUES)]
+    return any(all(re.search(p, name) for p in _PATTERNS[o][0]) for o in others)
+
+
 def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
     """Per channel (and source), the best-scoring signals of the DBC by name and unit."""
     out: dict[str, list[Candidate]] = {}
@@ -152,16 +175,15 @@ def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
                 name = f"{m.name}.{s.name}".lower()
                 if not all(re.search(p, name) for p in must) or _NOT.search(s.name.lower()) or s.length < 6:
                     continue
-                if s.choices and (s.length <= 8 or 2 * len(s.choices) >= 2**s.length):
+                if s.choices and (s.length <= 8 or 2 * len(s.choices) >= 2**s.length) and not _sentinels(s):
                     continue  # a value table over a short field: a state or a mode, not a measured quantity
+                if _elsewhere(ch, s.name.lower()):
+                    continue  # its own name is another channel's (FLWheelSpd in a "Front" message for fr)
+                if ch == "drive_torque" and _BRAKE.search(s.name.lower()):
+                    continue  # a brake's torque (VW's PLA_Bremsmoment) never drives
                 unit = unit_of(s.unit)
-                if (
-                    ch in _TORQUES
-                    and unit in UNIT_FACTORS
-                    and UNIT_FACTORS[unit][1] == "torque"
-                    and _STEERING.search(name)
-                ):
-                    continue  # the steering's torque (an EPS's, a driver's) drives no wheel
+                if ch in _TORQUES and _STEERING.search(name):
+                    continue  # the steering's torque (an EPS's, a driver's, unit given or not) drives no wheel
                 score = 1.0 + sum(1.0 for p in more if re.search(p, name))
                 percent = unit == "%" and ch in _TORQUES  # per cent of a reference torque: a term's weight
                 if unit is not None:
@@ -176,6 +198,21 @@ def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
         found.sort(key=lambda c: -c.score)
         out[ch] = found[:top]
     return out
+
+
+def propose(
+    db, log_path: str | Path | None = None, top: int = 5, seconds: float = 120.0
+) -> tuple[dict[str, list[Candidate]], LogFacts | None]:
+    """The candidates ``vdp profile new`` shows: by name and unit, and with a log re-ranked by
+    behaviour (see :func:`behaviour`) from a longer list, so that a signal the names rank sixth
+    (Hyundai's EMS11.TQI_ACOR among five torques that tie) can still come first."""
+    if log_path is None:
+        return candidates(db, top), None
+    cands = candidates(db, top=4 * top)
+    facts = behaviour(db, cands, log_path, seconds)
+    for cs in cands.values():
+        del cs[top:]
+    return cands, facts
 
 
 @dataclass
@@ -196,6 +233,7 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
     from .io.logs import open_log
 
     wanted = {(c.message, c.signal) for cs in cands.values() for c in cs}
+    wanted |= {(c.message, c.fine) for cs in cands.values() for c in cs if c.fine}
     by_id = {}
     for m in db.messages:
         if any(msg == m.name for msg, _ in wanted):
@@ -244,10 +282,17 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
             return 0.0
         return float(np.corrcoef(a[:n], b[:n])[0, 1])
 
+    def whole(c):  # with its finer part: a coarse angle in 1.5 deg steps may sit still on a straight
+        g, f = on_grid((c.message, c.signal)), on_grid((c.message, c.fine)) if c.fine else None
+        if g is None or f is None:
+            return g
+        n = min(len(g), len(f))
+        return g[:n] + f[:n]
+
     still: dict[str, list[str]] = {}
     for ch, cs in cands.items():
         for c in list(cs):
-            g = on_grid((c.message, c.signal))
+            g = whole(c)
             if g is None:
                 c.score -= 2.0
                 c.note = "not in the log"
@@ -255,7 +300,7 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
                 cs.remove(c)
                 still.setdefault(ch, []).append(f"{c.message}.{c.signal}")
     for c in cands.get("steering_angle", []):  # an angle is signed and centred near 0 on a drive
-        g = on_grid((c.message, c.signal))
+        g = whole(c)
         if g is None:
             continue
         lo, mid, hi = np.percentile(g, [5, 50, 95])
@@ -288,17 +333,26 @@ def behaviour(db, cands: dict[str, list[Candidate]], log_path: str | Path, secon
         for ch in ("brake_torque", "brake_pressure"):
             for c in cands.get(ch, []):
                 _with_dvdt(c, on_grid((c.message, c.signal)), dvdt, -1, corr)
+        # a longitudinal acceleration is dv/dt, either way round (Toyota's KINEMATICS.ACCEL_X points back)
+        for c in cands.get("accel_x", []):
+            g = on_grid((c.message, c.signal))
+            if g is not None:
+                r = corr(g, dvdt)
+                c.score += 2.0 * abs(r)
+                c.note = c.note or f"follows dv/dt of the wheels (r = {r:+.2f})"
         cands["steering_angle"].sort(key=lambda c: -c.score)
-        steer = next((on_grid((c.message, c.signal)) for c in cands["steering_angle"][:1]), None)
+        steer = next((whole(c) for c in cands["steering_angle"][:1]), None)
         if steer is not None:
             n = min(len(steer), len(ref))
             turn = steer[:n] * ref[:n]
-            for c in cands["yaw_rate"]:
-                g = on_grid((c.message, c.signal))
-                if g is not None:
-                    r = corr(g, turn)
-                    c.score += 2.0 * abs(r)
-                    c.note = c.note or f"looks like a yaw rate (r = {r:+.2f} with steering x speed)"
+            for ch in ("yaw_rate", "accel_y"):  # both go with steering x speed, the lateral one x speed again
+                for c in cands[ch]:
+                    g = on_grid((c.message, c.signal))
+                    if g is not None:
+                        r = corr(g, turn * ref[:n] if ch == "accel_y" else turn)
+                        c.score += 2.0 * abs(r)
+                        what = "a yaw rate" if ch == "yaw_rate" else "a lateral acceleration"
+                        c.note = c.note or f"looks like {what} (r = {r:+.2f} with steering x speed)"
     for cs in cands.values():
         cs.sort(key=lambda c: -c.score)
     facts = LogFacts(still=still)
@@ -325,6 +379,8 @@ def _with_dvdt(c: Candidate, g, dvdt, sign: int, corr) -> None:
     r = sign * corr(g, dvdt)
     c.score += 2.0 * max(r, 0.0)
     c.note = c.note or (f"moves with {'-' if sign < 0 else ''}dv/dt (r = {r:.2f})" if r > 0.3 else c.note)
+    if r < 0.2:  # it moves, but not with the car's acceleration: outweighs a name's points (an engine's -2)
+        c.score -= 2.0
 
 
 def _has_sources(cands: dict[str, list[Candidate]]) -> bool:

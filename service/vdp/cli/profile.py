@@ -42,7 +42,7 @@ def add_parser(sub):
 def run_new(args) -> int:
     from ..errors import ConfigError
     from ..io import dbcfix
-    from ..scaffold import behaviour, candidates, draft
+    from ..scaffold import draft, propose
 
     check_output(args.out, "--out", (".toml",))
     if args.dbc.startswith("opendbc:"):  # as a profile names it: the draft says it the same way
@@ -59,8 +59,7 @@ def run_new(args) -> int:
     dbc_input = {} if args.dbc.startswith("opendbc:") else {"--dbc": args.dbc}
     check_apart({"--out": args.out}, {"--log": args.log, **dbc_input})
     db = dbcfix.load(dbc)
-    cands = candidates(db)
-    facts = behaviour(db, cands, args.log) if args.log else None
+    cands, facts = propose(db, args.log)
     for ch, cs in cands.items():
         best = ", ".join(f"{c.message}.{c.signal} [{c.dbc_unit or '-'}]" for c in cs[:3]) or "none"
         print(f"{ch:20} {best}")
