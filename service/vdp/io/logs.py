@@ -40,6 +40,7 @@ import os
 import re
 import stat
 import struct
+import sys
 import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -52,6 +53,7 @@ import can
 from can.io import blf as _blf
 
 from ..errors import LogFormatError
+from . import scan
 
 log = logging.getLogger(__name__)
 
@@ -603,10 +605,11 @@ class _Reader:
 
 
 class CandumpReader(_Reader):
-    """Tolerant, fast candump -L parser over binary lines.
-
-    The common line takes one split, one float, two dict lookups and one
-    unhexlify; everything unusual goes to ``odd``.
+    """Tolerant candump -L reader.  A block's lines are parsed at once by the compiled scan
+    (:mod:`vdp.io.scan`, the one candump parser); the lines it refuses (remote, FD and error
+    frames, damage: rare) are read one by one by the tolerant rules of :meth:`slow`, which
+    read every line the scan accepts exactly as the scan does (``tests/test_scan.py``).
+    Without the compiled scan (:func:`_use_scan`), every line goes by those rules.
     """
 
     def __init__(self, src: LogSource):
@@ -618,86 +621,174 @@ class CandumpReader(_Reader):
         st = self.stats
         st.lines, st.frames, st.skipped = self.lineno, self._frames, self._skipped
 
+    def chunks(self) -> Iterator[Any]:
+        """Whole lines, a block at a time (ending in a newline), or ``_LONG`` for a line longer
+        than _MAX_LINE, skipped as it is read (its size in ``self.long_bytes``): the lines of
+        :meth:`_Reader.blocks`, uncut."""
+        read = self.src._stream.read
+        carry = b""
+        long = 0  # bytes of a too-long line skipped so far
+        while True:
+            b = read(_BLOCK)
+            if not b:
+                if long:
+                    self.long_bytes = long
+                    yield _LONG
+                elif carry:
+                    yield carry + b"\n"
+                return
+            if long:
+                k = b.find(b"\n")
+                if k < 0:
+                    long += len(b)
+                    continue
+                self.long_bytes, long = long + k, 0
+                yield _LONG
+                b = b[k + 1 :]
+            buf = carry + b if carry else b
+            cut = buf.rfind(b"\n") + 1
+            carry = buf[cut:]
+            if len(carry) > _MAX_LINE:
+                long, carry = len(carry), b""
+            if cut:
+                yield buf[:cut]
+
     def read(self) -> Iterator[can.Message]:
         st = self.stats
-        chans: dict[bytes, tuple[Any, bool]] = {}  # channel text -> (channel, wanted)
-        # id text -> (id, extended, kept, key), valid plain ids only
-        ids: dict[bytes, tuple[int, bool, bool, int]] = {}
+        chans: dict[Any, tuple[Any, bool]] = {}  # channel code (the scan's) or text -> (channel, wanted)
+        # an id's spelling (scan.pack of its text) -> (id, extended, kept, key), valid plain ids only
+        ids: dict[int, tuple[int, bool, bool, int]] = {}
+        keep = self._keep
         over = st.passed_over
-        unhex = binascii.unhexlify
         msg_cls = can.Message
         clock = self.clock
+        slow = self.slow
         last = -_INF
         jump = _JUMP
         frames = skipped = 0
         lineno = 0
+        fast = _use_scan(self.src.size)
         try:
-            for lineno, line in enumerate(chain.from_iterable(self.blocks()), 1):
-                parts = line.split()
-                if len(parts) == 3:
-                    ts_b, ch_b, frame = parts
-                    rx = True
-                elif not parts:
+            for chunk in self.chunks():
+                if chunk is _LONG:
+                    lineno += 1
+                    self.long_line(lineno)
                     continue
-                elif len(parts) == 4 and parts[3] in _DIRS:
-                    ts_b, ch_b, frame, d = parts
-                    rx = _DIRS[d]
+                if fast:
+                    r = scan.lines(chunk, False)
+                    rows: Any = zip(
+                        r[3].tolist(),
+                        r[4].tolist(),
+                        r[5].tolist(),
+                        r[7].tolist(),
+                        r[8].tolist(),
+                        r[9].tolist(),
+                        r[11].tolist(),
+                        r[12].tolist(),
+                        r[15].tolist(),
+                    )
+                    data = r[10].tobytes()
+                    ch_lo, ch_hi = r[13].tolist(), r[14].tolist()
                 else:
-                    if line is _LONG:
-                        self.long_line(lineno)
+                    rows = _refused(chunk)
+                for i, (code, s, e, ts, key, spelled, dlc, ch_code, rx) in enumerate(rows):
+                    lineno += 1
+                    if code:
+                        if code == scan.EMPTY:
+                            continue
+                        msg = slow(lineno, chunk[s:e], last, chans, ids)
+                        if msg is None:
+                            continue
+                        if msg is _SKIPPED:
+                            skipped += 1
+                            continue
+                        ts = msg.timestamp
                     else:
-                        self.bad(lineno, "not '(time) channel id#data'", line)
-                    continue
-                ch = chans.get(ch_b)
-                if ch is None:
-                    ch = self._chan(ch_b)
-                    if ch is None:
-                        self.bad(lineno, f"more than {_MAX_CHANNELS} distinct channels", line)
-                        continue
-                    chans[ch_b] = ch
-                if not ch[1]:
-                    skipped += 1
-                    continue
-                id_b, sep, data = frame.partition(b"#")
-                key = ids.get(id_b)
-                if key is not None and not key[2]:
-                    over[key[3]] = over.get(key[3], 0) + 1  # an id nobody decodes (keep_ids)
-                    continue
-                try:
-                    ts = float(ts_b[1:-1])
-                except ValueError:
-                    ts = None
-                if ts is None or ts_b[0] != 40 or ts_b[-1] != 41:  # '(' and ')'
-                    self.bad(lineno, "bad timestamp", line)
-                    continue
-                if not last <= ts < last + jump and not clock(ts, last, lineno, line):
-                    continue
-                try:
-                    payload = unhex(data)
-                except ValueError:
-                    payload = None
-                if key is None or payload is None or len(payload) > 8 or not sep:
-                    msg = self.odd(lineno, line, ts, ch[0], rx, id_b, sep, data, ids)
-                    if msg is None:
-                        continue
-                    if msg.is_error_frame:
-                        st.error_frames += 1
-                else:
-                    # Positional: half the cost of keywords.  Order of can.Message (4.x): timestamp,
-                    # arbitration_id, is_extended_id, is_remote_frame, is_error_frame, channel,
-                    # dlc, data, is_fd, is_rx; tests check the fields.
-                    msg = msg_cls(ts, key[0], key[1], False, False, ch[0], len(payload), payload, False, rx)
-                last = ts
-                if not frames:
-                    self._first_good = lineno
-                frames += 1
-                if not lineno & 0xFFF:
-                    self.lineno, self._frames, self._skipped = lineno, frames, skipped
-                    self.sync()
-                yield msg
+                        ch = chans.get(ch_code)
+                        if ch is None:
+                            ch = self._chan(chunk[ch_lo[i] : ch_hi[i]])
+                            if ch is None:
+                                self.bad(lineno, f"more than {_MAX_CHANNELS} distinct channels", chunk[s:e])
+                                continue
+                            chans[ch_code] = ch
+                        if not ch[1]:
+                            skipped += 1
+                            continue
+                        known = ids.get(spelled)
+                        if known is not None and not known[2]:
+                            over[key] = over.get(key, 0) + 1  # an id nobody decodes (keep_ids)
+                            continue
+                        if not last <= ts < last + jump and not clock(ts, last, lineno, chunk[s:e]):
+                            continue
+                        ext = key > _EFF_MASK
+                        aid = key & _EFF_MASK
+                        if known is None and len(ids) < _ID_CACHE_MAX:
+                            ids[spelled] = (aid, ext, keep is None or key in keep, key)
+                        # Positional: half the cost of keywords.  Order of can.Message (4.x): timestamp,
+                        # arbitration_id, is_extended_id, is_remote_frame, is_error_frame, channel,
+                        # dlc, data, is_fd, is_rx; tests check the fields.
+                        msg = msg_cls(ts, aid, ext, False, False, ch[0], dlc, data[8 * i : 8 * i + dlc], False, rx == 1)
+                    last = ts
+                    if not frames:
+                        self._first_good = lineno
+                    frames += 1
+                    if not lineno & 0xFFF:
+                        self.lineno, self._frames, self._skipped = lineno, frames, skipped
+                        self.sync()
+                    yield msg
         finally:
             self.lineno, self._frames, self._skipped = lineno, frames, skipped
             self.end_clock(last)
+
+    def slow(self, n: int, line: bytes, last: float, chans: dict, ids: dict[int, tuple[int, bool, bool, int]]) -> Any:
+        """A line the scan refused (or any line, without it), by the tolerant rules: its message,
+        None (a bad line, a frame dropped), or ``_SKIPPED`` (a channel not asked for)."""
+        parts = line.split()
+        if len(parts) == 3:
+            ts_b, ch_b, frame = parts
+            rx = True
+        elif not parts:
+            return None
+        elif len(parts) == 4 and parts[3] in _DIRS:
+            ts_b, ch_b, frame, d = parts
+            rx = _DIRS[d]
+        else:
+            self.bad(n, "not '(time) channel id#data'", line)
+            return None
+        ch = chans.get(ch_b)
+        if ch is None:
+            ch = self._chan(ch_b)
+            if ch is None:
+                self.bad(n, f"more than {_MAX_CHANNELS} distinct channels", line)
+                return None
+            chans[ch_b] = ch
+        if not ch[1]:
+            return _SKIPPED
+        id_b, sep, data = frame.partition(b"#")
+        key = ids.get(scan.pack(id_b)) if len(id_b) in (3, 8) else None
+        if key is not None and not key[2]:
+            over = self.stats.passed_over
+            over[key[3]] = over.get(key[3], 0) + 1  # an id nobody decodes (keep_ids)
+            return None
+        try:
+            ts = float(ts_b[1:-1])
+        except ValueError:
+            ts = None
+        if ts is None or ts_b[0] != 40 or ts_b[-1] != 41:  # '(' and ')'
+            self.bad(n, "bad timestamp", line)
+            return None
+        if not last <= ts < last + _JUMP and not self.clock(ts, last, n, line):
+            return None
+        try:
+            payload = binascii.unhexlify(data)
+        except ValueError:
+            payload = None
+        if key is None or payload is None or len(payload) > 8 or not sep:
+            msg = self.odd(n, line, ts, ch[0], rx, id_b, sep, data, ids)
+            if msg is not None and msg.is_error_frame:
+                self.stats.error_frames += 1
+            return msg
+        return can.Message(ts, key[0], key[1], False, False, ch[0], len(payload), payload, False, rx)
 
     def _chan(self, ch_b: bytes) -> tuple[Any, bool] | None:
         name = ch_b.decode("ascii", "replace")
@@ -716,7 +807,7 @@ class CandumpReader(_Reader):
         id_b: bytes,
         sep: bytes,
         data: bytes,
-        ids: dict[bytes, tuple[int, bool, bool, int]],
+        ids: dict[int, tuple[int, bool, bool, int]],
     ) -> can.Message | None:
         """Everything but a plain known-id classic frame: new ids, remote, FD, error frames, bad lines."""
         bad = self.bad
@@ -741,7 +832,7 @@ class CandumpReader(_Reader):
             return None
         if not err and len(ids) < _ID_CACHE_MAX:
             key = aid | EXT_KEY if ext else aid
-            ids[id_b] = (aid, ext, self._keep is None or key in self._keep, key)
+            ids[scan.pack(id_b)] = (aid, ext, self._keep is None or key in self._keep, key)
         fd = remote = False
         flags = 0
         dlc = None
@@ -793,6 +884,28 @@ class CandumpReader(_Reader):
             error_state_indicator=bool(flags & 2),
             is_rx=rx,
         )
+
+
+_SKIPPED = object()  # CandumpReader.slow: a frame of a channel not asked for
+_SCAN_FROM = 1 << 22  # bytes: a log this long pays for loading numba's compiled scan (~0.5 s) itself
+
+
+def _use_scan(size: int) -> bool:
+    """Whether to parse with the compiled scan: where numba is loaded already (a replay's
+    estimator loads it), or the log is long enough to pay for loading it.  Either way the
+    same frames (the scan reads a line only as the tolerant rules would)."""
+    return ("numba" in sys.modules or size >= _SCAN_FROM) and scan.available()
+
+
+def _refused(chunk: bytes) -> Iterator[tuple]:
+    """Every line of ``chunk`` as a row the scan refused: all go by the tolerant rules."""
+    s = 0
+    while True:
+        e = chunk.find(b"\n", s)
+        if e < 0:
+            return
+        yield (scan.FIELDS, s, e, 0.0, 0, 0, 0, 0, 0)
+        s = e + 1
 
 
 class _TextReader(_Reader):
