@@ -19,6 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "service"))
 
 from vdp.io import bulk, logs, scan  # noqa: E402
+from vdp.io.formats import candump  # noqa: E402
 
 
 def blocks(path: Path) -> list[bytes]:
@@ -52,7 +53,7 @@ def main() -> int:
     print(f"scan, blocks      : {t:.3f} s of CPU for {n:,} lines ({1e9 * t / n:.0f} ns a line)")
     read: dict[bool, list] = {}
     for fast in (True, False):
-        logs._use_scan = lambda size, fast=fast: fast
+        candump._use_scan = lambda size, fast=fast: fast
 
         def run(fast=fast):
             read[fast] = [(m.timestamp, m.arbitration_id, bytes(m.data), m.channel) for m in logs.open_log(a.log)]

@@ -16,7 +16,8 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from vdp.io import logs, scan
+from vdp.io import scan
+from vdp.io.formats import candump
 from vdp.io.logs import EXT_KEY, open_log
 from vdp.sim.run import simulate, write_log
 
@@ -75,7 +76,7 @@ def test_the_compiled_scan_is_its_source_on_a_real_cars_bus(repo_root):
 
 def frames(path, fast: bool, monkeypatch) -> tuple:
     """What the per-frame reader gives: with the scan, or every line by the tolerant rules."""
-    monkeypatch.setattr(logs, "_use_scan", lambda size: fast)
+    monkeypatch.setattr(candump, "_use_scan", lambda size: fast)
     src = open_log(path)
     src.keep_ids({0x123, 0x7FF})
     try:

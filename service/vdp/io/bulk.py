@@ -39,7 +39,8 @@ from .. import channels
 from ..result import RunResult
 from . import scan  # (no numba: the compiled parse is made at its first use)
 from .decoder import MAX_UNKNOWN, compile_extractor
-from .logs import _ID_CACHE_MAX, _MAX_CHANNELS, EXT_KEY, LogStats, channel_keys, open_log
+from .formats.base import _ID_CACHE_MAX, _MAX_CHANNELS, EXT_KEY, LogStats, channel_keys
+from .logs import open_log
 from .signals import range_limits as limits  # with the profile's range overrides
 
 log = logging.getLogger(__name__)
