@@ -171,8 +171,21 @@ class BulkSource:
     needs the per-frame reader (see the module's doc).
     """
 
-    def __init__(self, path: str | Path, strict: bool = False, channel: str | None = None):
+    def __init__(
+        self,
+        path: str | Path,
+        strict: bool = False,
+        channel: str | None = None,
+        until: float | None = None,
+        keep_all: bool = False,
+    ):
+        """``until``: read only up to the first frame more than ``until`` seconds of bus time
+        after the first, as a loop over ``open_log`` that breaks there (the profile check's
+        first minutes); ``keep_all``: hand every frame to the decoder, none passed over by id
+        (its counts of ids it does not decode are then the per-frame decoder's, in its order)."""
         self.path = Path(path)
+        self._until = until
+        self._keep_all = keep_all
         # the per-frame reader's checks of the file itself: missing, empty, binary, bad gzip
         probe = open_log(self.path, strict=strict, channel=channel)
         self.size, self.compressed = probe.size, probe.compressed
@@ -221,7 +234,7 @@ class BulkSource:
             "first": None,
             "n": 0,
         }
-        keep_arr = np.array(sorted(keep), dtype=np.int64)
+        keep_arr = None if self._keep_all else np.array(sorted(keep), dtype=np.int64)
         tail = b""
         lineno = 0
         while True:
@@ -242,6 +255,8 @@ class BulkSource:
                 lineno = self._block(block[:cut], lineno, pipe, plans, keep_arr, state)
             if progress is not None:
                 progress(self.position, state["n"])
+            if state.get("done"):
+                break
         st.lines = lineno
         # in order and without jumps (else Irregular): the per-frame reader's bus time is the span
         st.bus_time = state["last"] - state["first"] if state["first"] is not None else 0.0
@@ -267,7 +282,7 @@ class BulkSource:
                 out[key].pad = bool(getattr(dec, "_pad", False))
         return out
 
-    def _block(self, buf: bytes, lineno: int, pipe: Any, plans: dict, keep_arr: np.ndarray, state: dict) -> int:
+    def _block(self, buf: bytes, lineno: int, pipe: Any, plans: dict, keep_arr: Any, state: dict) -> int:
         st = self.stats
         if self._scan is None:
             self._scan = scan.available()
@@ -278,6 +293,14 @@ class BulkSource:
             where = f"line {lineno + bad}" if bad else f"a block after line {lineno}"
             raise Irregular(f"{scan.MESSAGES[code]} ({where})")
         lines_no = lines_no + lineno
+        if self._until is not None:
+            j = self._cut(buf, ts, ch_code, ch_lo, ch_hi, state)
+            if j is not None:  # the rows before the first frame past ``until``; the reading stops
+                state["done"] = True
+                n_lines = int(lines_no[j]) - lineno - 1
+                ts, key, data, dlc, ch_code, ch_lo, ch_hi, lines_no = (
+                    a[:j] for a in (ts, key, data, dlc, ch_code, ch_lo, ch_hi, lines_no)
+                )
         if not len(ts):
             return lineno + n_lines
         uniq, inv = np.unique(ch_code, return_inverse=True)
@@ -298,7 +321,7 @@ class BulkSource:
         # ids nobody decodes: the first of each is handed out (as the per-frame reader does), the rest
         # counted by id; beyond _ID_CACHE_MAX distinct ids, counted in one number and not stored (a
         # log of random ids must not grow the tables: 359 MB for a million ids before this cap)
-        kept = np.isin(key, keep_arr) & wanted
+        kept = wanted if keep_arr is None else np.isin(key, keep_arr) & wanted
         other = wanted & ~kept
         seen = state["seen"]
         hand = kept.copy()
@@ -334,6 +357,29 @@ class BulkSource:
         state["n"] += len(sel)
         self._decode(pipe, plans, sel, t, key[sel], data[sel], dlc[sel], inv[sel], value_u, lines_no[sel])
         return lineno + n_lines
+
+    def _cut(self, buf: bytes, ts: np.ndarray, ch_code: np.ndarray, ch_lo, ch_hi, state: dict) -> int | None:
+        """The row of the first frame (of a channel asked for) more than ``until`` seconds after
+        the log's first, or None.  (The channel table is left to _block: names seen after the
+        cut are not the log's first minutes'.)"""
+        chans = state["chans"]
+        uniq, first, inv = np.unique(ch_code, return_index=True, return_inverse=True)
+        want = []
+        for code, i in zip(uniq.tolist(), first.tolist()):
+            if code in chans:
+                want.append(chans[code][1])
+            else:
+                name = bytes(buf[ch_lo[i] : ch_hi[i]]).decode("ascii", "replace")
+                want.append(self._want is None or (int(name) if name.isdigit() else name) in self._want)
+        wanted = np.array(want)[inv]
+        t0 = state.get("t0")
+        if t0 is None:
+            w = np.flatnonzero(wanted)
+            if not len(w):
+                return None
+            t0 = state["t0"] = float(ts[w[0]])
+        past = np.flatnonzero(wanted & (ts - t0 > self._until))
+        return int(past[0]) if len(past) else None
 
     def _decode(self, pipe, plans, sel, t, key, data, dlc, ch_idx, ch_values, lines) -> None:
         dec = pipe.decoder
