@@ -404,7 +404,9 @@ def test_the_block_read_check_is_the_frame_by_frame_check(tmp_path, monkeypatch,
     real = logs.open_log
     for blocks in (True, False):
         if not blocks:
-            monkeypatch.setattr(bulk, "usable", lambda p: False)
+            monkeypatch.setattr(bulk, "pays", lambda p: False)
+        else:
+            monkeypatch.setattr(bulk, "pays", lambda p: True)  # (a short log: blocks only where numba is loaded)
         framewise = []  # the frame-by-frame read's opening of the log (the block reader's own is bulk's)
         monkeypatch.setattr(logs, "open_log", lambda *a, seen=framewise, **k: seen.append(1) or real(*a, **k))
         rep, cov = check_log(path, dataclasses.replace(PAPER, bus_channel="can0"), seconds=seconds)

@@ -713,8 +713,9 @@ def check_log(
 
 def _first_seconds(path: str | Path, profile: Profile, seconds: float, quiet: bool) -> tuple:
     """The first ``seconds`` of bus time of a log, decoded and aligned: (decoder, aligner, sample
-    times, sample values, the reader's stats).  A candump log goes a block at a time (vdp.io.bulk,
-    the same samples and decoder counts); one it hands back, and any other format, frame by frame."""
+    times, sample values, the reader's stats).  A candump log goes a block at a time where that
+    pays (vdp.io.bulk, the same samples and decoder counts); one it hands back, a short one, and
+    any other format, frame by frame."""
     from .buffer import Aligner
     from .io import bulk
     from .io.decoder import FrameDecoder
@@ -729,7 +730,7 @@ def _first_seconds(path: str | Path, profile: Profile, seconds: float, quiet: bo
                 stale[ch.INDEX[name]] = max(5.0 * cycle / 1000.0, 0.5)
         return dec, Aligner(stale_after=stale, tick=TICK, limits=ch.limits(profile.vehicle))
 
-    if bulk.usable(path):
+    if bulk.pays(path):
         dec, al = fresh()
         sink = _Sink(dec, al)
         src = bulk.BulkSource(path, channel=profile.bus_channel, until=seconds, keep_all=True)

@@ -55,6 +55,16 @@ class Irregular(Exception):
     """The log has something only the per-frame reader handles exactly."""
 
 
+def pays(path: str | Path) -> bool:
+    """Whether reading ``path`` a block at a time pays (a candump log, and :func:`scan.pays`:
+    numba loaded already, or a long log); the result is the same either way."""
+    try:
+        size = Path(path).stat().st_size
+    except OSError:
+        return False  # the per-frame reader says what is wrong with it
+    return usable(path) and scan.pays(size)
+
+
 def usable(path: str | Path) -> bool:
     """Bulk replay covers candump -L logs, plain or gzipped."""
     suffixes = [s.lower() for s in Path(path).suffixes]
@@ -69,17 +79,20 @@ def replay_log(
     strict: bool = False,
     channel: str | None = None,
     progress: Callable[[int, int], None] | None = None,
-    bulk: bool = True,
+    bulk: bool | None = None,
     wrap: Callable[[Any], Any] | None = None,
 ) -> tuple[RunResult, Any]:
     """``replay()``'s result for a log, and the pipeline it ran on.
 
-    candump logs go the bulk way (unless ``bulk`` is false); if the log turns out to
-    need the per-frame reader's rules, it is replayed again that way on a fresh
-    pipeline.  ``wrap``: applied to a per-frame source (a recorder that needs every frame).
+    candump logs go the bulk way where it pays (``bulk`` None: :func:`pays`; True: always,
+    False: never); if the log turns out to need the per-frame reader's rules, it is
+    replayed again that way on a fresh pipeline.  ``wrap``: applied to a per-frame source
+    (a recorder that needs every frame).
     """
     from ..replay import replay
 
+    if bulk is None:
+        bulk = pays(path)
     if bulk and usable(path):
         src = BulkSource(path, strict=strict, channel=channel)
         pipe = make_pipeline()

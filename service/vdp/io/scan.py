@@ -15,6 +15,7 @@ reads every line by its own rules and the bulk reader steps aside.
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 import types
 
@@ -287,6 +288,18 @@ def _kernel():
 def available() -> bool:
     """Whether the compiled parse runs here (numba imports)."""
     return _kernel() is not None
+
+
+PAYS_FROM = 1 << 22  # bytes (~90,000 lines): a log this long pays for loading numba (~0.8 s of CPU) itself
+
+
+def pays(size: int) -> bool:
+    """Whether a log of ``size`` bytes is parsed by the compiled scan: where numba is loaded
+    already (a replay's compiled estimator loads it for its own use), or the log is long
+    enough to pay for loading it; and numba imports.  The frames are the same either way (the
+    scan reads a line only as the per-frame reader's tolerant rules read it): a short log's
+    replay then starts without numba's fixed cost, when nothing else needs it."""
+    return ("numba" in sys.modules or size >= PAYS_FROM) and available()
 
 
 def lines(buf: bytes, stop: bool = True):

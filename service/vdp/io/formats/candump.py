@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import binascii
-import sys
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
@@ -313,14 +312,11 @@ class CandumpReader(_Reader):
 
 
 _SKIPPED = object()  # CandumpReader.slow: a frame of a channel not asked for
-_SCAN_FROM = 1 << 22  # bytes: a log this long pays for loading numba's compiled scan (~0.5 s) itself
 
 
 def _use_scan(size: int) -> bool:
-    """Whether to parse with the compiled scan: where numba is loaded already (a replay's
-    estimator loads it), or the log is long enough to pay for loading it.  Either way the
-    same frames (the scan reads a line only as the tolerant rules would)."""
-    return ("numba" in sys.modules or size >= _SCAN_FROM) and scan.available()
+    """Whether to parse with the compiled scan (:func:`vdp.io.scan.pays`)."""
+    return scan.pays(size)
 
 
 def _refused(chunk: bytes) -> Iterator[tuple]:
