@@ -23,6 +23,9 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import benchenv  # noqa: E402
+
 FLOORS = {
     "import": ["-c", "import can, numpy, cantools"],
     "reader": ["-c", "import can, sys\nfor m in can.LogReader(sys.argv[1]): pass"],
@@ -79,6 +82,7 @@ def main() -> int:
     ap.add_argument("--against", choices=sorted(FLOORS), default="import")
     ap.add_argument("--phases", action="store_true")
     a = ap.parse_args()
+    benchenv.announce()
     if a.phases:
         phases(a.log)
         return 0
