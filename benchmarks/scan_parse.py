@@ -1,11 +1,11 @@
-"""The bulk reader's block parse: numpy's whole-array passes against the compiled scan (vdp.io.scan).
+"""The one candump parser (vdp.io.scan), compiled, against the per-frame reader's tolerant rules.
 
     python benchmarks/scan_parse.py LOG [--repeat 3]
 
-Cuts a candump -L log into the reader's 2 MB blocks (at line ends) and times, in one
-process, CPU time: ``BulkSource._parse`` (numpy) and ``scan.lines`` (numba, compiled or
-loaded from the cache before timing) over every block, best of ``--repeat``; then checks
-that both give the same arrays for every block.
+In one process, CPU time, best of ``--repeat``: ``scan.lines`` (numba, compiled or loaded
+from the cache before timing) over the log cut into the bulk reader's 2 MB blocks; then the
+per-frame reader (``open_log``, every ``can.Message``) with the scan and with every line read
+by its tolerant rules (``CandumpReader.slow``), and whether the two gave the same frames.
 """
 
 from __future__ import annotations
@@ -15,12 +15,11 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "service"))
 
-from vdp.io import bulk, scan  # noqa: E402
+from vdp.io import bulk, logs, scan  # noqa: E402
+from vdp.io.formats import candump  # noqa: E402
 
 
 def blocks(path: Path) -> list[bytes]:
@@ -33,6 +32,15 @@ def blocks(path: Path) -> list[bytes]:
     return out
 
 
+def best(fn, repeat: int) -> float:
+    times = []
+    for _ in range(repeat):
+        t0 = time.process_time()
+        fn()
+        times.append(time.process_time() - t0)
+    return min(times)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("log", type=Path)
@@ -41,21 +49,19 @@ def main() -> int:
     bs = blocks(a.log)
     n = sum(b.count(b"\n") for b in bs)
     scan.warm()
-    best = {}
-    for name, fn in (("numpy", lambda b: bulk.BulkSource._parse(b, 0)), ("scan", scan.lines)):
-        times = []
-        for _ in range(a.repeat):
-            t0 = time.process_time()
-            for b in bs:
-                fn(b)
-            times.append(time.process_time() - t0)
-        best[name] = min(times)
-        print(f"{name:6}: {best[name]:.3f} s of CPU for {n:,} lines ({1e9 * best[name] / n:.0f} ns a line)")
-    same = True
-    for b in bs:
-        want, got = bulk.BulkSource._parse(b, 0), scan.lines(b)
-        same &= want[0] == got[2] and all(np.array_equal(x, y) for x, y in zip(want[1:], got[3:]))
-    print(f"scan {best['numpy'] / best['scan']:.1f}x numpy's parse; same arrays for every block: {same}")
+    t = best(lambda: [scan.lines(b) for b in bs], a.repeat)
+    print(f"scan, blocks      : {t:.3f} s of CPU for {n:,} lines ({1e9 * t / n:.0f} ns a line)")
+    read: dict[bool, list] = {}
+    for fast in (True, False):
+        candump._use_scan = lambda size, fast=fast: fast
+
+        def run(fast=fast):
+            read[fast] = [(m.timestamp, m.arbitration_id, bytes(m.data), m.channel) for m in logs.open_log(a.log)]
+
+        t = best(run, a.repeat)
+        what = "scan + messages" if fast else "tolerant rules  "
+        print(f"reader, {what}: {t:.3f} s of CPU ({1e9 * t / n:.0f} ns a line)")
+    print(f"same frames both ways: {read[True] == read[False]}")
     return 0
 
 

@@ -31,7 +31,9 @@ STAGE = {
     "vdp.io.dbcfix": 0,  # repairs DBC text as a profile is loaded
     "vdp.text": 0,  # names escaped for the formats they go into (the standard library only)
     "vdp.outfile": 0,  # every user file written whole (temporary file, rename; the standard library only)
-    "vdp.io.logs": 1,  # source
+    "vdp.io.logs": 1,  # source: opens a log, picks its reader
+    "vdp.io.formats": 1,  # source: one reader per log format
+    "vdp.io.scan": 1,  # source: the one candump parser (both candump readers)
     "vdp.io": 2,  # decode
     "vdp.io.bulk": 3,  # decodes and aligns blocks of a candump log
     "vdp.buffer": 3,  # align

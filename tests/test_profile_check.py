@@ -380,3 +380,37 @@ def test_a_message_that_keeps_failing_its_counter_is_warned_of_once(drive, caplo
     check_log(drive, dataclasses.replace(PAPER, checks=checks))
     said = [r.getMessage() for r in caplog.records if "bad counter/checksum" in r.getMessage()]
     assert len(said) == 1 and said[0].startswith("IMU_ACCEL (0x0E0)") and "said once" in said[0]
+
+
+@pytest.mark.parametrize("seconds", [300.0, 20.0])
+def test_the_block_read_check_is_the_frame_by_frame_check(tmp_path, monkeypatch, seconds):
+    """check_log reads a candump log a block at a time (vdp.io.bulk); the report and coverage
+    are those of the frame-by-frame read, to the last digit: unrelated ids (their counts and
+    order), a second bus channel (its frames skipped and named), a cut inside a block."""
+    from vdp.io import bulk, logs
+
+    frames = Simulation(PAPER, "paper", seed=4, duration=40.0, extra_ids=6, extra_rate=150.0).frames()
+    path = tmp_path / "two.log"
+    write_log(frames, path)
+    text = path.read_bytes().splitlines(keepends=True)
+    # every 7th line again on another channel (other_channels), 1 ms later to keep time in order
+    mixed = []
+    for i, line in enumerate(text):
+        mixed.append(line)
+        if i % 7 == 0:
+            mixed.append(line.replace(b" can0 ", b" can1 "))
+    path.write_bytes(b"".join(mixed))
+    got = {}
+    real = logs.open_log
+    for blocks in (True, False):
+        if not blocks:
+            monkeypatch.setattr(bulk, "pays", lambda p: False)
+        else:
+            monkeypatch.setattr(bulk, "pays", lambda p: True)  # (a short log: blocks only where numba is loaded)
+        framewise = []  # the frame-by-frame read's opening of the log (the block reader's own is bulk's)
+        monkeypatch.setattr(logs, "open_log", lambda *a, seen=framewise, **k: seen.append(1) or real(*a, **k))
+        rep, cov = check_log(path, dataclasses.replace(PAPER, bus_channel="can0"), seconds=seconds)
+        got[blocks] = (json.dumps(rep.as_dict(), sort_keys=True), json.dumps(cov.as_dict(), sort_keys=True))
+        assert bool(framewise) != blocks  # the block read held to the end (not handed back), or never ran
+    assert got[True] == got[False]
+    assert cov.other and cov.other_channels and rep.seconds > 15

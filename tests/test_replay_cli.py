@@ -350,3 +350,27 @@ def test_a_log_that_does_not_fit_the_default_profile_says_it_was_only_the_defaul
     assert "\n" not in err.strip()
     assert main(["replay", str(log), "--no-progress", "--profile", "profiles/paper.toml"]) == 2
     assert "taken by default" not in capsys.readouterr().err  # a profile chosen is not called the default
+
+
+def test_a_plain_replay_imports_only_what_it_uses(drive, repo_root, tmp_path):
+    """`vdp replay LOG` loads no web, storage, dataframe or plotting library and not the
+    simulator: only the chosen subcommand's module is imported, and each output's library
+    only when that output is asked for (start-up is most of a short log's replay)."""
+    import os
+    import subprocess
+    import sys
+
+    _, log = drive
+    code = (
+        "import json, sys\n"
+        "from vdp.cli import main\n"
+        f"main(['replay', {str(log)!r}, '--no-progress', '--json', {str(tmp_path / 'o.json')!r}])\n"
+        "heavy = ('fastapi', 'uvicorn', 'starlette', 'pyarrow', 'dask', 'pandas', 'matplotlib', 'vdp.sim',\n"
+        "         'vdp.api', 'vdp.live', 'vdp.fleet', 'vdp.cli.simulate', 'vdp.cli.serve', 'vdp.cli.batch')\n"
+        "print(json.dumps([m for m in heavy if m in sys.modules]))\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(repo_root / "service")}
+    run = [sys.executable, "-c", code]
+    out = subprocess.run(run, capture_output=True, text=True, env=env, cwd=tmp_path, check=True)
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == []
+    assert json.loads((tmp_path / "o.json").read_text())["parameters"]  # it did replay

@@ -676,33 +676,10 @@ def check_log(
     with the counts and the ids the log does hold (unless ``strict_coverage`` is false).
     ``quiet``: the reader logs no warnings (a replay that reads the log next gives them).
     """
-    from .buffer import Aligner
-    from .io.decoder import FrameDecoder
-    from .io.logs import channel_keys, open_log
+    from .io.logs import channel_keys
 
-    dec = FrameDecoder(profile)
-    stale = np.full(ch.N, 0.5)
-    for name, cm in profile.channels.items():  # a 1 Hz GPS stays usable between its frames
-        cycle = dec.db.get_message_by_name(cm.message).cycle_time
-        if cycle:
-            stale[ch.INDEX[name]] = max(5.0 * cycle / 1000.0, 0.5)
-    al = Aligner(stale_after=stale, tick=TICK, limits=ch.limits(profile.vehicle))
-    ts: list[float] = []
-    rows: list[np.ndarray] = []
-    t0 = None
-    with open_log(path, channel=profile.bus_channel, quiet=quiet) as src:
-        for msg in src:
-            if t0 is None:
-                t0 = msg.timestamp
-            if msg.timestamp - t0 > seconds:
-                break
-            pairs = dec.decode(msg)
-            if pairs:
-                for s in al.push(msg.timestamp, pairs):
-                    ts.append(s.t)
-                    rows.append(s.values)
+    dec, al, ts, y, st = _first_seconds(path, profile, seconds, quiet)
     cov = coverage(dec)
-    st = src.stats
     if getattr(st, "skipped", 0):  # the log source left out the frames of other bus channels
         names = sorted(c for c in getattr(st, "channels", ()) if c not in channel_keys(profile.bus_channel))
         cov.other_channels = {", ".join(names) or "?": st.skipped}
@@ -716,11 +693,10 @@ def check_log(
         if cm.message in cov.missing and (cm.alt is None or cm.alt.message in cov.missing)
     }
     rep = Report()
-    if rows:
-        y = np.vstack(rows)
+    if len(ts):
         for c in lost:
             y[:, ch.INDEX[c]] = np.nan
-        check_samples(profile, np.asarray(ts), y, rep)
+        check_samples(profile, ts, y, rep)
     else:
         check_profile(profile, rep)
     check_bounds(al.refused, dec.stats.samples, rep)
@@ -733,6 +709,84 @@ def check_log(
             how = "refused" if m in cov.refused else "missing"
             rep.skipped[key] = f"{what}: {chans[0]} had next to no values (its message {m} {how})"
     return rep, cov
+
+
+def _first_seconds(path: str | Path, profile: Profile, seconds: float, quiet: bool) -> tuple:
+    """The first ``seconds`` of bus time of a log, decoded and aligned: (decoder, aligner, sample
+    times, sample values, the reader's stats).  A candump log goes a block at a time where that
+    pays (vdp.io.bulk, the same samples and decoder counts); one it hands back, a short one, and
+    any other format, frame by frame."""
+    from .buffer import Aligner
+    from .io import bulk
+    from .io.decoder import FrameDecoder
+    from .io.logs import open_log
+
+    def fresh():
+        dec = FrameDecoder(profile)
+        stale = np.full(ch.N, 0.5)
+        for name, cm in profile.channels.items():  # a 1 Hz GPS stays usable between its frames
+            cycle = dec.db.get_message_by_name(cm.message).cycle_time
+            if cycle:
+                stale[ch.INDEX[name]] = max(5.0 * cycle / 1000.0, 0.5)
+        return dec, Aligner(stale_after=stale, tick=TICK, limits=ch.limits(profile.vehicle))
+
+    if bulk.pays(path):
+        dec, al = fresh()
+        sink = _Sink(dec, al)
+        src = bulk.BulkSource(path, channel=profile.bus_channel, until=seconds, keep_all=True)
+        try:
+            src.feed_into(sink)
+        except bulk.Irregular as why:
+            log.debug("%s: %s; checking it frame by frame", path, why)
+        else:
+            return dec, al, *sink.arrays(), src.stats
+        finally:
+            src.close()
+    dec, al = fresh()
+    ts: list[float] = []
+    rows: list[tuple] = []
+    t0 = None
+    with open_log(path, channel=profile.bus_channel, quiet=quiet) as src:
+        for msg in src:
+            if t0 is None:
+                t0 = msg.timestamp
+            if msg.timestamp - t0 > seconds:
+                break
+            pairs = dec.decode(msg)
+            if pairs:
+                for s in al.push(msg.timestamp, pairs):
+                    ts.append(s.t)
+                    rows.append(s.values)
+    y = np.vstack(rows) if rows else np.zeros((0, ch.N))
+    return dec, al, np.asarray(ts), y, src.stats
+
+
+class _Sink:
+    """What the block reader feeds (a pipeline's decoder, aligner, feed and take_block): keeps
+    the aligned samples, as the frame-by-frame loop of :func:`_first_seconds` keeps them."""
+
+    def __init__(self, decoder, aligner):
+        self.decoder, self.aligner = decoder, aligner
+        self.last_bus_time = None
+        self._t: list[np.ndarray] = []
+        self._y: list[np.ndarray] = []
+
+    def feed(self, msg) -> None:
+        pairs = self.decoder.decode(msg)
+        if pairs:
+            samples = self.aligner.push(msg.timestamp, pairs)
+            if samples:
+                self._t.append(np.array([s.t for s in samples]))
+                self._y.append(np.array([s.values for s in samples]))
+
+    def take_block(self, T, Y, F, A, gap) -> None:
+        self._t.append(T)
+        self._y.append(Y)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        if not self._t:
+            return np.zeros(0), np.zeros((0, ch.N))
+        return np.concatenate(self._t), np.vstack(self._y)
 
 
 REFUSED_SHARE = 0.03  # a message whose frames the decoder refuses more often than this is a finding

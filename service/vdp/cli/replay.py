@@ -209,7 +209,8 @@ def run(args) -> int:
         strict=args.strict,
         channel=profile.bus_channel,
         progress=progress.update,
-        bulk=not (args.per_frame or args.series),  # the series samples the estimates frame by frame
+        # the series samples the estimates frame by frame; else blocks where they pay (bulk.pays)
+        bulk=False if args.per_frame or args.series else None,
         wrap=lambda src: made["recorder"].wrap(src) if made["recorder"] else src,
     )
     recorder, tap = made["recorder"], made["tap"]

@@ -1,8 +1,8 @@
-"""Bulk replay of candump -L logs: whole blocks parsed and decoded with numpy.
+"""Bulk replay of candump -L logs: whole blocks parsed (vdp.io.scan) and decoded with numpy.
 
 The per-frame path (``open_log`` -> ``can.Message`` -> ``FrameDecoder.decode``)
 costs a few microseconds of Python per line.  Here a block of lines (2 MB) is
-split, checked and parsed at once over its bytes; lines of ids the profile does
+parsed at once by the compiled scan, the one candump parser; lines of ids the profile does
 not decode are counted by id and dropped before anything else; the rest are
 decoded one message at a time, every signal of every frame in one numpy
 expression (same shifts, masks, scale and offset as the decoder's generated
@@ -37,9 +37,10 @@ import numpy as np
 
 from .. import channels
 from ..result import RunResult
+from . import scan  # (no numba: the compiled parse is made at its first use)
 from .decoder import MAX_UNKNOWN, compile_extractor
-from .logs import _ID_CACHE_MAX, _MAX_CHANNELS, EXT_KEY, LogStats, channel_keys, open_log
-from .scan import _HEX, _MAX_EXACT  # (no numba: the compiled parse is made at its first use)
+from .formats.base import _ID_CACHE_MAX, _MAX_CHANNELS, EXT_KEY, LogStats, channel_keys
+from .logs import open_log
 from .signals import range_limits as limits  # with the profile's range overrides
 
 log = logging.getLogger(__name__)
@@ -52,6 +53,16 @@ _TX = {b"T", b"t"}
 
 class Irregular(Exception):
     """The log has something only the per-frame reader handles exactly."""
+
+
+def pays(path: str | Path) -> bool:
+    """Whether reading ``path`` a block at a time pays (a candump log, and :func:`scan.pays`:
+    numba loaded already, or a long log); the result is the same either way."""
+    try:
+        size = Path(path).stat().st_size
+    except OSError:
+        return False  # the per-frame reader says what is wrong with it
+    return usable(path) and scan.pays(size)
 
 
 def usable(path: str | Path) -> bool:
@@ -68,17 +79,20 @@ def replay_log(
     strict: bool = False,
     channel: str | None = None,
     progress: Callable[[int, int], None] | None = None,
-    bulk: bool = True,
+    bulk: bool | None = None,
     wrap: Callable[[Any], Any] | None = None,
 ) -> tuple[RunResult, Any]:
     """``replay()``'s result for a log, and the pipeline it ran on.
 
-    candump logs go the bulk way (unless ``bulk`` is false); if the log turns out to
-    need the per-frame reader's rules, it is replayed again that way on a fresh
-    pipeline.  ``wrap``: applied to a per-frame source (a recorder that needs every frame).
+    candump logs go the bulk way where it pays (``bulk`` None: :func:`pays`; True: always,
+    False: never); if the log turns out to need the per-frame reader's rules, it is
+    replayed again that way on a fresh pipeline.  ``wrap``: applied to a per-frame source
+    (a recorder that needs every frame).
     """
     from ..replay import replay
 
+    if bulk is None:
+        bulk = pays(path)
     if bulk and usable(path):
         src = BulkSource(path, strict=strict, channel=channel)
         pipe = make_pipeline()
@@ -170,8 +184,21 @@ class BulkSource:
     needs the per-frame reader (see the module's doc).
     """
 
-    def __init__(self, path: str | Path, strict: bool = False, channel: str | None = None):
+    def __init__(
+        self,
+        path: str | Path,
+        strict: bool = False,
+        channel: str | None = None,
+        until: float | None = None,
+        keep_all: bool = False,
+    ):
+        """``until``: read only up to the first frame more than ``until`` seconds of bus time
+        after the first, as a loop over ``open_log`` that breaks there (the profile check's
+        first minutes); ``keep_all``: hand every frame to the decoder, none passed over by id
+        (its counts of ids it does not decode are then the per-frame decoder's, in its order)."""
         self.path = Path(path)
+        self._until = until
+        self._keep_all = keep_all
         # the per-frame reader's checks of the file itself: missing, empty, binary, bad gzip
         probe = open_log(self.path, strict=strict, channel=channel)
         self.size, self.compressed = probe.size, probe.compressed
@@ -182,9 +209,9 @@ class BulkSource:
         self.stats = LogStats(unit="line")
         self._keep: frozenset[int] | None = None
         self._off: set[int] = set()  # plans whose block decoding disagreed with the frame decoder
-        # vdp.io.scan, the compiled parse, where numba imports (False: numpy's, _parse); set at the
-        # first block, so that opening a log does not import numba
-        self._scan: Any = None
+        # whether vdp.io.scan's compiled parse runs here; asked at the first block, so that opening
+        # a log does not import numba
+        self._scan: bool | None = None
 
     @property
     def position(self) -> int:
@@ -220,7 +247,7 @@ class BulkSource:
             "first": None,
             "n": 0,
         }
-        keep_arr = np.array(sorted(keep), dtype=np.int64)
+        keep_arr = None if self._keep_all else np.array(sorted(keep), dtype=np.int64)
         tail = b""
         lineno = 0
         while True:
@@ -241,6 +268,8 @@ class BulkSource:
                 lineno = self._block(block[:cut], lineno, pipe, plans, keep_arr, state)
             if progress is not None:
                 progress(self.position, state["n"])
+            if state.get("done"):
+                break
         st.lines = lineno
         # in order and without jumps (else Irregular): the per-frame reader's bus time is the span
         st.bus_time = state["last"] - state["first"] if state["first"] is not None else 0.0
@@ -266,109 +295,25 @@ class BulkSource:
                 out[key].pad = bool(getattr(dec, "_pad", False))
         return out
 
-    @staticmethod
-    def _parse(buf: bytes, lineno: int) -> tuple:
-        """The block's lines parsed with numpy: (lines in the block, then per non-empty line its
-        line number, time stamp, key, data bytes, dlc, channel code and channel name's span), or
-        Irregular.  The reference of the compiled parse (vdp.io.scan), which runs where it can."""
-        a = np.frombuffer(buf, np.uint8)
-        nl = np.flatnonzero(a == 10)
-        n_lines = len(nl)
-        starts = np.empty(n_lines, np.int64)
-        starts[0] = 0
-        starts[1:] = nl[:-1] + 1
-        ends = nl.astype(np.int64)
-        has_cr = (ends > starts) & (a[np.maximum(ends - 1, 0)] == 13)
-        ends = ends - has_cr
-        nonempty = ends > starts
-        if not nonempty.all():
-            if (has_cr & ~nonempty).any():
-                raise Irregular("a line with only a carriage return")
-            starts, ends = starts[nonempty], ends[nonempty]
-        lines_no = np.flatnonzero(nonempty) + lineno + 1
-        if not len(starts):
-            no = np.zeros(0, np.int64)
-            return n_lines, no, no.astype(float), no, np.zeros((0, 8), np.uint8), no, no.astype(np.uint64), no, no
-        if (a == 9).any() or (a == 11).any() or (a == 12).any():
-            raise Irregular("tabs or other whitespace between fields")
-        # fields: "(ts) channel id#data [R|T]", single spaces
-        sp = np.flatnonzero(a == 32)
-        i1 = np.searchsorted(sp, starts)
-        n_sp = np.searchsorted(sp, ends) - i1
-        if not ((n_sp == 2) | (n_sp == 3)).all():
-            raise Irregular("a line without 3 or 4 fields")
-        sp_ext = np.append(sp, [len(a), len(a)])
-        s1, s2, s3 = sp_ext[i1], sp_ext[i1 + 1], np.where(n_sp == 3, sp_ext[i1 + 2], ends)
-        if n_sp.max() == 3:
-            d = n_sp == 3
-            if not (ends[d] - s3[d] == 2).all() or not np.isin(a[s3[d] + 1], np.frombuffer(b"RrTt", np.uint8)).all():
-                raise Irregular("a 4th field that is not a direction")
-        if not ((a[starts] == 40) & (a[s1 - 1] == 41) & (s2 > s1 + 1) & (s3 > s2 + 1)).all():
-            raise Irregular("a line not '(time) channel id#data'")
-        # timestamp: digits '.' digits
-        dots = np.flatnonzero(a == 46)
-        dp = np.append(dots, len(a))[np.searchsorted(dots, starts)]
-        if not (dp < s1 - 1).all():
-            raise Irregular("a timestamp without a decimal point")
-        li, lf = dp - starts - 1, s1 - 2 - dp
-        if not ((li >= 1) & (li + lf <= 18) & (lf >= 0)).all():
-            raise Irregular("a timestamp that is not plain digits")
-        apad = np.concatenate((a, np.zeros(32, np.uint8)))
-        ts = np.empty(len(starts))
-        for gi, gf in set(zip(li.tolist(), lf.tolist())):
-            sel = np.flatnonzero((li == gi) & (lf == gf))
-            pos = np.concatenate([starts[sel, None] + 1 + np.arange(gi), dp[sel, None] + 1 + np.arange(gf)], axis=1)
-            digits = apad[pos].astype(np.int64) - 48
-            if ((digits < 0) | (digits > 9)).any():
-                raise Irregular("a timestamp that is not plain digits")
-            num = digits @ (10 ** np.arange(gi + gf - 1, -1, -1, dtype=np.int64))
-            if (num >= _MAX_EXACT).any():
-                raise Irregular("a timestamp with too many digits")
-            ts[sel] = num.astype(np.float64) / float(10**gf)
-        # id#data
-        hashes = np.flatnonzero(a == 35)
-        h = np.append(hashes, len(a))[np.searchsorted(hashes, s2)]
-        id_len, dlen = h - s2 - 1, s3 - h - 1
-        if not ((h < s3) & ((id_len == 3) | (id_len == 8)) & (dlen % 2 == 0) & (dlen <= 16)).all():
-            raise Irregular("a frame that is not a plain data frame (remote, FD, raw DLC or bad hex)")
-        idn = _HEX[apad[(s2 + 1)[:, None] + np.arange(8)]].astype(np.int64)
-        idn[np.arange(8)[None, :] >= id_len[:, None]] = 0
-        nib = _HEX[apad[(h + 1)[:, None] + np.arange(16)]]
-        nib[np.arange(16)[None, :] >= dlen[:, None]] = 0
-        if (idn > 15).any() or (nib > 15).any():
-            raise Irregular("a frame that is not a plain data frame (remote, FD, raw DLC or bad hex)")
-        aid = np.zeros(len(starts), np.int64)
-        for i in range(8):
-            aid = np.where(i < id_len, aid * 16 + idn[:, i], aid)
-        ext = id_len == 8
-        if ((~ext & (aid > 0x7FF)) | (ext & (aid > 0x1FFFFFFF))).any():
-            raise Irregular("an error frame or an id out of range")
-        key = np.where(ext, aid | EXT_KEY, aid)
-        data = (nib[:, 0::2] << 4) | nib[:, 1::2]
-        dlc = dlen // 2
-        # channels
-        ch_len = s2 - s1 - 1
-        if ch_len.max() > 8:
-            raise Irregular("a channel name longer than 8 characters")
-        cb = apad[(s1 + 1)[:, None] + np.arange(8)].astype(np.uint64)
-        cb[np.arange(8)[None, :] >= ch_len[:, None]] = 0
-        ch_code = (cb << (np.arange(8, dtype=np.uint64) * np.uint64(8))).sum(axis=1)
-        return n_lines, lines_no, ts, key, data, dlc, ch_code, s1 + 1, s2
-
-    def _block(self, buf: bytes, lineno: int, pipe: Any, plans: dict, keep_arr: np.ndarray, state: dict) -> int:
+    def _block(self, buf: bytes, lineno: int, pipe: Any, plans: dict, keep_arr: Any, state: dict) -> int:
         st = self.stats
         if self._scan is None:
-            from . import scan
-
-            self._scan = scan if scan.available() else False
-        if self._scan:
-            code, bad, n_lines, lines_no, ts, key, data, dlc, ch_code, ch_lo, ch_hi = self._scan.lines(buf)
-            if code:
-                where = f"line {lineno + bad}" if bad else f"a block after line {lineno}"
-                raise Irregular(f"{self._scan.MESSAGES[code]} ({where})")
-            lines_no = lines_no + lineno
-        else:
-            n_lines, lines_no, ts, key, data, dlc, ch_code, ch_lo, ch_hi = self._parse(buf, lineno)
+            self._scan = scan.available()
+            if not self._scan:  # numba is a dependency; without it the tolerant reader parses every line
+                raise Irregular("no compiled parse (numba does not import)")
+        code, bad, n_lines, _, _, _, lines_no, ts, key, _, data, dlc, ch_code, ch_lo, ch_hi, _ = scan.lines(buf)
+        if code:
+            where = f"line {lineno + bad}" if bad else f"a block after line {lineno}"
+            raise Irregular(f"{scan.MESSAGES[code]} ({where})")
+        lines_no = lines_no + lineno
+        if self._until is not None:
+            j = self._cut(buf, ts, ch_code, ch_lo, ch_hi, state)
+            if j is not None:  # the rows before the first frame past ``until``; the reading stops
+                state["done"] = True
+                n_lines = int(lines_no[j]) - lineno - 1
+                ts, key, data, dlc, ch_code, ch_lo, ch_hi, lines_no = (
+                    a[:j] for a in (ts, key, data, dlc, ch_code, ch_lo, ch_hi, lines_no)
+                )
         if not len(ts):
             return lineno + n_lines
         uniq, inv = np.unique(ch_code, return_inverse=True)
@@ -389,7 +334,7 @@ class BulkSource:
         # ids nobody decodes: the first of each is handed out (as the per-frame reader does), the rest
         # counted by id; beyond _ID_CACHE_MAX distinct ids, counted in one number and not stored (a
         # log of random ids must not grow the tables: 359 MB for a million ids before this cap)
-        kept = np.isin(key, keep_arr) & wanted
+        kept = wanted if keep_arr is None else np.isin(key, keep_arr) & wanted
         other = wanted & ~kept
         seen = state["seen"]
         hand = kept.copy()
@@ -425,6 +370,29 @@ class BulkSource:
         state["n"] += len(sel)
         self._decode(pipe, plans, sel, t, key[sel], data[sel], dlc[sel], inv[sel], value_u, lines_no[sel])
         return lineno + n_lines
+
+    def _cut(self, buf: bytes, ts: np.ndarray, ch_code: np.ndarray, ch_lo, ch_hi, state: dict) -> int | None:
+        """The row of the first frame (of a channel asked for) more than ``until`` seconds after
+        the log's first, or None.  (The channel table is left to _block: names seen after the
+        cut are not the log's first minutes'.)"""
+        chans = state["chans"]
+        uniq, first, inv = np.unique(ch_code, return_index=True, return_inverse=True)
+        want = []
+        for code, i in zip(uniq.tolist(), first.tolist()):
+            if code in chans:
+                want.append(chans[code][1])
+            else:
+                name = bytes(buf[ch_lo[i] : ch_hi[i]]).decode("ascii", "replace")
+                want.append(self._want is None or (int(name) if name.isdigit() else name) in self._want)
+        wanted = np.array(want)[inv]
+        t0 = state.get("t0")
+        if t0 is None:
+            w = np.flatnonzero(wanted)
+            if not len(w):
+                return None
+            t0 = state["t0"] = float(ts[w[0]])
+        past = np.flatnonzero(wanted & (ts - t0 > self._until))
+        return int(past[0]) if len(past) else None
 
     def _decode(self, pipe, plans, sel, t, key, data, dlc, ch_idx, ch_values, lines) -> None:
         dec = pipe.decoder
