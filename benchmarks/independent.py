@@ -208,6 +208,7 @@ def run_one(job) -> dict:
             tv = truth_value(name, truth)
             v, sd = e.get("value"), e.get("std")
             d = {"truth": tv, "value": v, "std": sd, "status": e.get("status"), "valid": bool(e.get("valid"))}
+            d["reason"] = e.get("reason")
             if tv is not None and v is not None:
                 d["err"] = (v - tv) / tv
                 d["z"] = abs(v - tv) / sd if sd else float("inf")

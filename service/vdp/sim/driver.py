@@ -114,12 +114,21 @@ class Driver:
         t_f, t_r = front * t, (1.0 - front) * t
         if slip is not None and cfg.slip_max is not None:
             t_f, t_r = self._limit(0, t_f, slip[0], v_x, dt), self._limit(1, t_r, slip[1], v_x, dt)
-        # Steering: rate limit, then lag.
+        self.delta_rl, self.delta = self._steer(delta_cmd)
+        return t_f, t_r, self.delta
+
+    def _steer(self, delta_cmd: float) -> tuple[float, float]:
+        """(rate-limited command, road-wheel angle) one step on: rate limit, then lag."""
         step = delta_cmd - self.delta_rl
         rs = self._rate_step
-        self.delta_rl += rs if step > rs else (-rs if step < -rs else step)
-        self.delta += self._lag_s * (self.delta_rl - self.delta)
-        return t_f, t_r, self.delta
+        rl = self.delta_rl + (rs if step > rs else (-rs if step < -rs else step))
+        return rl, self.delta + self._lag_s * (rl - self.delta)
+
+    def next_delta(self, delta_cmd: float) -> float:
+        """The road-wheel angle the next :meth:`update` will return for this command (the
+        steering does not depend on the car's state), without moving the driver: the end of the
+        step the simulator ramps the angle to."""
+        return self._steer(delta_cmd)[1]
 
     def _limit(self, i: int, torque: float, slip: float, v_x: float, dt: float) -> float:
         """Axle ``i``'s torque after traction control (driving) or ABS (braking)."""

@@ -210,7 +210,8 @@ class Simulation:
             t = n * DT
             v_cmd, a_cmd, d_cmd, hint = sc.command(t, hint)
             tf, tr, delta = drv.update(DT, v_cmd, a_cmd, d_cmd, x[0], wheel_slips(x, p.r))
-            x1, e = model.advance(x, tf, tr, delta, DT)
+            # the steering ramps to the next step's angle (continuous, as the sensor samples it)
+            x1, e = model.advance(x, tf, tr, delta, DT, drv.next_delta(sc.command(t + DT, hint)[2]))
             ts = (start_us + n * step_ms * 1000) / 1e6
             for item in sched:
                 if item[0] != n:
@@ -389,7 +390,7 @@ def trace(
         t = n * dt
         v_cmd, a_cmd, d_cmd, hint = sc.command(t, hint)
         tf, tr, delta = drv.update(dt, v_cmd, a_cmd, d_cmd, x[0], wheel_slips(x, p.r))
-        x1, e = model.advance(x, tf, tr, delta, dt)
+        x1, e = model.advance(x, tf, tr, delta, dt, drv.next_delta(sc.command(t + dt, hint)[2]))
         if n % every == 0:
             rows.append((t, *x, tf, tr, delta, v_cmd, d_cmd, *e, psi))
         psi += 0.5 * dt * (x[2] + x1[2])

@@ -165,11 +165,21 @@ class Model:
         d = list(self._body(x[VX], x[VY], x[WZ], x[PHI], x[P], e, cd, sd))
         return d + [(T_f - self.r * e[4]) / self.J, (T_r - self.r * e[5]) / self.J]
 
-    def step(self, x: Sequence[float], T_f: float, T_r: float, delta: float, dt: float) -> list[float]:
-        return self.advance(x, T_f, T_r, delta, dt)[0]
+    def step(
+        self, x: Sequence[float], T_f: float, T_r: float, delta: float, dt: float, delta_end: float | None = None
+    ) -> list[float]:
+        return self.advance(x, T_f, T_r, delta, dt, delta_end)[0]
 
-    def advance(self, x: Sequence[float], T_f: float, T_r: float, delta: float, dt: float) -> tuple[list[float], tuple]:
-        """One step of length dt with inputs held; returns (new state, raw Forces tuple at x)."""
+    def advance(
+        self, x: Sequence[float], T_f: float, T_r: float, delta: float, dt: float, delta_end: float | None = None
+    ) -> tuple[list[float], tuple]:
+        """One step of length dt; returns (new state, raw Forces tuple at x).
+
+        The torques are held over the step.  The road-wheel angle goes linearly from ``delta``
+        to ``delta_end`` (held when None): a real steering angle is continuous, and a staircase
+        held over each 1-ms step lags the sampled angle by half a step, which an estimator that
+        interpolates the samples reads as the tyres responding 0.5 ms early (on a light car on
+        stiff tyres, +0.6 % C_alpha, +1.7 % I_z from this alone)."""
         vx, vy, wz, phi, p, wf, wr = x
         if vx < V_HOLD and T_f + T_r < 0.0:
             # Standstill: the brakes hold the car; only the roll mode relaxes (a_y = 0).
@@ -183,6 +193,9 @@ class Model:
         k1 = self._body(vx, vy, wz, phi, p, e, cd, sd)
         vx_t, vy_t, wz_t = vx + dt * k1[0], vy + dt * k1[1], wz + dt * k1[2]
         phi_t, p_t = phi + dt * k1[3], p + dt * k1[4]
+        if delta_end is not None and delta_end != delta:  # Heun's second stage at the step's end
+            delta = delta_end
+            cd, sd = math.cos(delta), math.sin(delta)
         # Wheels (eq 2): backward Euler against the predicted wheel-frame speed, F_z frozen.
         wf1 = self._wheel(wf, T_f, e[2], vx_t * cd + (vy_t + self.lf * wz_t) * sd, dt)
         wr1 = self._wheel(wr, T_r, e[3], vx_t, dt)

@@ -409,12 +409,18 @@ class BrushModel(Model):
         dx = [ax + r * vy, ay - r * vx, mz / c.I_z, p, pd, q, qd, *dw, *d_lag]
         return dx, (ax, ay, zf, zr)
 
-    def step(self, x: list[float], T_f: float, T_r: float, delta: float, dt: float) -> tuple[list[float], tuple]:
+    def step(
+        self, x: list[float], T_f: float, T_r: float, delta: float, dt: float, delta_end: float | None = None
+    ) -> tuple[list[float], tuple]:
+        """One RK4 step; the steering goes linearly from ``delta`` to ``delta_end`` (held when
+        None): a staircase held over each step lags the sampled angle by half a step."""
+        d1 = delta if delta_end is None else delta_end
+        dm = 0.5 * (delta + d1)
         k1, aux = self.deriv(x, T_f, T_r, delta)
         h = 0.5 * dt
-        k2, _ = self.deriv([a + h * b for a, b in zip(x, k1)], T_f, T_r, delta)
-        k3, _ = self.deriv([a + h * b for a, b in zip(x, k2)], T_f, T_r, delta)
-        k4, _ = self.deriv([a + dt * b for a, b in zip(x, k3)], T_f, T_r, delta)
+        k2, _ = self.deriv([a + h * b for a, b in zip(x, k1)], T_f, T_r, dm)
+        k3, _ = self.deriv([a + h * b for a, b in zip(x, k2)], T_f, T_r, dm)
+        k4, _ = self.deriv([a + dt * b for a, b in zip(x, k3)], T_f, T_r, d1)
         s = dt / 6.0
         x1 = [a + s * (b1 + 2.0 * b2 + 2.0 * b3 + b4) for a, b1, b2, b3, b4 in zip(x, k1, k2, k3, k4)]
         ax, ay, zf, zr = aux

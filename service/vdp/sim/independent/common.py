@@ -74,7 +74,11 @@ class Model:
     def initial(self, v0: float) -> list[float]:
         raise NotImplementedError
 
-    def step(self, x: list[float], T_f: float, T_r: float, delta: float, dt: float) -> tuple[list[float], tuple]:
+    def step(
+        self, x: list[float], T_f: float, T_r: float, delta: float, dt: float, delta_end: float | None = None
+    ) -> tuple[list[float], tuple]:
+        """(state after dt, the channels' row at x); the steering command goes linearly from
+        ``delta`` to ``delta_end`` over the step (held when None)."""
         raise NotImplementedError
 
     def fx(self, kappa: float, F_z: float, axle: str) -> float:
@@ -203,7 +207,7 @@ def drive(
         t = n * DT
         v_cmd, a_cmd, d_cmd, hint = sc.command(t, hint)
         tf, tr, delta = drv.update(DT, v_cmd, a_cmd, d_cmd, v_x)
-        x, row = model.step(x, tf, tr, delta, DT)
+        x, row = model.step(x, tf, tr, delta, DT, drv.next_delta(sc.command(t + DT, hint)[2]))
         out[n] = row
         v_x = row[channels.N + AUX.index("v_x")]
         if not math.isfinite(v_x):

@@ -206,7 +206,11 @@ class MBModel(Model):
             f[i] += (T - rr) / p.I_y_w
         return f
 
-    def step(self, x: list[float], T_f: float, T_r: float, delta: float, dt: float) -> tuple[list[float], tuple]:
+    def step(
+        self, x: list[float], T_f: float, T_r: float, delta: float, dt: float, delta_end: float | None = None
+    ) -> tuple[list[float], tuple]:
+        """One RK4 step; ``delta`` is the steering servo's command (its angle is the state x[2],
+        continuous already), so ``delta_end`` is not needed and ignored."""
         k1 = self.deriv(x, T_f, T_r, delta)
         h = 0.5 * dt
         k2 = self.deriv([a + h * b for a, b in zip(x, k1)], T_f, T_r, delta)
