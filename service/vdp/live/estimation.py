@@ -226,6 +226,16 @@ class Estimation:
         now = time.monotonic()
         return [what for when, what in self._diverged.values() if now - when <= hold]
 
+    def post(self, fn: Callable[[Any], Any]) -> Future | None:
+        """Queue ``fn(pipeline)`` to run on the worker after the frames queued so far; do not wait.
+        None when the queue is full (try again later)."""
+        cmd = _Command(fn)
+        try:
+            self.queue.put_nowait(cmd)
+        except queue.Full:
+            return None
+        return cmd.future
+
     def call(self, fn: Callable[[Any], Any], timeout: float = COMMAND_TIMEOUT) -> Any:
         """Run ``fn(pipeline)`` on the worker, after every frame already queued."""
         if not self.alive:
