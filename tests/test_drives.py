@@ -240,3 +240,25 @@ def test_fit_mass_has_an_honest_std():
         m = fit_mass(force, ax, v, wheel_inertia=0.0, wheel_radius=0.3)
         zs.append((m.value - 1900) / m.std)
     assert abs(float(np.mean(zs))) < 0.5 and 0.6 < float(np.std(zs)) < 1.5, (np.mean(zs), np.std(zs))
+
+
+def test_batch_names_the_changes_between_a_vehicles_drives_in_time_order():
+    from vdp.fleet import changes
+
+    def drive(log, start, mass, c_k, ids=10):
+        prn = json.dumps({f"0x{i:X}": 0.01 for i in range(ids)})
+        common = {"vehicle": "car", "log": log, "start_time": start, "mass": mass, "mass_std": 15.0, "bus_print": prn}
+        common.update(wheel_scale=1.0, wheel_scale_std=0.002, status="converged", valid=True)
+        return [
+            dict(common, parameter="C_K", value=c_k, std=0.1),
+            dict(common, parameter="C_alpha", value=66900.0, std=800.0),
+        ]
+
+    rows = drive("d.log", 400, 1600, 8.0) + drive("a.log", 100, 1600, 10.0) + drive("b.log", 200, 1605, 10.05)
+    rows += drive("c.log", 300, 1900, 11.9) + drive("e.log", 500, 1600, 8.0, ids=30)
+    found = changes(rows)
+    assert [(c["log"], c["kind"]) for c in found] == [("c.log", "mass"), ("d.log", "mass"), ("e.log", "car")]
+    # the tyres: d.log's C_K is the unloaded car's again after the load, but 20 % below a.log's
+    rows = drive("a.log", 100, 1600, 10.0) + drive("b.log", 200, 1600, 8.0)
+    (c,) = changes(rows)
+    assert c["kind"] == "tyres" and c["size"] == pytest.approx(-0.2) and c["params"] == ["C_K", "C_alpha"]

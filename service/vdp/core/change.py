@@ -171,6 +171,18 @@ def bus_print(counts: Mapping[int, int], duration: float, min_rate: float = PRIN
     return {int(i): duration / n for i, n in counts.items() if n >= max(min_rate * duration, 2)}
 
 
+def id_counts(dec) -> dict[int, int]:
+    """Frames per CAN id (the decoder's key: the id, with its extended flag) a FrameDecoder has
+    been offered: those it decodes, those it refused, and the ids it does not know."""
+    out = dict(dec.stats.unknown.copy())
+    for p in list(dec._plans.values()):
+        if p.good:
+            out[p.key] = out.get(p.key, 0) + p.good
+    for (key, _kind), n in dec.stats.errors.copy().items():
+        out[key] = out.get(key, 0) + n
+    return out
+
+
 def _ids(keys) -> str:
     keys = sorted(keys)
     text = ", ".join(f"0x{k & 0x1FFFFFFF:X}" for k in keys[:6])

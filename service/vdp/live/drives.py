@@ -32,7 +32,7 @@ import time
 import numpy as np
 
 from .. import channels as ch
-from ..core.change import Measure, bus_print, combine, compare_prints, detect, fit_mass, fit_scale
+from ..core.change import Measure, bus_print, combine, compare_prints, detect, fit_mass, fit_scale, id_counts
 from ..core.params import STAGE1, STAGE2
 from ..core.result import CONVERGED, UNCERTAIN
 from ..errors import StoreError
@@ -46,17 +46,6 @@ TYRE_MIN_SAMPLES = (
     1000  # samples (10 s in windows) a stage must learn in this drive before its C_K or C_alpha is compared
 )
 LEARNT = (CONVERGED, UNCERTAIN)
-
-
-def id_counts(dec) -> dict[int, int]:
-    """Frames per CAN id (the plan key: id, with the extended flag) the decoder has been offered."""
-    out = dict(dec.stats.unknown.copy())
-    for p in list(dec._plans.values()):
-        if p.good:
-            out[p.key] = out.get(p.key, 0) + p.good
-    for (key, _kind), n in dec.stats.errors.copy().items():
-        out[key] = out.get(key, 0) + n
-    return out
 
 
 def summary(params) -> dict:
