@@ -207,6 +207,45 @@ def test_7_nothing_is_lost_from_the_raw_log(logger):
     assert n == logger.sent
 
 
+def test_an_ignition_cycle_without_a_restart_begins_a_new_drive(tmp_path):
+    """The logger stays on while the car is off an hour: the bus falls silent, then the car
+    drives again; the service sees two drives of the same car, and its learning carries on."""
+    lg = Logger(tmp_path)
+
+    class Two:  # two drives an hour apart on one bus
+        def __init__(self, sims):
+            self.sims = sims
+
+        def frames(self):
+            for sim in self.sims:
+                yield from sim.frames()
+
+    settings = simulate_settings(PROFILE, tmp_path, scenario="stage1", speed=0, noise="none", seed=1)
+    svc = Service(settings, profile=lg.profile)
+    svc.sim._sim = Two(
+        [
+            Simulation(lg.profile, "stage1", seed, "none", params=lg.truth, start_time=1.7e9 + k * GAP, duration=30.0)
+            for k, seed in enumerate((1, 2))
+        ]
+    )
+    svc.start()
+    try:
+        assert svc.sim.wait(timeout=300) and svc.sim.error is None
+        while svc.intake.received < svc.sim.sent:
+            time.sleep(0.01)
+        svc.sync()
+        svc.housekeeping()
+        svc.sync()
+    finally:
+        svc.stop()
+    drives = store_rows(tmp_path / "state.sqlite", "drives")
+    assert [d["state"] for d in drives] == ["ended", "ended"]
+    assert drives[1]["bus_t0"] - drives[0]["bus_t1"] > 3000  # the hour off between them
+    first, last = json.loads(drives[1]["start"]), json.loads(drives[1]["last"])
+    assert first["C_K"]["samples"] > 0 and last["C_K"]["samples"] > first["C_K"]["samples"]  # carried on
+    assert store_rows(tmp_path / "state.sqlite", "changes") == []
+
+
 # -- the detectors alone ------------------------------------------------------------------------
 def test_a_step_within_the_stds_is_no_change():
     ref = {"mass": Measure(1650, 20), "C_K": Measure(20, 0.3)}

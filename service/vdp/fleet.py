@@ -240,8 +240,8 @@ def _run(task: Task) -> list[dict]:
     rows = rows_from_result(res, task, key)
     try:
         measures = drive_measures(task.log, _profile(task.profile)[0])
-    except VdpError as exc:  # the replay read it: a failure here only leaves the measures out
-        log.warning("%s: no drive measures: %s", task.log, exc)
+    except Exception as exc:  # the replay read it: a failure here only leaves the measures out
+        log.warning("%s: no drive measures: %s: %s", task.log, type(exc).__name__, exc)
         measures = {}
     measures["start_time"] = res.log.start_time if res.log is not None else None
     for r in rows:
@@ -350,7 +350,7 @@ def drive_measures(path: str, profile: Any, seconds: float = MEASURE_SECONDS) ->
                 for smp in al.push(msg.timestamp, pairs):
                     if not ts or smp.t - ts[-1] >= 0.1:
                         ts.append(smp.t)
-                        ys.append(smp.values.copy())
+                        ys.append(np.asarray(smp.values, dtype=float))
     out: dict[str, Any] = dict.fromkeys(("mass", "mass_std", "wheel_scale", "wheel_scale_std", "bus_print"))
     if t0 is not None and t1 is not None and t1 > t0:
         out["bus_print"] = json.dumps({f"0x{k:X}": round(v, 6) for k, v in bus_print(id_counts(dec), t1 - t0).items()})

@@ -368,6 +368,14 @@ class Store:
             row = self._r.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
         return None if row is None else row[0]
 
+    def learnt(self) -> dict | None:
+        """The learners' state saved with the last estimates (None before any, or unreadable)."""
+        text = self.meta("learnt")
+        try:
+            return None if text is None else json.loads(text)
+        except ValueError:
+            return None
+
     def set_meta(self, key: str, value: str) -> None:
         self._write("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, value))
 
@@ -474,8 +482,16 @@ class Store:
             for r in rows
         }
 
-    def save(self, parameters: Mapping[str, Estimate], t: float | None = None, bus_t: float | None = None) -> int:
-        """Commit one batch: the current rows, and history rows for what changed.  Returns those."""
+    def save(
+        self,
+        parameters: Mapping[str, Estimate],
+        t: float | None = None,
+        bus_t: float | None = None,
+        learnt: Mapping | None = None,
+    ) -> int:
+        """Commit one batch: the current rows, and history rows for what changed.  Returns those.
+        ``learnt``: the learners' own state (TwoStageEstimator.learnt), kept in meta in the same
+        transaction, so a restart resumes from the very state the estimates came from."""
         t = time.time() if t is None else t
         bus_t = finite(bus_t)
         cur, hist, seen = [], [], {}
@@ -493,6 +509,8 @@ class Store:
             try:
                 con.execute("BEGIN IMMEDIATE")
                 con.executemany("INSERT OR REPLACE INTO estimates VALUES (?,?,?,?,?,?,?,?,?,?)", cur)
+                if learnt is not None:
+                    con.execute("INSERT OR REPLACE INTO meta VALUES ('learnt', ?)", (_dumps(learnt),))
                 if hist:
                     con.executemany(
                         "INSERT INTO history (t, bus_t, name, value, std, valid, stage, status, "

@@ -144,17 +144,20 @@ class Drives:
             self._look(pipe, now)
 
     def _gap(self, mon) -> tuple[float, float] | None:
-        """(end, start) of the newest silence longer than ``gap`` among the samples not yet seen."""
+        """(end, start) of the newest silence longer than ``gap`` among the samples not yet seen (the
+        self-check keeps only its last minutes: the samples before a long silence are gone from it,
+        so the newest one seen before is remembered)."""
         t = mon.t
         out = None
         i = len(t) - 1
-        while i > 0 and t[i] > self._seen:
-            if t[i] - t[i - 1] > self.gap:
-                out = (t[i - 1], t[i])
+        while i >= 0 and t[i] > self._seen:
+            before = t[i - 1] if i > 0 and t[i - 1] > self._seen else self._seen
+            if math.isfinite(before) and t[i] - before > self.gap:
+                out = (before, t[i])
                 break
             i -= 1
         if t:
-            self._seen = t[-1]
+            self._seen = max(self._seen, t[-1])
         return out
 
     def begin(self, pipe, t: float) -> None:

@@ -164,6 +164,10 @@ class Service:
             log.error("%s", self.restore_error)
             return
         self.restored = stored
+        learnt = self.writer.store.learnt() if self.writer.store is not None else None
+        if learnt:  # the learners' own covariances: a restart neither tightens nor widens the stds
+            resumed = self.estimation.resume(learnt, {k: v.estimate for k, v in stored.items()})
+            log.info("resumed the learners' own state: %s", ", ".join(resumed) or "none (kept the stored stds)")
         when = max(v.t for v in stored.values())
         log.info(
             "restored %d estimates from %s (saved %s)",

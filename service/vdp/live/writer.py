@@ -89,7 +89,7 @@ class StoreWriter:
             if store is None or pub.seq == self._committed_seq or self.hold:
                 return
             try:
-                store.save(pub.result.parameters, t=pub.wall, bus_t=pub.bus_time)
+                store.save(pub.result.parameters, t=pub.wall, bus_t=pub.bus_time, learnt=getattr(pub, "learnt", None))
             except StoreDamaged as exc:
                 self._recover(store, exc)
                 return  # the fresh store gets this snapshot at the next commit
