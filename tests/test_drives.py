@@ -25,7 +25,9 @@ import time
 from pathlib import Path
 
 import pytest
+from fastapi.testclient import TestClient
 
+from vdp.api import create_app
 from vdp.core.change import Measure, bus_print, compare_prints, detect, fit_mass
 from vdp.io.logs import open_log
 from vdp.live import Service
@@ -153,6 +155,10 @@ def test_2_3_after_a_restart_car_a_resumes_without_relearning(logger):
             assert est[n].samples > a1[n].samples, n  # counted on from the first drive's
         st = svc.status()["drives"]
         assert st["bus_print"] == "same car" and st["changes"] == []
+        hist = TestClient(create_app(svc.settings, svc)).get("/history")
+        assert hist.status_code == 200, hist.text
+        lf = hist.json()["parameters"]["l_f"]  # the first drive as it ended, the second so far
+        assert [d["drive"] for d in lf] == [1, 2] and lf[0]["value"] == pytest.approx(a1["l_f"].value)
     finally:
         svc.stop()
 
