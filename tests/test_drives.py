@@ -307,3 +307,16 @@ def test_batch_names_the_changes_between_a_vehicles_drives_in_time_order():
     rows = drive("a.log", 100, 1600, 10.0) + drive("b.log", 200, 1600, 8.0)
     (c,) = changes(rows)
     assert c["kind"] == "tyres" and c["size"] == pytest.approx(-0.2) and c["params"] == ["C_K", "C_alpha"]
+
+
+def test_batch_combines_a_vehicles_drives_since_the_last_change():
+    from vdp.fleet import since_changes
+
+    rows = [
+        {"vehicle": "car", "log": f"{k}.log", "parameter": p, "start_time": float(k)}
+        for k in range(4)
+        for p in ("l_f", "C_K")
+    ]
+    found = [{"vehicle": "car", "log": "2.log", "start_time": 2.0, "kind": "tyres", "params": ["C_K", "C_alpha"]}]
+    kept = {(r["log"], r["parameter"]) for r in since_changes(rows, found)}
+    assert kept == {(f"{k}.log", "l_f") for k in range(4)} | {("2.log", "C_K"), ("3.log", "C_K")}

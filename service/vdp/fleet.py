@@ -438,6 +438,26 @@ def changes(rows: Iterable[Mapping[str, Any]]) -> list[dict]:
     return out
 
 
+def since_changes(rows: Iterable[Mapping[str, Any]], found: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    """``rows`` without the drives before the last change (of :func:`changes`) that affects their
+    parameter: a vehicle's combination is of the car as it is now, not of the car before new tyres."""
+    cut: dict[tuple[str, str], float] = {}
+    for c in found:
+        t = c.get("start_time")
+        if t is None:
+            continue
+        for p in c.get("params") or ():
+            key = (c["vehicle"], p)
+            cut[key] = max(cut.get(key, -math.inf), t)
+    out = []
+    for r in rows:
+        t0 = cut.get((r.get("vehicle"), r.get("parameter")))
+        t = r.get("start_time")
+        if t0 is None or (t is not None and t >= t0):
+            out.append(r)
+    return out
+
+
 # -- combining a vehicle's drives -------------------------------------------
 
 

@@ -322,14 +322,16 @@ def write_results(out: Path, parts: dict[str, list[dict]]) -> tuple[list[dict], 
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from ..fleet import changes, combine
+    from ..fleet import changes, combine, since_changes
 
     def order(key: str) -> tuple[str, str]:  # by log, then vehicle; each log's rows in NAMES order
         first = parts[key][0] if parts[key] else {}
         return str(first.get("log", "")), str(first.get("vehicle", ""))
 
     rows = [r for key in sorted(parts, key=order) for r in parts[key]]
-    vehicles, zs = combine(rows)
+    found = changes(rows)
+    # each vehicle's combination is of its drives since the last change of each parameter
+    vehicles, zs = combine(since_changes(rows, found))
     for r in rows:
         z = zs.get((r["log"], r["vehicle"], r["parameter"]))
         r["z"] = z
@@ -370,7 +372,7 @@ def write_results(out: Path, parts: dict[str, list[dict]]) -> tuple[list[dict], 
             ("params", pa.list_(pa.string())),
         ]
     )
-    found = [{k: c.get(k) for k in cschema.names} for c in changes(rows)]
+    found = [{k: c.get(k) for k in cschema.names} for c in found]
     _atomic(pq, pa.Table.from_pylist(found, schema=cschema), out / "changes.parquet")
     for c in found:
         log.warning("%s: %s (from %s on)", c["vehicle"], c["what"], c["log"])
