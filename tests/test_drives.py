@@ -320,3 +320,14 @@ def test_batch_combines_a_vehicles_drives_since_the_last_change():
     found = [{"vehicle": "car", "log": "2.log", "start_time": 2.0, "kind": "tyres", "params": ["C_K", "C_alpha"]}]
     kept = {(r["log"], r["parameter"]) for r in since_changes(rows, found)}
     assert kept == {(f"{k}.log", "l_f") for k in range(4)} | {("2.log", "C_K"), ("3.log", "C_K")}
+
+
+def test_a_long_stop_with_the_bus_on_ends_a_drive_and_a_short_one_does_not():
+    from vdp.live.drives import Stops
+
+    stops = Stops(long_stop=120.0)
+    t = [0.1 * k for k in range(4000)]  # 400 s at 10 Hz: driving, a 60 s stop, driving, a 150 s stop, driving
+    v = [0.0 if 100 <= x < 160 or 200 <= x < 350 else 12.0 for x in t]
+    assert stops.feed(t[:1500], v[:1500]) is None  # the 60 s stop at a light
+    got = stops.feed(t, v)  # the samples seen already are not counted twice
+    assert got is not None and got[0] == pytest.approx(200.0) and got[1] == pytest.approx(350.0)

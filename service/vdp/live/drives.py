@@ -40,12 +40,40 @@ from ..errors import StoreError
 log = logging.getLogger(__name__)
 
 GAP = 60.0  # s of bus time without a sample: the car was switched off in between
+LONG_STOP = 120.0  # s standing still with the bus on: a stop long enough to load the car
+STILL = 0.3  # m/s: below it the car stands
 PRINT_AFTER = 10.0  # s of bus time before a drive's bus print is judged
 EVERY = 5.0  # s of bus time between looks at the drive's measures
 TYRE_MIN_SAMPLES = (
     1000  # samples (10 s in windows) a stage must learn in this drive before its C_K or C_alpha is compared
 )
 LEARNT = (CONVERGED, UNCERTAIN)
+
+
+class Stops:
+    """Finds the long stops in a stream of (bus time, speed): standing still (below STILL) for
+    LONG_STOP or longer and then moving again, where a load may have changed with the bus on."""
+
+    def __init__(self, long_stop: float = LONG_STOP, still: float = STILL):
+        self.long_stop, self.still = long_stop, still
+        self.since: float | None = None  # bus time the car has stood still since
+        self.seen = -math.inf
+
+    def feed(self, t, v) -> tuple[float, float] | None:
+        """The newest (stopped at, moving again at) among samples newer than those fed before."""
+        out = None
+        for ti, vi in zip(t, v):
+            if ti <= self.seen or not math.isfinite(vi):
+                continue
+            self.seen = ti
+            if abs(vi) < self.still:
+                if self.since is None:
+                    self.since = ti
+            else:
+                if self.since is not None and ti - self.since >= self.long_stop:
+                    out = (self.since, ti)
+                self.since = None
+        return out
 
 
 def summary(params) -> dict:
@@ -85,6 +113,7 @@ class Drives:
         self.changes: list[dict] = []  # named in this run, for /status
         self._next = -math.inf
         self._seen = -math.inf  # newest self-check sample looked at for gaps
+        self.stops = Stops()
 
     # -- the store's side ----------------------------------------------------------------------
     def open(self) -> None:
@@ -129,7 +158,7 @@ class Drives:
         mon = getattr(pipe, "monitor", None)
         if now is None or mon is None:
             return
-        gap = self._gap(mon)
+        gap = self._gap(mon) or self._stop(mon)
         if gap is not None and self.t0 is not None:
             self.end(pipe, gap[0])
             self.begin(pipe, gap[1])
@@ -159,6 +188,24 @@ class Drives:
         if t:
             self._seen = max(self._seen, t[-1])
         return out
+
+    def _stop(self, mon) -> tuple[float, float] | None:
+        """A long stop with the bus on among the self-check's new samples (Stops)."""
+        n = 0
+        while n < len(mon.t) and mon.t[-1 - n] > self.stops.seen:
+            n += 1
+        if not n:
+            return None
+        y = np.vstack(mon.y[-n:])
+        p, veh = self.profile, self.profile.vehicle
+        wheels = [ch.INDEX[c] for c in ch.NAMES[:4] if p.has(c)]
+        if p.has("speed"):
+            v = y[:, ch.SPEED]
+        elif wheels:
+            v = np.nanmean(y[:, wheels], axis=1) * veh.wheel_radius
+        else:
+            return None
+        return self.stops.feed(mon.t[-n:], v)
 
     def begin(self, pipe, t: float) -> None:
         self.number += 1
