@@ -6,7 +6,15 @@ Tables:
 - ``estimates``: the current value, std, validity, stage, status and sample count
   of each parameter (one row each, replaced per batch);
 - ``history``: a row per parameter whenever its estimate changed, for
-  ``GET /estimates/history``; bounded by pruning the oldest rows.
+  ``GET /estimates/history``; bounded by pruning the oldest rows;
+- ``drives``: one row per drive (an ignition cycle, a service run, or a stretch between two
+  long silences of the bus): when, the estimates it started from and ended with, its own mass
+  and wheel-speed scale measures, and its bus print (the CAN ids seen and their periods);
+- ``changes``: each change named between drives (vdp.core.change): which, how large, when,
+  the parameters it reset and their values before.
+
+``drives`` and ``changes`` are added to a store of an earlier vdp when it is opened (the
+schema version stays 1: an older vdp ignores them).
 
 A store belongs to one vehicle profile (its fingerprint) and one schema
 version.  Opening it with another raises :class:`StoreError` and leaves the
@@ -28,6 +36,7 @@ import errno
 import hashlib
 import json
 import logging
+import math
 import os
 import sqlite3
 import threading
@@ -94,6 +103,35 @@ CREATE TABLE history (
 CREATE INDEX history_name_t ON history (name, t);
 CREATE INDEX history_t ON history (t);
 """
+
+# added at open when missing (stores written before drives were kept)
+_DRIVES = """
+CREATE TABLE IF NOT EXISTS drives (
+    id INTEGER PRIMARY KEY, t0 REAL NOT NULL, t1 REAL, bus_t0 REAL, bus_t1 REAL, state TEXT NOT NULL,
+    start TEXT, last TEXT, mass TEXT, scale TEXT, print TEXT);
+CREATE TABLE IF NOT EXISTS changes (
+    id INTEGER PRIMARY KEY, t REAL NOT NULL, bus_t REAL, drive INTEGER, kind TEXT NOT NULL, what TEXT NOT NULL,
+    size REAL, params TEXT NOT NULL, old TEXT NOT NULL)
+"""
+
+
+def _dumps(doc) -> str:
+    """JSON with NaN and infinities as null (SQLite's JSON and the API's never hold them)."""
+
+    def clean(x):
+        if isinstance(x, float):
+            return x if math.isfinite(x) else None
+        if isinstance(x, dict):
+            return {str(k): clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        return x
+
+    return json.dumps(clean(doc), separators=(",", ":"))
+
+
+def _loads(text):
+    return None if text is None else json.loads(text)
 
 
 def profile_fingerprint(profile) -> str:
@@ -174,6 +212,7 @@ class Store:
             if check != "ok":
                 raise _Damaged(f"quick check: {check}")
             self._check_or_create()
+            self._add_drives()
             self._r = self._connect()
             for row in self._w.execute("SELECT name, value, std, valid, status FROM estimates"):
                 self._last[row[0]] = tuple(row[1:])
@@ -288,6 +327,136 @@ class Store:
                 "the file away or set [store] path to a new file for this profile"
             )
 
+    def _add_drives(self) -> None:
+        con = self._w
+        tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        if {"drives", "changes"} <= tables:
+            return
+        con.execute("BEGIN IMMEDIATE")
+        try:
+            for stmt in filter(None, (s.strip() for s in _DRIVES.split(";"))):
+                con.execute(stmt)
+            con.execute("COMMIT")
+        except BaseException:
+            try:
+                con.execute("ROLLBACK")
+            except sqlite3.Error:
+                pass
+            raise
+
+    # -- drives and changes ---------------------------------------------------------------
+    def _write(self, sql: str, args: tuple) -> int:
+        """One statement in its own transaction; the new row's id."""
+        with self._wlock:
+            con = self._w
+            try:
+                con.execute("BEGIN IMMEDIATE")
+                cur = con.execute(sql, args)
+                con.execute("COMMIT")
+            except sqlite3.Error as exc:
+                try:
+                    con.execute("ROLLBACK")
+                except sqlite3.Error:
+                    pass
+                if _kind(exc) == "damaged":
+                    raise StoreDamaged(f"{self.path}: {exc}") from None
+                raise StoreError(f"{self.path}: could not commit: {exc}") from None
+        return int(cur.lastrowid or 0)
+
+    def meta(self, key: str) -> str | None:
+        with self._rlock, self._reading():
+            row = self._r.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+        return None if row is None else row[0]
+
+    def learnt(self) -> dict | None:
+        """The learners' state saved with the last estimates (None before any, or unreadable)."""
+        text = self.meta("learnt")
+        try:
+            return None if text is None else json.loads(text)
+        except ValueError:
+            return None
+
+    def set_meta(self, key: str, value: str) -> None:
+        self._write("INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, value))
+
+    def begin_drive(self, t: float, bus_t: float | None, start: Mapping, bus_print: Mapping | None) -> int:
+        """A new drive's row; its id."""
+        return self._write(
+            "INSERT INTO drives (t0, bus_t0, state, start, print) VALUES (?, ?, 'driving', ?, ?)",
+            (t, finite(bus_t), _dumps(start), None if bus_print is None else _dumps(bus_print)),
+        )
+
+    def update_drive(
+        self,
+        drive: int,
+        t: float,
+        bus_t: float | None,
+        last: Mapping,
+        mass: Mapping | None,
+        scale: Mapping | None,
+        state: str = "driving",
+    ) -> None:
+        """The drive so far (``state`` "ended" once it has)."""
+        self._write(
+            "UPDATE drives SET t1 = ?, bus_t1 = ?, last = ?, mass = ?, scale = ?, state = ? WHERE id = ?",
+            (
+                t,
+                finite(bus_t),
+                _dumps(last),
+                None if mass is None else _dumps(mass),
+                None if scale is None else _dumps(scale),
+                state,
+                drive,
+            ),
+        )
+
+    def add_change(self, t: float, bus_t: float | None, drive: int | None, change: Mapping, old: Mapping) -> int:
+        """A named change (vdp.core.change.Change.as_dict()) and the values it reset."""
+        numbers = {k: v for k, v in change.items() if k not in ("kind", "what", "size", "params")}
+        return self._write(
+            "INSERT INTO changes (t, bus_t, drive, kind, what, size, params, old) VALUES (?,?,?,?,?,?,?,?)",
+            (
+                t,
+                finite(bus_t),
+                drive,
+                change["kind"],
+                change["what"],
+                finite(change.get("size")),
+                _dumps(change.get("params", [])),
+                _dumps({"values": old, "numbers": numbers}),
+            ),
+        )
+
+    def drives(self, limit: int = 1000) -> list[dict]:
+        """The newest ``limit`` drives, oldest first."""
+        with self._rlock, self._reading():
+            rows = self._r.execute(
+                "SELECT id, t0, t1, bus_t0, bus_t1, state, start, last, mass, scale, print FROM drives "
+                "ORDER BY id DESC LIMIT ?",
+                (limit,),
+            ).fetchall()
+        keys = ("id", "t0", "t1", "bus_t0", "bus_t1", "state", "start", "last", "mass", "scale", "print")
+        out = []
+        for r in reversed(rows):
+            d = dict(zip(keys, r))
+            for k in ("start", "last", "mass", "scale", "print"):
+                d[k] = _loads(d[k])
+            out.append(d)
+        return out
+
+    def changes(self, limit: int = 1000) -> list[dict]:
+        """The newest ``limit`` changes, oldest first."""
+        with self._rlock, self._reading():
+            rows = self._r.execute(
+                "SELECT id, t, bus_t, drive, kind, what, size, params, old FROM changes ORDER BY id DESC LIMIT ?",
+                (limit,),
+            ).fetchall()
+        return [
+            {"id": r[0], "t": r[1], "bus_t": r[2], "drive": r[3], "kind": r[4], "what": r[5], "size": r[6],
+             "params": _loads(r[7]), "old": _loads(r[8])}
+            for r in reversed(rows)
+        ]  # fmt: skip
+
     # -- use ------------------------------------------------------------------------------
     def load(self) -> dict[str, Stored]:
         """The last committed estimate of each parameter."""
@@ -313,8 +482,16 @@ class Store:
             for r in rows
         }
 
-    def save(self, parameters: Mapping[str, Estimate], t: float | None = None, bus_t: float | None = None) -> int:
-        """Commit one batch: the current rows, and history rows for what changed.  Returns those."""
+    def save(
+        self,
+        parameters: Mapping[str, Estimate],
+        t: float | None = None,
+        bus_t: float | None = None,
+        learnt: Mapping | None = None,
+    ) -> int:
+        """Commit one batch: the current rows, and history rows for what changed.  Returns those.
+        ``learnt``: the learners' own state (TwoStageEstimator.learnt), kept in meta in the same
+        transaction, so a restart resumes from the very state the estimates came from."""
         t = time.time() if t is None else t
         bus_t = finite(bus_t)
         cur, hist, seen = [], [], {}
@@ -332,6 +509,8 @@ class Store:
             try:
                 con.execute("BEGIN IMMEDIATE")
                 con.executemany("INSERT OR REPLACE INTO estimates VALUES (?,?,?,?,?,?,?,?,?,?)", cur)
+                if learnt is not None:
+                    con.execute("INSERT OR REPLACE INTO meta VALUES ('learnt', ?)", (_dumps(learnt),))
                 if hist:
                     con.executemany(
                         "INSERT INTO history (t, bus_t, name, value, std, valid, stage, status, "

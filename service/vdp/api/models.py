@@ -88,6 +88,24 @@ class History(_Model):
     next_offset: int | None = Field(None, description="offset of the next page, null on the last one")
 
 
+class DriveHistory(_Model):
+    """GET /history: each parameter across drives, the drives and the changes named between them."""
+
+    parameters: dict[str, list[dict[str, Any]]] = Field(
+        description="per parameter, oldest first: the value, std, valid, status and samples each drive ended "
+        "with (drive: its id; t0, t1: when it began and last looked at, unix time [s])"
+    )
+    drives: list[dict[str, Any]] = Field(
+        description="oldest first: id, t0, t1, bus_t0, bus_t1, state (driving, ended), start and last (the "
+        "estimates it started from and ended with), mass and scale (its own mass [kg] and wheel-speed scale, "
+        "value and std, or null), print (its periodic CAN ids and their periods [s])"
+    )
+    changes: list[dict[str, Any]] = Field(
+        description="oldest first: id, t, bus_t, drive, kind (mass, tyres), what (a sentence: which, how large), "
+        "size (the relative step), params (those reset), old (their values before, and the numbers behind it)"
+    )
+
+
 class Health(_Model):
     status: Literal["ok", "degraded"]
     reasons: list[str] = Field(description="empty when ok")

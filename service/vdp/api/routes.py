@@ -43,6 +43,16 @@ def history(
     return svc.history(parameter, since, until, limit, offset)
 
 
+@router.get(
+    "/history",
+    response_model=models.DriveHistory,
+    responses={503: _ERR},
+    summary="each parameter across drives, and the changes named between them (a mass step, new tyres)",
+)
+def drive_history(svc: Svc, limit: Annotated[int, Query(ge=1, le=1000)] = 1000) -> Any:
+    return svc.drive_history(limit)
+
+
 @router.get("/status", response_model=models.Status, summary="bus, decoding, channels, gating, logs, store")
 def status(svc: Svc) -> Any:
     return svc.status()

@@ -6,7 +6,9 @@ Each log is one task.  A finished log is written at once to DIR/parts/, so an
 interrupted batch loses nothing and a rerun skips what is done (a log that
 failed, or changed since, is run again).  At the end DIR/runs.parquet (one row
 per log x parameter) and DIR/vehicles.parquet (one row per vehicle x
-parameter) are written from every part in DIR.
+parameter) are written from every part in DIR, and DIR/changes.parquet: the
+changes named between each vehicle's drives in time order (a mass step, new
+tyres, another car's bus; vdp.core.change, as the running service names them).
 """
 
 from __future__ import annotations
@@ -320,14 +322,16 @@ def write_results(out: Path, parts: dict[str, list[dict]]) -> tuple[list[dict], 
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from ..fleet import combine
+    from ..fleet import changes, combine, since_changes
 
     def order(key: str) -> tuple[str, str]:  # by log, then vehicle; each log's rows in NAMES order
         first = parts[key][0] if parts[key] else {}
         return str(first.get("log", "")), str(first.get("vehicle", ""))
 
     rows = [r for key in sorted(parts, key=order) for r in parts[key]]
-    vehicles, zs = combine(rows)
+    found = changes(rows)
+    # each vehicle's combination is of its drives since the last change of each parameter
+    vehicles, zs = combine(since_changes(rows, found))
     for r in rows:
         z = zs.get((r["log"], r["vehicle"], r["parameter"]))
         r["z"] = z
@@ -357,6 +361,21 @@ def write_results(out: Path, parts: dict[str, list[dict]]) -> tuple[list[dict], 
         ]
     )
     _atomic(pq, pa.Table.from_pylist(vehicles, schema=vschema), out / "vehicles.parquet")
+    cschema = pa.schema(
+        [
+            ("vehicle", pa.string()),
+            ("log", pa.string()),
+            ("start_time", pa.float64()),
+            ("kind", pa.string()),
+            ("what", pa.string()),
+            ("size", pa.float64()),
+            ("params", pa.list_(pa.string())),
+        ]
+    )
+    found = [{k: c.get(k) for k in cschema.names} for c in found]
+    _atomic(pq, pa.Table.from_pylist(found, schema=cschema), out / "changes.parquet")
+    for c in found:
+        log.warning("%s: %s (from %s on)", c["vehicle"], c["what"], c["log"])
     return rows, vehicles
 
 

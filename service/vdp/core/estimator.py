@@ -76,6 +76,10 @@ class GyroBias:
         return self.yaw, self.roll
 
 
+def _close(a: float | None, b: float | None) -> bool:
+    return a is not None and b is not None and math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-15)
+
+
 def _known(e: Estimate) -> bool:
     """Whether stage 1's l_f estimate is good enough for stage 2: converged, or uncertain with
     its std within L_F_KNOWN of its value."""
@@ -422,6 +426,61 @@ class TwoStageEstimator:
         self._stage = None  # stage 2 takes stage 1's restored results at its next sample
         if self.l_f_known():
             self.handover_t = self.t if self.t is not None else 0.0
+
+    def learnt(self) -> dict:
+        """Each learner's own state in the published parameters: value, the filter's covariance
+        (without the honest std's floor and mismatch terms) and samples, for a restart to carry on
+        exactly where it was (:meth:`resume`).  Keyed "kind/stage"; learners that saw no data left out."""
+        out = {}
+        for kind in self.s1:
+            for learner in (self.s1[kind], self.s2[kind]):
+                if learner.samples:
+                    theta, cov = learner.params()
+                    pub, pcov = learner._publish(theta, cov)
+                    out[f"{kind}/{learner.stage}"] = {
+                        "names": list(learner.names),
+                        "value": [float(v) for v in pub],
+                        "cov": np.asarray(pcov, dtype=float).tolist(),
+                        "samples": int(learner.samples),
+                    }
+        return out
+
+    def resume(self, learnt: Mapping, params: Mapping[str, Estimate]) -> list[str]:
+        """After :meth:`restore`: take each learner's own state (:meth:`learnt`) where it gives back
+        the very estimates stored (``params``): the filter's covariance with its correlations, so a
+        restart neither tightens the std (the diagonal alone would) nor widens it (the honest std
+        put back into the filter would, at every restart).  Where it does not (a stored value that
+        was the batch check's, a std widened by a mismatch the restarted learner has not seen yet),
+        the learner keeps :meth:`restore`'s.  Returns the learners resumed."""
+        done = []
+        for kind in self.s1:
+            for learner in (self.s1[kind], self.s2[kind]):
+                st = learnt.get(f"{kind}/{learner.stage}")
+                if not st or st.get("names") != list(learner.names):
+                    continue
+                cov = np.asarray(st["cov"], dtype=float)
+                if cov.shape != (len(learner.names),) * 2 or not np.all(np.isfinite(cov)):
+                    continue
+                keep = (*learner._publish(*learner.params()), learner.samples)  # restore()'s, to go back to
+                learner.set_params(st["value"], cov, 0)  # 0: the covariance holds no floor to take out
+                learner.samples = max(keep[2], int(st["samples"]))
+                snap = learner.snapshot()
+                same = all(
+                    params.get(n) is not None
+                    and _close(snap[n].value, params[n].value)
+                    and _close(snap[n].std, params[n].std)
+                    for n in learner.names
+                    if params.get(n) is not None and params[n].value is not None
+                )
+                if same:
+                    done.append(f"{kind}/{learner.stage}")
+                else:
+                    learner.set_params(keep[0], keep[1], 0)
+                    learner.samples = keep[2]
+        self._stage = None
+        if self.l_f_known():
+            self.handover_t = self.t if self.t is not None else 0.0
+        return done
 
     def _trace_row(self, t: float, stage) -> tuple:
         """(t, stage, per kind: ((value, std) per parameter)) straight from the filters."""

@@ -42,6 +42,8 @@ class Published:
     result: RunResult
     fed: int
     restored: bool = False
+    # the learners' own state (TwoStageEstimator.learnt), stored with the estimates for a restart
+    learnt: dict | None = None
 
     @property
     def bus_time(self) -> float | None:
@@ -88,6 +90,16 @@ class Estimation:
             return f"the estimator did not take the stored estimates of {', '.join(sorted(off))}"
         self.restored = True
         return None
+
+    def resume(self, learnt: Mapping, estimates: Mapping) -> list[str]:
+        """After :meth:`restore`, before :meth:`start`: each learner's own state where it gives back
+        the stored estimates (TwoStageEstimator.resume); the learners resumed."""
+        est = getattr(self.pipeline, "estimator", None)
+        if est is None or not hasattr(est, "resume"):
+            return []
+        done = est.resume(learnt, estimates)
+        self._pub = Published(0, time.time(), self.pipeline.result(), 0)
+        return done
 
     def start(self) -> None:
         self.publish()
@@ -196,6 +208,7 @@ class Estimation:
                 result=self.pipeline.result(trace=True),
                 fed=self.fed,
                 restored=self.restored,
+                learnt=self._learnt(),
             )
         except Exception:
             self.errors += 1
@@ -205,6 +218,10 @@ class Estimation:
         self._checks = checks
         self._note_resets(pub.result.resets)
         self._pub = pub
+
+    def _learnt(self) -> dict | None:
+        est = getattr(self.pipeline, "estimator", None)
+        return est.learnt() if est is not None and hasattr(est, "learnt") else None
 
     def _note_resets(self, resets: Mapping[str, int]) -> None:
         for kind, n in resets.items():
@@ -225,6 +242,16 @@ class Estimation:
         """Divergences of the last ``hold`` seconds, one per filter kind (the EKF's never hides the UKF's)."""
         now = time.monotonic()
         return [what for when, what in self._diverged.values() if now - when <= hold]
+
+    def post(self, fn: Callable[[Any], Any]) -> Future | None:
+        """Queue ``fn(pipeline)`` to run on the worker after the frames queued so far; do not wait.
+        None when the queue is full (try again later)."""
+        cmd = _Command(fn)
+        try:
+            self.queue.put_nowait(cmd)
+        except queue.Full:
+            return None
+        return cmd.future
 
     def call(self, fn: Callable[[Any], Any], timeout: float = COMMAND_TIMEOUT) -> Any:
         """Run ``fn(pipeline)`` on the worker, after every frame already queued."""

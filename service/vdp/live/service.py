@@ -33,6 +33,7 @@ from ..errors import VdpError
 from ..result import jsonable
 from ..settings import Settings
 from ..store import profile_fingerprint
+from .drives import Drives
 from .estimation import COMMAND_TIMEOUT, Estimation, Published, Unavailable
 from .ingest import Ingest
 from .writer import StoreWriter
@@ -80,6 +81,9 @@ class Service:
         pipe = pipeline if pipeline is not None else Pipeline(self.profile, cfg)
         self.estimation = Estimation(pipe, self.ingest.queue, settings.service.publish_interval)
         self.writer = StoreWriter(settings.store, self.fingerprint, self.profile.vehicle.name)
+        # drives, and the changes between them (a mass step, new tyres, another car on the bus)
+        self.drives = Drives(self.profile, self.writer)
+        self._looking: Future | None = None  # the drive look queued on the worker
         self.restored: dict | None = None
         self.restore_error: str | None = None
         self._keeper: threading.Thread | None = None
@@ -104,6 +108,7 @@ class Service:
     def start(self) -> None:
         self._started, self._started_wall = time.monotonic(), time.time()
         self._restore(self.writer.open())
+        self.drives.open()
         self.ingest.open_rawlog()
         self.estimation.start()
         self.ingest.start()
@@ -136,6 +141,7 @@ class Service:
             )
         # a check still solving is not waited for: its fit would come after the last commit
         self.checks.shutdown(wait=False, cancel_futures=True)
+        self._drives(self.drives.end)  # the worker has ended: the pipeline is this thread's
         self.commit()
         self.ingest.close()
         self.writer.close()
@@ -158,6 +164,10 @@ class Service:
             log.error("%s", self.restore_error)
             return
         self.restored = stored
+        learnt = self.writer.store.learnt() if self.writer.store is not None else None
+        if learnt:  # the learners' own covariances: a restart neither tightens nor widens the stds
+            resumed = self.estimation.resume(learnt, {k: v.estimate for k, v in stored.items()})
+            log.info("resumed the learners' own state: %s", ", ".join(resumed) or "none (kept the stored stds)")
         when = max(v.t for v in stored.values())
         log.info(
             "restored %d estimates from %s (saved %s)",
@@ -176,11 +186,28 @@ class Service:
                 log.exception("housekeeping failed; carrying on")
 
     def housekeeping(self) -> None:
-        """One round of ``vdp-keep``: commit, flush the raw log, measure rates, restart a dead worker."""
+        """One round of ``vdp-keep``: look at the drive, commit, flush the raw log, measure rates,
+        restart a dead worker."""
+        if self.running and self.estimation.alive and (self._looking is None or self._looking.done()):
+            self._looking = self.estimation.post(self._drives_check)  # not waited for: commits go on
         self.commit()
         self.ingest.tick()
         if self.running:
             self.estimation.ensure_running()
+
+    def _drives_check(self, pipe) -> None:
+        self._drives(self.drives.check, pipe)
+
+    def _drives(self, fn, pipe=None) -> None:
+        """Run a drive look on the pipeline (a real one: a test's stand-in has no decoder); a failure is
+        logged, never the worker's end."""
+        pipe = self.pipeline if pipe is None else pipe
+        if getattr(pipe, "decoder", None) is None:
+            return
+        try:
+            fn(pipe)
+        except Exception:
+            log.exception("the drive check failed; carrying on")
 
     def commit(self) -> None:
         """Commit the latest snapshot, if it is new."""
@@ -284,6 +311,7 @@ class Service:
             **self.writer.status(),
             "restored": sorted(self.restored) if self.restored else [],
             "restore_error": self.restore_error,
+            "hold": self.writer.hold,
         }
         parts = self.ingest.status()
         return jsonable(
@@ -314,6 +342,7 @@ class Service:
                 "gating": {**r.supervisor, "window": r.current_window, "windows_total": len(r.windows)},
                 "raw_log": parts["raw_log"],
                 "store": store,
+                "drives": self.drives.status(),
                 "simulation": parts["simulation"],
             }
         )
@@ -340,6 +369,23 @@ class Service:
         if parameter is not None and parameter not in NAMES:
             raise VdpError(f"unknown parameter '{parameter}'; known: {', '.join(NAMES)}")
         return jsonable(self.writer.history(parameter, since, until, limit, offset))
+
+    def drive_history(self, limit: int = 1000) -> dict:
+        """Each parameter across drives (the value each drive ended with), the drives and the
+        changes named between them, oldest first."""
+        store = self.writer.store
+        if store is None:
+            raise Unavailable(
+                f"no drive history: the store is {self.writer.state}"
+                + (f" ({self.writer.error})" if self.writer.error else "")
+            )
+        drives, changes = store.drives(limit), store.changes(limit)
+        series: dict[str, list] = {n: [] for n in NAMES}
+        for d in drives:
+            for n, e in (d["last"] or {}).items():
+                if n in series:
+                    series[n].append({"drive": d["id"], "t0": d["t0"], "t1": d["t1"], **e})
+        return jsonable({"parameters": series, "drives": drives, "changes": changes})
 
     def reset(self, stage: int | None) -> dict:
         """Clear stage 1, 2 or (None) both, on the worker, in order with the frames."""

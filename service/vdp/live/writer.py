@@ -45,6 +45,8 @@ class StoreWriter:
         self.reopen_attempts = 0
         self._retry_wait = RETRY_MIN
         self._retry_at = 0.0
+        # why commits wait now (vdp.live.drives: the bus is not yet known to be the stored car's), or None
+        self.hold: str | None = None
 
     def open(self) -> dict[str, Stored]:
         """Open the store; return the stored estimates worth restoring (none if it was refused)."""
@@ -84,10 +86,10 @@ class StoreWriter:
                 self.reopen_attempts += 1
                 self._try_open()
             store = self.store
-            if store is None or pub.seq == self._committed_seq:
+            if store is None or pub.seq == self._committed_seq or self.hold:
                 return
             try:
-                store.save(pub.result.parameters, t=pub.wall, bus_t=pub.bus_time)
+                store.save(pub.result.parameters, t=pub.wall, bus_t=pub.bus_time, learnt=getattr(pub, "learnt", None))
             except StoreDamaged as exc:
                 self._recover(store, exc)
                 return  # the fresh store gets this snapshot at the next commit
@@ -101,6 +103,13 @@ class StoreWriter:
             self.state, self.error = "ok", None
             self.last_commit = time.time()
             self._committed_seq = pub.seq
+
+    def refuse(self, why: str) -> None:
+        """Stop using the store, leaving the file as it is (another car is on the bus: vdp.live.drives)."""
+        with self._lock:
+            if self.store is not None:
+                self.store.close()
+            self.store, self.state, self.error, self.hold = None, "refused", why, None
 
     def damaged(self, exc: BaseException) -> None:
         """An SQLite error said the file is damaged (from any thread): move it aside for a fresh store."""

@@ -290,6 +290,41 @@ async function seed() {
   } catch (e) { /* no history: the plots start now */ }
 }
 
+const DRIVES_MS = 15000; // /history changes once a drive looks again (every few seconds of bus time)
+
+async function drives() {
+  // each parameter as each drive ended it, newest drive first, and the changes named between drives
+  try {
+    const h = await getJSON("/history?limit=50");
+    const names = Object.keys(h.parameters);
+    const ul = $("changes");
+    ul.replaceChildren();
+    for (const c of h.changes.slice().reverse()) {
+      const when = new Date(c.t * 1000).toLocaleString();
+      ul.append(el("li", { class: "stale" }, `${when}, drive ${c.drive ?? "–"}: ${c.what} (reset ${c.params.join(", ")})`));
+    }
+    const head = $("drives").querySelector("thead");
+    const tr = el("tr");
+    tr.append(el("th", {}, "drive"), el("th", {}, "began"), el("th", {}, "mass [kg]"));
+    for (const n of names) tr.append(el("th", {}, n.replace("alpha", "α")));
+    head.replaceChildren(tr);
+    const tb = $("drives").querySelector("tbody");
+    tb.replaceChildren();
+    for (const d of h.drives.slice().reverse()) {
+      const row = el("tr");
+      const m = d.mass;
+      row.append(el("td", {}, String(d.id)), el("td", {}, new Date(d.t0 * 1000).toLocaleString()),
+        el("td", {}, m ? `${fmt(m.value)} ± ${fmt(m.std, 2)}` : "–"));
+      for (const n of names) {
+        const e = (d.last || {})[n];
+        row.append(el("td", e && !e.valid ? { class: "stale" } : {}, e ? `${fmt(e.value)} ± ${fmt(e.std, 2)}` : "–"));
+      }
+      tb.append(row);
+    }
+  } catch (e) { /* no store: no history across drives */ }
+  setTimeout(drives, DRIVES_MS);
+}
+
 async function tick() {
   try {
     const [est, st, health] = await Promise.all([getJSON("/estimates"), getJSON("/status"), getJSON("/health")]);
@@ -315,6 +350,7 @@ async function start() {
   build(state.meta);
   await seed();
   tick();
+  drives();
 }
 
 start();
