@@ -92,7 +92,10 @@ def run_one(job) -> dict:
     t0 = time.perf_counter()
     sim, profile, truth, mass = simulation(case, scenario, cond, seed)
     truth["mass"] = mass
-    road = RoadConfig(on=on, **(rest[0] if rest else {}))
+    # the estimator is told how its IMU sits (a production car's is fixed to the body; the simulators'
+    # road-aligned one is vdp's old assumption): only the roll's part of a_y depends on it
+    body = _world(cond)[2] is not None
+    road = RoadConfig(on=on, body_imu=body, **(rest[0] if rest else {}))
     cfg = EstimatorConfig(mass=MassConfig(report=True, use=on), road=road)
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "drive.log"

@@ -64,7 +64,7 @@ MIN_ROWS = 20  # rows with |a_x| above EXCITED
 EXCITED = 0.3  # m/s^2
 MIN_SPEED = 3.0  # m/s
 MAX_ACCEL = 4.0  # m/s^2
-MAX_LATERAL = 1.0  # m/s^2: a row turning harder has tyre drag the balance leaves out
+MAX_LATERAL = 1.0  # m/s^2 of v r: a row turning harder has tyre drag the balance leaves out
 SIGMA_F = 40.0  # N: a row's force noise before the residuals say otherwise
 LO, HI = 300.0, 10000.0  # kg: a sane mass
 STAGE = 0  # not a stage of the paper's: every sample, before both
@@ -103,7 +103,7 @@ class MassLearner:
     # -- samples ---------------------------------------------------------------
     def handle(self, t: float, s) -> None:
         y = s.values
-        tf, tr, ax, ay, v = y[ch.T_F], y[ch.T_R], y[ch.AX], y[ch.AY], y[ch.SPEED]
+        tf, tr, ax, v = y[ch.T_F], y[ch.T_R], y[ch.AX], y[ch.SPEED]
         if not math.isfinite(v):
             v = s.v_x
         r = self._row
@@ -117,7 +117,9 @@ class MassLearner:
         r[1] += 1
         r[2] += (tf + tr) / self.vehicle.wheel_radius
         r[3] += ax
-        r[4] += abs(ay) if math.isfinite(ay) else 0.0
+        wz = y[ch.YAW] - s.yaw_bias
+        r[4] += abs(wz * v) if math.isfinite(wz) and math.isfinite(v) else 0.0  # turning, by the yaw rate: a bank
+        # reads in a_y, not in it
         if math.isfinite(v):
             dt = t - r[0]
             r[5] += v * v

@@ -235,9 +235,12 @@ class Simulation:
         every = int(round(1.0 / DT))
         road, imu, dist = self.road, self.imu if self.imu is not None and self.imu.body else None, 0.0
         ang = (0.0, 0.0)
+        hold = 0.5 * p.L if road is not None and road.bank else 0.0  # rad of steer per (rad/s of yaw error / m/s)
         for n in range(n_steps):
             t = n * DT
             v_cmd, a_cmd, d_cmd, hint = sc.command(t, hint)
+            if hold:  # on a bank the driver holds the line the wheel is meant to give (an oversteering car drifts)
+                d_cmd += hold * (x[0] * d_cmd / p.L - x[2]) / max(x[0], 1.0)
             tf, tr, delta = drv.update(DT, v_cmd, a_cmd, d_cmd, x[0], wheel_slips(x, p.r))
             if road is not None:
                 ang = road.angles(dist)
