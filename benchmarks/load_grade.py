@@ -174,7 +174,12 @@ def main() -> int:
         with ProcessPoolExecutor(a.jobs) as ex:
             runs = list(ex.map(run_one, jobs))
     else:
-        runs = [run_one(j) for j in jobs]
+        runs = []
+        for j in jobs:  # each run's result as it comes (a long matrix stopped half-way keeps what it did)
+            runs.append(run_one(j))
+            if a.json:
+                with open(a.json.with_suffix(".partial.jsonl"), "a", encoding="utf-8") as f:
+                    f.write(json.dumps(runs[-1], default=str) + "\n")
     if a.json:
         a.json.write_text(json.dumps(runs, indent=1, default=str) + "\n")
     print(report(runs))
