@@ -46,6 +46,8 @@ GRADE_WALK = 0.1
 GRADE_BIAS_WALK = GRADE_WALK  # the speed filter's accelerometer offset, for SpeedConfig.bias_walk
 KAPPA_PRIOR = (0.0, 0.05)  # the pitch gain: 0 for a road-aligned IMU, 0.034 at 0.2 deg per m/s^2
 MIN_SPEED = 3.0  # m/s: below this the GNSS slope and the grade mean little
+LEVEL_BAND = 0.1  # m/s^2 (1 % of grade) from the grade term's slow mean: a level road, for the pitch gain
+LEVEL_RATE = ROW / 60.0  # the slow mean's weight per row (a minute)
 
 
 @dataclass(frozen=True)
@@ -109,6 +111,8 @@ class Tilt:
 
     def reset(self) -> None:
         self.G, self.kappa = 0.0, KAPPA_PRIOR[0]
+        self.level: float | None = None  # the grade term's slow mean: a level road's (the bias, the mounting)
+        self.level_rows = 0  # rows the pitch gain learnt from
         self.moving = 0.0  # how fast the grade term moves now: EWMA of |dG| per sqrt(s) over rows
         self.P = [[1.0, 0.0], [0.0, KAPPA_PRIOR[1] ** 2]]  # G's prior: 1 m/s^2 (about 10 %)
         self.row: _Row | None = None
@@ -177,25 +181,36 @@ class Tilt:
         P = self.P
         P[0][0] += GRADE_WALK**2 * ROW
         P[1][1] += 1e-9 * ROW  # the pitch gain hardly changes: a walk this slow still lets it average
-        h0, h1 = 1.0, dvdt
+        # the pitch gain is learnt on a level road only: on a grade the driver's answer to it (slower
+        # uphill) ties the acceleration to the grade's changes, and the filter read that as pitch gain
+        # (kappa 0.056-0.062 against 0.027-0.034 on both models' hills); there the grade is learnt
+        # with kappa held, its uncertainty taken as noise
+        level = self.level is None or abs(self.G - self.level) < LEVEL_BAND
+        h0, h1 = 1.0, dvdt if level else 0.0
         pred = self.G + self.kappa * dvdt
         ph0 = P[0][0] * h0 + P[0][1] * h1
         ph1 = P[1][0] * h0 + P[1][1] * h1
-        S = h0 * ph0 + h1 * ph1 + sd * sd + 0.02**2
+        S = h0 * ph0 + h1 * ph1 + sd * sd + 0.02**2 + (0.0 if level else dvdt * dvdt * P[1][1])
         inn = d - pred
         self.rows += 1
         if inn * inn > GATE * GATE * S:
             self.gated += 1
             self.last = None
             return
-        k0, k1 = ph0 / S, ph1 / S
+        k0, k1 = ph0 / S, (ph1 / S if level else 0.0)
+        self.level_rows += level
         self.moving += 0.3 * (abs(k0 * inn) / math.sqrt(ROW) - self.moving)
         self.G += k0 * inn
         self.kappa += k1 * inn
-        self.P = [
-            [P[0][0] - k0 * ph0, P[0][1] - k0 * ph1],
-            [P[1][0] - k1 * ph0, P[1][1] - k1 * ph1],
-        ]
+        if level:
+            self.P = [
+                [P[0][0] - k0 * ph0, P[0][1] - k0 * ph1],
+                [P[1][0] - k1 * ph0, P[1][1] - k1 * ph1],
+            ]
+        else:
+            p01 = P[0][1] - k0 * P[0][1]
+            self.P = [[P[0][0] - k0 * P[0][0], p01], [p01, P[1][1]]]
+        self.level = self.G if self.level is None else self.level + LEVEL_RATE * (self.G - self.level)
         self.last = {"t": r.t0 + ROW, "a_x": a, "dv_dt": dvdt, "G": self.G}
 
     def speed_walk(self, base: float) -> float:
@@ -215,6 +230,7 @@ class Tilt:
             "pitch_gain_std": round(math.sqrt(max(self.P[1][1], 0.0)), 5),
             "grade_term_mps2": round(self.G, 4),
             "rows": self.rows,
+            "level_rows": self.level_rows,
             "grade_gated": self.gated,
             "reason": None
             if not self.gated
