@@ -95,7 +95,7 @@ def run_one(job) -> dict:
     # the estimator is told how its IMU sits (a production car's is fixed to the body; the simulators'
     # road-aligned one is vdp's old assumption): only the roll's part of a_y depends on it
     body = _world(cond)[2] is not None
-    road = RoadConfig(on=on, body_imu=body, **(rest[0] if rest else {}))
+    road = RoadConfig(on=on, **{"body_imu": body, **(rest[0] if rest else {})})
     cfg = EstimatorConfig(mass=MassConfig(report=True, use=on), road=road)
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "drive.log"
