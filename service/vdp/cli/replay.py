@@ -63,6 +63,17 @@ def add_parser(sub):
         "BENCHMARKS.md, 'Stage 2 on the independent models')",
     )
     p.add_argument(
+        "--mass",
+        action="store_true",
+        help="learn the mass from the drive, report it beside the six and use it in them (issue 28; "
+        "default: the profile's mass, as before)",
+    )
+    p.add_argument(
+        "--road",
+        action="store_true",
+        help="model the road's grade and the IMU's tilt with the body (a body-fixed IMU; issue 28)",
+    )
+    p.add_argument(
         "--per-frame",
         action="store_true",
         help="read a candump log frame by frame instead of in blocks (slower, same result)",
@@ -141,6 +152,8 @@ def run(args) -> int:
     from .. import profilecheck, report
     from ..core.estimator import EstimatorConfig
     from ..core.learner import LearnerConfig
+    from ..core.mass import MassConfig
+    from ..core.road import RoadConfig
     from ..io.bulk import replay_log
     from ..pipeline import Pipeline
     from ..profile import load_profile
@@ -185,6 +198,8 @@ def run(args) -> int:
         baseline=args.baseline == "ekf",
         trace_len=None if args.plot else 0,
         trace_max=PLOT_ROWS if args.plot else None,
+        mass=MassConfig(report=args.mass, use=args.mass),
+        road=RoadConfig(on=args.road),
     )
     compile_note()
     try:

@@ -62,6 +62,26 @@ def add_parser(sub) -> argparse.ArgumentParser:
         "also writes <out stem>.profile.toml with the car's known constants and priors",
     )
     p.add_argument("--car", help="car set of an independent model (brush: saloon, small; mb: bmw_320i, ...)")
+    # issue 28's world (vdp.sim.road): each off by default
+    p.add_argument(
+        "--load",
+        type=float,
+        default=0.0,
+        metavar="KG",
+        help="an undeclared load as passengers and luggage (the profile keeps its mass; default 0)",
+    )
+    p.add_argument(
+        "--road",
+        choices=("flat", "hills"),
+        default=None,
+        help="hills: grade to +-8 %% and bank to +-3 deg along the drive (default: flat, as before)",
+    )
+    p.add_argument(
+        "--imu",
+        choices=("road", "body"),
+        default="road",
+        help="body: the accelerometer tilts with the body's pitch and roll (default: road-aligned)",
+    )
     p.add_argument(
         "--duration", type=float, help="stop after this many seconds (at most the scenario's length; said if capped)"
     )
@@ -146,6 +166,7 @@ def run(args: argparse.Namespace) -> int:
             extra_rate=args.extra_rate,
             duration=args.duration,
             start_time=start,
+            **_world(args),
         )
 
     sim = make() if args.repeat == 1 else simrun.Repeated(make, args.repeat)
@@ -164,6 +185,17 @@ def run(args: argparse.Namespace) -> int:
     what = sim.scenario.name if args.repeat == 1 else f"{sim.scenario.name} x {args.repeat}"
     print(f"simulated {what}: {sim.duration:.1f} s, {count} frames in {wall:.1f} s{live}{where}")
     return 0
+
+
+def _world(args: argparse.Namespace) -> dict:
+    """--load, --road, --imu as the simulators take them (vdp.sim.road)."""
+    from ..sim.road import Imu, get_road
+
+    return {
+        "load": args.load,
+        "road": get_road(args.road) if args.road not in (None, "flat") else None,
+        "imu": Imu(body=True) if args.imu == "body" else None,
+    }
 
 
 def _run_independent(args: argparse.Namespace) -> int:
@@ -186,7 +218,10 @@ def _run_independent(args: argparse.Namespace) -> int:
             f"got --scenario {args.scenario}"
         )
     t0 = time.perf_counter()
-    sim = IndependentSimulation(args.model, args.car, args.scenario, args.seed, args.noise, duration=args.duration)
+    from ..sim.independent import get_model
+
+    model = get_model(args.model, args.car, **_world(args))
+    sim = IndependentSimulation(model, None, args.scenario, args.seed, args.noise, duration=args.duration)
     count, files, _ = _drive(args, sim, profile=True)
     wall = time.perf_counter() - t0
     where = f" -> {', '.join(files)}" if files else ""

@@ -20,8 +20,11 @@ import numpy as np
 from .. import channels as ch
 from . import batched
 from .learner import LearnerConfig, Stage1, Stage2
+from .mass import MassConfig, MassLearner, scaled
 from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
+from .road import RoadConfig, Tilt
 from .sample import Sample
+from .sample import block as sample_block
 from .speed import SpeedConfig, speed_filter, wheel_reference
 from .supervisor import GateConfig, Supervisor
 
@@ -44,6 +47,9 @@ class EstimatorConfig:
     # None: a row every trace_every; else once the trace holds this many rows, every other row
     # is dropped and the spacing doubles, so a long log's trace (replay --plot) stays this small
     trace_max: int | None = None
+    # issue 28: the mass learnt (reported, and put into the results) and the road's grade and tilt; off by default
+    mass: MassConfig = field(default_factory=MassConfig)
+    road: RoadConfig = field(default_factory=RoadConfig)
 
 
 class GyroBias:
@@ -113,14 +119,22 @@ class TwoStageEstimator:
         self.t: float | None = None
         self._pass_params: np.ndarray | None = None  # core.batched's, made at the first block
         self._needs = tuple(np.array(n, dtype=np.int64) for n in (need1, need2))  # (the supervisor's)
+        m = self.cfg.mass  # issue 28 (core.mass, core.road)
+        self.tilt = Tilt(vehicle, priors["h"].value, self.cfg.road) if self.cfg.road.on else None
+        self.mass = MassLearner(vehicle, m, self.tilt) if m.report or m.use else None
 
     # -- learner interface ---------------------------------------------
     def handle(self, t: float, s: Sample) -> Sample:
         """Take one aligned sample; return it with the derived fields (speed, gyro offsets) set."""
         self.t = t
+        if self.tilt is not None:  # a_x and a_y into the road's axes; the speed filter follows the grade (core.road)
+            s = self.tilt.correct(s)
+            self.speed.cfg = replace(self.speed.cfg, bias_walk=self.tilt.speed_walk(self.cfg.speed.bias_walk))
         v_x, v_std, ax_bias = self._speed(t, s)
         yaw_bias, roll_bias = self.gyro_bias.update(s, self.cfg.gate)
         s = s.derived(v_x=v_x, v_std=v_std, ax_bias=ax_bias, yaw_bias=yaw_bias, roll_bias=roll_bias)
+        if self.mass is not None:
+            self.mass.handle(t, s)
         stage = self.supervisor.update(t, s, self.handover_t is not None)
         self._learn(t, s, stage)
         # no trace kept (trace_len=0: vdp batch, replay without --plot): no row built either
@@ -165,7 +179,8 @@ class TwoStageEstimator:
         """Whether :meth:`handle_block` runs the compiled pass: no trace kept (its rows come from
         every sample), the compiled steps wanted (LearnerConfig.compiled: off, numpy's reference
         runs everything) and numba there, and the speed filter one it repeats (core.batched)."""
-        return self.trace.maxlen == 0 and self.cfg.learner.compiled and batched.batchable(self.speed)
+        ok = self.trace.maxlen == 0 and self.cfg.learner.compiled and batched.batchable(self.speed)
+        return ok and self.tilt is None
 
     def handle_block(self, T: np.ndarray, Y: np.ndarray, F: np.ndarray, A: np.ndarray, gap: bool) -> None:
         """Take aligned samples as arrays (ticks T, values Y, fresh F, ages A by channel; ``gap``:
@@ -176,6 +191,9 @@ class TwoStageEstimator:
         n = len(T)
         if not n:
             return
+        if self.mass is not None:  # the mass sees every sample (core.mass)
+            for smp in sample_block(T, Y, F, A, gap):
+                self.mass.handle(smp.t, smp)
         su = self.supervisor
         st0 = batched.pack(self.speed, self.gyro_bias, su)
         blk0, first0 = batched.blockers(su)
@@ -296,6 +314,10 @@ class TwoStageEstimator:
                 l.reset()
         self._stage = None
         if stage is None:
+            if self.mass is not None:
+                self.mass.reset()
+            if self.tilt is not None:
+                self.tilt.reset()
             self.supervisor.reset()
             self.trace.clear()
             self._trace_every = self.cfg.trace_every
@@ -395,6 +417,10 @@ class TwoStageEstimator:
                 f"l_f = {l_f:.3g} ± {sd:.2g} m ([vehicle] l_f)"
             )
             out["l_f"] = replace(e, reason=why)
+        if self.cfg.mass.use:  # the learnt mass into the six, its std carried (core.mass.scaled)
+            out = scaled(out, self.mass.snapshot(), self.vehicle.mass)
+        if self.cfg.mass.report:
+            out["mass"] = self.mass.snapshot()
         return out
 
     def stage(self) -> str:

@@ -20,6 +20,7 @@ import heapq
 import io
 import json
 import logging
+import math
 import time
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
@@ -32,6 +33,7 @@ from ..outfile import replacing, write_text
 from ..profile import Profile, load_profile
 from .driver import Driver, DriverConfig
 from .encode import Encoder
+from .road import Imu, Road, add_load, body_accel, get_road, placement
 from .scenario import Scenario, get_scenario
 from .sensors import NoiseModel, Sensors, draw_bias, noise_model
 from .truth import axle_parameters, truth_parameters
@@ -91,6 +93,9 @@ class Simulation:
         start_time: float = START_TIME,
         driver: DriverConfig | None = None,
         bus_channel: str | None = None,
+        road: str | Road | None = None,
+        load: float = 0.0,
+        imu: Imu | None = None,
     ):
         self.profile = _profile(profile, dbc)
         veh = self.profile.vehicle
@@ -110,7 +115,16 @@ class Simulation:
         self.bus_channel = bus_channel or self.profile.bus_channel or "can0"
         self.params = truth_parameters(params)
         self.per_axle = axle_parameters(params)
-        self.model = Model(Params.from_vehicle(veh, {**self.params, **self.per_axle}))
+        # issue 28's world (sim.road), each off by default: the road, an undeclared load, the IMU's mounting
+        self.road, self.imu = get_road(road), imu
+        self.load = placement(load, veh.wheelbase, veh.track) if load else ()
+        mp = Params.from_vehicle(veh, {**self.params, **self.per_axle})
+        if self.load:  # the car as loaded: its truth is the loaded car's, the profile keeps its mass
+            p = mp
+            c = add_load(p.m, p.l_f, p.h, p.I_z, p.I_x, 0.0, self.load)
+            self.params.update(l_f=c.l_f, h=c.h, I_z=c.I_z, I_x=c.I_x)
+            mp = dataclasses.replace(mp, m=c.m, l_f=c.l_f, h=c.h, I_z=c.I_z, I_x=c.I_x)
+        self.model = Model(mp)
         dtr = getattr(self.profile, "drivetrain", None)
         if driver is None and dtr is not None:  # drive and brake the axles as the profile says the car does
             driver = DriverConfig(drive_front=dtr.drive_front, brake_front=dtr.brake_balance)
@@ -162,6 +176,7 @@ class Simulation:
             },
             "driver": dataclasses.asdict(self.driver_cfg),
             "sim": {"dt": DT, "wheels": "linearly implicit backward Euler", "body": "Heun, omega held"},
+            **self._world(),
             "units": {
                 "parameters": {
                     "l_f": "m",
@@ -174,6 +189,18 @@ class Simulation:
                 "vehicle": "SI; roll_stiffness N m/rad, roll_damping N m s/rad, wheel_inertia per axle",
             },
         }
+
+    def _world(self) -> dict:
+        """The truth file's part on issue 28's options: only those that are on (an old truth stays the same)."""
+        out: dict = {}
+        if self.load:
+            out["mass"] = self.model.params.m
+            out["load"] = [dataclasses.asdict(i) for i in self.load]
+        if self.road is not None:
+            out["road"] = self.road.describe()
+        if self.imu is not None:
+            out["imu"] = self.imu.describe()
+        return out
 
     def frames(
         self, tap: Tap | None = None, progress: Callable[[float, float], None] | None = None
@@ -206,12 +233,26 @@ class Simulation:
         hint = 0
         start_us = self.start_us
         every = int(round(1.0 / DT))
+        road, imu, dist = self.road, self.imu if self.imu is not None and self.imu.body else None, 0.0
+        ang = (0.0, 0.0)
+        hold = 0.5 * p.L if road is not None and road.bank else 0.0  # rad of steer per (rad/s of yaw error / m/s)
         for n in range(n_steps):
             t = n * DT
             v_cmd, a_cmd, d_cmd, hint = sc.command(t, hint)
+            if hold:  # on a bank the driver holds the line the wheel is meant to give (an oversteering car drifts)
+                d_cmd += hold * (x[0] * d_cmd / p.L - x[2]) / max(x[0], 1.0)
             tf, tr, delta = drv.update(DT, v_cmd, a_cmd, d_cmd, x[0], wheel_slips(x, p.r))
+            if road is not None:
+                ang = road.angles(dist)
+                model.set_road(*ang)
+                dist += x[0] * DT
             # the steering ramps to the next step's angle (continuous, as the sensor samples it)
-            x1, e = model.advance(x, tf, tr, delta, DT, drv.next_delta(sc.command(t + DT, hint)[2]))
+            d_next = sc.command(t + DT, hint)[2]
+            if hold:
+                d_next += hold * (x[0] * d_next / p.L - x[2]) / max(x[0], 1.0)
+            x1, e = model.advance(x, tf, tr, delta, DT, drv.next_delta(d_next))
+            if imu is not None:
+                e = imu_reading(imu, e, x, ang, p.g)
             ts = (start_us + n * step_ms * 1000) / 1e6
             for item in sched:
                 if item[0] != n:
@@ -243,6 +284,16 @@ class Simulation:
             x = x1
         if progress is not None:
             progress(self.duration, self.duration)
+
+
+def imu_reading(imu: Imu, e: tuple, x, ang: tuple[float, float], g: float) -> tuple:
+    """The forces tuple with a_x, a_y as a body-fixed accelerometer reads them (sim.road): the body
+    pitched by ``pitch_gain`` per m/s^2 of a_x (the single track has no pitch of its own) and
+    rolled by its roll angle, each plus the mounting offset; gravity normal to the road."""
+    f_z = g * math.cos(ang[0]) * math.cos(ang[1])
+    pitch = imu.pitch_gain * e[0] + imu.mount_pitch
+    a_x, a_y = body_accel(e[0], e[1], f_z, pitch, x[3] + imu.mount_roll)
+    return (a_x, a_y, *e[2:])
 
 
 def wheel_slips(x, r: float) -> tuple[float, float]:

@@ -140,6 +140,25 @@ class Model:
         self.zr0 = p.m * p.g * p.l_f / p.L
         self.k = p.m * p.h / p.L
         self._held = (0.0, 0.0, self.zf0, self.zr0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        # the road's gravity along x and y (sim.road: 0 on a flat road, where x - 0.0 is x exactly)
+        self.gx = self.gy = 0.0
+
+    def set_road(self, theta: float, phi: float) -> None:
+        """Grade theta (> 0 climbs) and bank phi (> 0 right side down) under the car now (sim.road).
+
+        Gravity's part along the road takes from eqs 4-5 (dv_x/dt = a_x + v_y r - g sin theta,
+        dv_y/dt = a_y - v_x r - g cos theta sin phi, a_x and a_y the contact forces over m: what a
+        road-aligned accelerometer reads); the part normal to it, g cos theta cos phi, sets the
+        static axle loads of eq 3.  Eq 9's roll is relative to the road, driven by that a_y.
+        """
+        p = self.params
+        ct, cp = math.cos(theta), math.cos(phi)
+        self.gx = p.g * math.sin(theta)
+        self.gy = p.g * ct * math.sin(phi)
+        self.zf0 = p.m * p.g * ct * cp * p.l_r / p.L
+        self.zr0 = p.m * p.g * ct * cp * p.l_f / p.L
+        # held by its brakes, the car reads the specific force that holds it
+        self._held = (self.gx, self.gy, self.zf0, self.zr0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
     # -- public API -----------------------------------------------------------------
     def straight(self, v: float) -> list[float]:
@@ -159,7 +178,7 @@ class Model:
     def derivatives(self, x: Sequence[float], T_f: float, T_r: float, delta: float) -> list[float]:
         """Full right-hand side including the stiff wheel equations (eq 2)."""
         if self.held(x, T_f, T_r):
-            return [0.0, 0.0, 0.0, x[P], self._roll_acc(0.0, x[PHI], x[P]), 0.0, 0.0]
+            return [0.0, 0.0, 0.0, x[P], self._roll_acc(self.gy, x[PHI], x[P]), 0.0, 0.0]
         cd, sd = math.cos(delta), math.sin(delta)
         e = self._eval(x[VX], x[VY], x[WZ], x[WF], x[WR], delta, cd, sd)
         d = list(self._body(x[VX], x[VY], x[WZ], x[PHI], x[P], e, cd, sd))
@@ -182,10 +201,10 @@ class Model:
         stiff tyres, +0.6 % C_alpha, +1.7 % I_z from this alone)."""
         vx, vy, wz, phi, p, wf, wr = x
         if vx < V_HOLD and T_f + T_r < 0.0:
-            # Standstill: the brakes hold the car; only the roll mode relaxes (a_y = 0).
-            q1 = self._roll_acc(0.0, phi, p)
+            # Standstill: the brakes hold the car; only the roll mode relaxes (a_y = 0, or the bank's).
+            q1 = self._roll_acc(self.gy, phi, p)
             phi_t, p_t = phi + dt * p, p + dt * q1
-            q2 = self._roll_acc(0.0, phi_t, p_t)
+            q2 = self._roll_acc(self.gy, phi_t, p_t)
             return [0.0, 0.0, 0.0, phi + 0.5 * dt * (p + p_t), p + 0.5 * dt * (q1 + q2), 0.0, 0.0], self._held
         cd, sd = math.cos(delta), math.sin(delta)
         e = self._eval(vx, vy, wz, wf, wr, delta, cd, sd)
@@ -255,8 +274,8 @@ class Model:
     def _body(self, vx: float, vy: float, wz: float, phi: float, p: float, e: tuple, cd: float, sd: float) -> tuple:
         ax, ay, _, _, fxf, _, fyf, fyr = e[:8]
         return (
-            ax + vy * wz,  # eq 4
-            ay - vx * wz,  # eq 5 corrected (NOTES 1)
+            ax + vy * wz - self.gx,  # eq 4 (minus the road's grade, set_road)
+            ay - vx * wz - self.gy,  # eq 5 corrected (NOTES 1; minus the road's bank)
             (self.lf * (fxf * sd + fyf * cd) - self.lr * fyr) / self.Iz,  # eqs 8, 10 (NOTES 2)
             p,
             (self.mh * (ay + self.g * phi) - self.kphi * phi - self.cphi * p) / self.Ix,

@@ -80,12 +80,20 @@ def cars(model: str) -> tuple[str, ...]:
     raise ConfigError(f"unknown model '{model}'; choose one of {', '.join(MODELS)}")
 
 
-def get_model(model: str, car: str | None = None):
-    """A fresh model instance: ``get_model("brush", "small")``, ``get_model("mb", "bmw_320i")``."""
+def get_model(model: str, car: str | None = None, **world):
+    """A fresh model instance: ``get_model("brush", "small")``, ``get_model("mb", "bmw_320i")``.
+
+    ``world`` (issue 28, vdp.sim.road): ``load`` kg undeclared, ``road``, ``imu``; the brush model
+    takes them, mb only on a flat road with a road-aligned IMU and no load.
+    """
     names = cars(model)
     car = car or names[0]
+    world = {k: v for k, v in world.items() if v}
     if model == "brush":
         from .brush import model as make
     else:
         from .mb import model as make
-    return make(car)
+
+        if world:
+            raise ConfigError(f"model 'mb' does not take {', '.join(world)} yet; use 'brush'")
+    return make(car, **world)

@@ -47,8 +47,9 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
+from ..road import Imu, Road, add_load, body_accel, placement
 from .common import Model
 
 log = logging.getLogger(__name__)
@@ -291,6 +292,29 @@ class BrushModel(Model):
         self.c_phi = c.c_phif + c.c_phir
         self._acc = [0.0, 0.0]  # last a_x, a_y: the start of the load loop's fixed-point pass
         self._fyf = 0.0  # last front lateral force: the aligning torque's, as _acc (the loop's gain is small)
+        # issue 28 (sim.road): the road's gravity along x, y and the share normal to it (set_road);
+        # flat by default, where x - 0.0 and x * 1.0 are x exactly
+        self.gx = self.gy = 0.0
+        self.gz = 1.0
+
+    def set_road(self, theta: float, phi: float) -> None:
+        """Grade theta (> 0 climbs) and bank phi (> 0 right side down) under the car now: gravity's
+        part along the road pulls the body (v_x' = a_x + r v_y - g sin theta, v_y' = a_y - r v_x -
+        g cos theta sin phi, a_x and a_y the specific force); the part normal to it carries the
+        static loads.  Roll and pitch are relative to the road."""
+        g = self.c.g
+        self.gx = g * math.sin(theta)
+        self.gy = g * math.cos(theta) * math.sin(phi)
+        self.gz = math.cos(theta) * math.cos(phi)
+
+    def accel(self, x: list[float], ax: float, ay: float) -> tuple[float, float]:
+        """(a_x, a_y) the IMU reads from the specific force (ax, ay) at state x: aligned with the
+        road, or (``imu.body``) fixed to the body, pitched by theta and rolled by phi plus the
+        mounting offset (the IMU sits on the roll axis, so it sees no tangential part)."""
+        imu = self.imu
+        if imu is None or not imu.body:
+            return ax, ay
+        return body_accel(ax, ay, self.c.g * self.gz, x[5] + imu.mount_pitch, x[3] + imu.mount_roll)
 
     # -- tyre law, for the truth definitions ------------------------------------------
     def _cx(self, Fz: float, axle: str) -> float:
@@ -352,7 +376,7 @@ class BrushModel(Model):
         Fd = 0.5 * c.rho * c.cda * vx * abs(vx)
         # loads (axle longitudinal transfer, then per axle lateral transfer to the right wheels)
         dz = ((c.m_uf + c.m_ur) * R * ax + c.m_s * c.h_pc * ax + c.k_th * th + c.c_th * q + Fd * c.h_pc) / L
-        zf, zr = self.zf0 - dz, self.zr0 + dz
+        zf, zr = self.zf0 * self.gz - dz, self.zr0 * self.gz + dz
         yf = (c.m_uf * R * ay + c.m_s * (c.L - c.a_s) / L * c.h_rcf * ay + c.k_phif * phi + c.c_phif * p) / c.t_f
         yr = (c.m_ur * R * ay + c.m_s * c.a_s / L * c.h_rcr * ay + c.k_phir * phi + c.c_phir * p) / c.t_r
         loads = (0.5 * zf - yf, 0.5 * zf + yf, 0.5 * zr - yr, 0.5 * zr + yr)
@@ -406,7 +430,7 @@ class BrushModel(Model):
         ay = (sfy + ms * d * pd) / m
         self._acc = [ax, ay]
         self._fyf = fyf
-        dx = [ax + r * vy, ay - r * vx, mz / c.I_z, p, pd, q, qd, *dw, *d_lag]
+        dx = [ax + r * vy - self.gx, ay - r * vx - self.gy, mz / c.I_z, p, pd, q, qd, *dw, *d_lag]
         return dx, (ax, ay, zf, zr)
 
     def step(
@@ -425,6 +449,7 @@ class BrushModel(Model):
         x1 = [a + s * (b1 + 2.0 * b2 + 2.0 * b3 + b4) for a, b1, b2, b3, b4 in zip(x, k1, k2, k3, k4)]
         ax, ay, zf, zr = aux
         vx, vy = x[0], x[1]
+        ax_imu, ay_imu = self.accel(x, ax, ay)
         row = (
             x[7],
             x[8],
@@ -433,8 +458,8 @@ class BrushModel(Model):
             T_f,
             T_r,
             delta,
-            ax,
-            ay,
+            ax_imu,
+            ay_imu,
             x[2],
             x[4],
             math.hypot(vx, vy),
@@ -446,9 +471,31 @@ class BrushModel(Model):
         return x1, row
 
 
-def model(car: str = "saloon") -> BrushModel:
+def loaded(c: BrushCar, kg: float) -> BrushCar:
+    """The car with ``kg`` of passengers and luggage (sim.road.placement) in its sprung mass: its
+    CG moves back and up, its inertias grow by the parallel-axis theorem."""
+    items = placement(kg, c.L, 0.5 * (c.t_f + c.t_r))
+    if not items:
+        return c
+    m = c.m_s + c.m_uf + c.m_ur
+    lf = (c.m_s * c.a_s + c.m_ur * c.L) / m
+    h = (c.m_s * c.h_s + (c.m_uf + c.m_ur) * c.r) / m
+    whole = add_load(m, lf, h, c.I_z, 0.0, 0.0, items)  # the whole car's yaw inertia about its new CG
+    sprung = add_load(c.m_s, c.a_s, c.h_s, 0.0, c.I_xs, c.I_ys, items)  # the sprung mass about its own
+    return replace(c, m_s=sprung.m, a_s=sprung.l_f, h_s=sprung.h, I_xs=sprung.I_x, I_ys=sprung.I_y, I_z=whole.I_z)
+
+
+def model(car: str = "saloon", load: float = 0.0, road: Road | None = None, imu: Imu | None = None) -> BrushModel:
+    """A brush car; ``load`` kg undeclared (the profile keeps the unloaded mass), ``road`` and ``imu``
+    as sim.road has them."""
     from ...errors import ConfigError
 
     if car not in CARS:
         raise ConfigError(f"brush model: unknown car '{car}'; choose one of {', '.join(CARS)}")
-    return BrushModel(CARS[car])
+    base = BrushModel(CARS[car])
+    if not load and road is None and imu is None:
+        return base
+    out = BrushModel(loaded(CARS[car], load)) if load else base
+    out.declared_mass = base.mass if load else None
+    out.load_kg, out.road, out.imu = float(load), road, imu
+    return out

@@ -23,6 +23,7 @@ import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import can
 import numpy as np
@@ -69,6 +70,16 @@ class Model:
     track: float = 1.5
     g: float = 9.81
     priors: dict[str, tuple[float, float]] = field(default_factory=dict)
+    # issue 28 (sim.road), each off by default: the mass the profile declares when the car carries
+    # an undeclared load (None: ``mass``), the road under it, the IMU's mounting
+    declared_mass: float | None = None
+    load_kg: float = 0.0
+    road: Any = None
+    imu: Any = None
+
+    def set_road(self, theta: float, phi: float) -> None:
+        """The road's grade and bank under the car now (a model that drives roads overrides it)."""
+        raise ConfigError(f"{self.name}: this model drives only flat roads")
 
     # -- physics, per model ---------------------------------------------------------
     def initial(self, v0: float) -> list[float]:
@@ -101,7 +112,7 @@ class Model:
     def vehicle(self) -> Vehicle:
         return Vehicle(
             name=f"{self.name}-{self.car}",
-            mass=self.mass,
+            mass=self.mass if self.declared_mass is None else self.declared_mass,
             wheelbase=self.wheelbase,
             wheel_radius=self.wheel_radius,
             wheel_inertia=self.wheel_inertia_axle,
@@ -203,10 +214,14 @@ def drive(
         v_x = row[channels.N + AUX.index("v_x")]
     hint = 0
     every = int(round(1.0 / DT))
+    road, dist = model.road, 0.0
     for n in range(n_steps):
         t = n * DT
         v_cmd, a_cmd, d_cmd, hint = sc.command(t, hint)
         tf, tr, delta = drv.update(DT, v_cmd, a_cmd, d_cmd, v_x)
+        if road is not None:
+            model.set_road(*road.angles(dist))
+            dist += v_x * DT
         x, row = model.step(x, tf, tr, delta, DT, drv.next_delta(sc.command(t + DT, hint)[2]))
         out[n] = row
         v_x = row[channels.N + AUX.index("v_x")]
@@ -240,7 +255,7 @@ def load_transfer_height(model: Model, trace: Trace) -> float:
     """
     m = _mask(trace, "stage1")
     if m.sum() < 10000:
-        return _probe_height(model.name, model.car)
+        return _probe_height(model.name, model.car, model.load_kg)
     return _height(model, trace.aux[m])
 
 
@@ -254,10 +269,10 @@ def _height(model: Model, aux: np.ndarray) -> float:
 
 
 @functools.cache
-def _probe_height(name: str, car: str) -> float:
+def _probe_height(name: str, car: str, load: float = 0.0) -> float:
     from . import get_model
 
-    model = get_model(name, car)
+    model = get_model(name, car, load=load) if load else get_model(name, car)
     trace = drive(model, "stage1", duration=25.0)
     return _height(model, trace.aux[_mask(trace, "stage1")])
 
@@ -351,7 +366,20 @@ class IndependentSimulation:
             "segments": self.trace.segments,
             "dbc": str(self.profile.dbc),
             "sim": {"dt": DT},
+            **self._world(),
         }
+
+    def _world(self) -> dict:
+        """Issue 28's options that are on (an old truth file stays the same)."""
+        m, out = self.model, {}
+        if m.declared_mass is not None:
+            out["mass"] = m.mass
+            out["declared_mass"] = m.declared_mass
+        if m.road is not None:
+            out["road"] = m.road.describe()
+        if m.imu is not None:
+            out["imu"] = m.imu.describe()
+        return out
 
     def profile_toml(self) -> str:
         return self.model.profile_toml()

@@ -1,0 +1,253 @@
+"""Mass as an estimate (issue 28, part 1): the longitudinal force balance, learnt as the car is driven.
+
+Summed over both axles, eq (1)-(2) with drag and rolling resistance:
+
+    (T_f + T_r) / r - (2 J / r^2) dv/dt = m (dv/dt + g sin theta) + c_0 + c_2 v^2
+
+``dv/dt + g sin theta`` is what a road-aligned accelerometer reads, a_x (the specific force),
+so the grade needs no separate sensor: ``m a_x + c_0 + c_2 v^2 = F``, linear in
+``[m, c_0, c_2]`` (Bae, Ryu and Gerdes 2001; Vahidi et al. 2005 estimate the grade beside
+the mass with a second forgetting factor; here the accelerometer carries it).  A body-fixed
+accelerometer reads ``(1 + kappa) f_x`` plus its mounting offset; with core.road on, a_x
+comes in already divided by ``1 + kappa`` (learnt there from the GNSS speed's slope); the
+offset times m is a constant force and goes into ``c_0``.  dv/dt, in the wheels' inertia
+term only (13 kg on the paper car), is the GNSS speed's slope.
+
+The filter works on rows of ``ROW`` seconds (means of F, a_x, v^2), recursive least squares in
+its Kalman form: the parameters walk slowly (``Q``, the forgetting), the row's noise ``R`` is
+scaled by the residuals it sees (a drive whose model fits worse than assumed gets a wider std,
+never a narrower one), and the std is widened by the residuals' correlation from row to row
+(``sqrt((1 + rho) / (1 - rho))``: what the rows hold is fewer independent rows than counted).
+Rows are left out (counted by reason): below ``MIN_SPEED``, turning (tyre drag from slip
+angles is not in the balance), beyond ``MAX_ACCEL`` (slip, ABS and traction control), or
+with a torque or a_x missing.
+
+The prior is the profile's mass: kerb weight plus a driver, with a std of ``PRIOR_REL``
+(12 %): two passengers and luggage, 150-300 kg, lie within 2 sigma.  The estimate is valid
+once its std is within ``USEFUL_REL`` (1.5 %, so that 2 sigma is the issue's 3 %) from at
+least ``MIN_ROWS`` rows with acceleration or braking in them.
+
+How the mass reaches the six parameters (first order, :func:`scaled`): stage 1 sees the
+axle loads only as ``m (g l_r - a_x h) / L`` against forces from the torques, so it
+identifies ``C_K m``, and l_f and h not at all through m; stage 2 sees ``C_alpha / m`` and
+``I_z / m`` (eq 5-10 divided by m; the roll row driven by the measured a_y takes m h with
+k_phi known, so I_x does not scale).  The estimator runs with the profile's mass and
+:func:`scaled` puts the learnt mass in afterwards, so no filter restarts when it moves:
+``C_K m_used / m``, ``C_alpha m / m_used``, ``I_z m / m_used``, each with the mass's relative
+std added in quadrature; I_x keeps its value and takes the mass's relative change and std
+into its std.  A load that moves the CG shows in l_f, h and I_z as the loaded car's values:
+stage 1 and 2 see the car as driven.
+
+Pure: ``handle(t, sample)``, ``snapshot()``, ``reset()``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .. import channels as ch
+from .result import CONVERGED, INVALID, NOT_RUN, UNCERTAIN, Estimate
+
+log = logging.getLogger(__name__)
+
+NAME = "mass"
+UNIT = "kg"
+ROW = 1.0  # s per row
+PRIOR_REL = 0.12
+USEFUL_REL = 0.015
+CONVERGED_REL = 0.01
+MIN_ROWS = 20  # rows with |a_x| above EXCITED
+EXCITED = 0.3  # m/s^2
+MIN_SPEED = 3.0  # m/s
+MAX_ACCEL = 4.0  # m/s^2
+MAX_LATERAL = 1.0  # m/s^2 of v r: a row turning harder has tyre drag the balance leaves out
+SIGMA_F = 40.0  # N: a row's force noise before the residuals say otherwise
+LO, HI = 300.0, 10000.0  # kg: a sane mass
+STAGE = 0  # not a stage of the paper's: every sample, before both
+
+
+@dataclass(frozen=True)
+class MassConfig:
+    report: bool = False  # publish the mass beside the six parameters (Snapshot.parameters["mass"])
+    use: bool = False  # put the learnt mass into stage 1's and 2's results (scaled); off: report it only
+
+
+class MassLearner:
+    """Recursive least squares on ``[m, c_0, c_2]`` over rows of ROW seconds (see the module)."""
+
+    def __init__(self, vehicle, cfg: MassConfig | None = None, tilt=None):
+        self.vehicle = vehicle
+        self.tilt = tilt  # core.road.Tilt: a_x comes divided by its 1 + kappa, whose std the mass takes
+        self.cfg = cfg or MassConfig()
+        self.m0 = float(vehicle.mass)
+        self.reset()
+
+    def reset(self) -> None:
+        m0, g = self.m0, self.vehicle.g
+        self.x = np.array([m0, 0.012 * m0 * g, 0.35])
+        self.P = np.diag([(PRIOR_REL * m0) ** 2, (0.02 * m0 * g) ** 2, 0.5**2])
+        self.Q = np.diag([0.2**2, 2.0**2, 0.002**2]) * ROW  # per row: the slow walk (the forgetting)
+        self.rows = 0
+        self.excited = 0
+        self.skipped: dict[str, int] = {}
+        self._row: list | None = None
+        self._chi = 1.0  # the residuals' mean chi^2 per row (EWMA): scales R
+        self._rho = 0.0  # their lag-1 correlation (EWMA)
+        self._last_e: float | None = None
+        self._var = 1.0
+
+    # -- samples ---------------------------------------------------------------
+    def handle(self, t: float, s) -> None:
+        y = s.values
+        tf, tr, ax, v = y[ch.T_F], y[ch.T_R], y[ch.AX], y[ch.SPEED]
+        if not math.isfinite(v):
+            v = s.v_x
+        r = self._row
+        if s.gap or r is None or t - r[0] >= ROW:
+            if r is not None and not s.gap:
+                self._close(r)
+            r = self._row = [t, 0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        if not (math.isfinite(tf) and math.isfinite(tr) and math.isfinite(ax)):
+            r[1] = -1_000_000  # a row with a missing value: skipped as a whole
+            return
+        r[1] += 1
+        r[2] += (tf + tr) / self.vehicle.wheel_radius
+        r[3] += ax
+        wz = y[ch.YAW] - s.yaw_bias
+        r[4] += abs(wz * v) if math.isfinite(wz) and math.isfinite(v) else 0.0  # turning, by the yaw rate: a bank
+        # reads in a_y, not in it
+        if math.isfinite(v):
+            dt = t - r[0]
+            r[5] += v * v
+            r[6] += 1
+            r[7] += dt
+            r[8] += v
+            r[9] += dt * dt
+            r[10] += dt * v
+        r[11] = max(r[11], abs(ax))
+
+    def _skip(self, why: str) -> None:
+        self.skipped[why] = self.skipped.get(why, 0) + 1
+
+    def _close(self, r: list) -> None:
+        t0, n, F, ax, ay, v2, nv, st, sv, stt, stv, amax = r
+        if n < 5:
+            self._skip("missing torque or a_x")
+            return
+        if nv < 3 or sv / nv < MIN_SPEED:
+            self._skip("standstill or creep")
+            return
+        if ay / n > MAX_LATERAL:
+            self._skip("turning")
+            return
+        if amax > MAX_ACCEL:
+            self._skip("beyond the small-slip range")
+            return
+        F, ax, v2 = F / n, ax / n, v2 / nv
+        d = nv * stt - st * st
+        dvdt = (nv * stv - st * sv) / d if d > 0 else ax
+        veh = self.vehicle
+        y = F - 2.0 * veh.wheel_inertia / veh.wheel_radius**2 * dvdt  # eq 2: the wheels' own inertia
+        H = np.array([ax, 1.0, v2])
+        self.P = self.P + self.Q
+        R = SIGMA_F**2 * max(self._chi, 1.0)
+        S = float(H @ self.P @ H) + R
+        e = y - float(H @ self.x)
+        if e * e > 25.0 * S and self.rows > 10:
+            self._skip("outlier (5 sigma)")
+            return
+        K = self.P @ H / S
+        self.x = self.x + K * e
+        self.P = self.P - np.outer(K, H @ self.P)
+        self.rows += 1
+        self.excited += abs(ax) > EXCITED
+        # the residuals' scale and correlation, for an honest std
+        z = e * e / S
+        a = 0.02 if self.rows > 50 else 1.0 / self.rows
+        self._chi += a * (z * max(self._chi, 1.0) - self._chi)
+        if self._last_e is not None:
+            self._rho += a * (e * self._last_e / max(self._var, 1e-9) - self._rho)
+        self._var += a * (e * e - self._var)
+        self._last_e = e
+
+    # -- results -----------------------------------------------------------------
+    def value(self) -> tuple[float, float]:
+        """(mass, its honest std) [kg]."""
+        rho = min(max(self._rho, 0.0), 0.9)
+        sd = math.sqrt(max(self.P[0, 0], 0.0)) * math.sqrt((1.0 + rho) / (1.0 - rho))
+        m = float(self.x[0])
+        if self.tilt is not None:  # m a_x / (1 + kappa): kappa's std is the mass's, relative
+            sd = math.hypot(sd, m * self.tilt.kappa_std)
+        return m, sd
+
+    def snapshot(self) -> Estimate:
+        m, sd = self.value()
+        prior_sd = PRIOR_REL * self.m0
+        progress = 0.0
+        if sd < prior_sd:
+            progress = min(math.log(prior_sd / sd) / math.log(prior_sd / (USEFUL_REL * m)), 1.0)
+        extra = {
+            "rows": self.rows,
+            "rows_excited": self.excited,
+            "rolling_resistance_N": round(float(self.x[1]), 1),
+            "drag_N_per_mps2": round(float(self.x[2]), 4),
+            "residual_chi2": round(self._chi, 3),
+            "residual_corr": round(self._rho, 3),
+            "profile_mass": self.m0,
+        }
+        extra.update({f"skipped_{k.replace(' ', '_')}": v for k, v in self.skipped.items()})
+        if self.rows == 0:
+            return Estimate(NAME, self.m0, prior_sd, UNIT, NOT_RUN, False, STAGE, 0,
+                            reason="no straight driving with torques yet: the profile's mass", progress=0.0,
+                            hint="drive: accelerate and brake on a straight road", extra=extra)  # fmt: skip
+        if not LO <= m <= HI:
+            return Estimate(NAME, m, sd, UNIT, INVALID, False, STAGE, self.rows,
+                            reason=f"{m:.0f} kg is no car's: check the axle torques' scale", extra=extra)  # fmt: skip
+        valid = sd <= USEFUL_REL * m and self.excited >= MIN_ROWS
+        status = CONVERGED if valid and sd <= CONVERGED_REL * m else UNCERTAIN
+        reason = None
+        if not valid:
+            reason = (f"known to +-{100 * sd / m:.1f} % from {self.excited} s of acceleration or braking; "
+                      f"valid within {100 * USEFUL_REL:g} % and after {MIN_ROWS} s")  # fmt: skip
+        return Estimate(NAME, m, sd, UNIT, status, valid, STAGE, self.rows, reason=reason,
+                        progress=round(progress, 3), extra=extra)  # fmt: skip
+
+
+# -- the mass into the six ---------------------------------------------------------------
+SCALE = {"C_K": -1, "C_alpha": 1, "I_z": 1}  # the power of m each parameter scales with
+USEFUL = {"l_f": 0.02, "h": 0.05, "C_K": 0.05, "C_alpha": 0.05, "I_z": 0.05, "I_x": 0.10}  # params.SPECS' useful_rel
+
+
+def scaled(params: dict, mass: Estimate, m_used: float) -> dict:
+    """The six estimates with the learnt mass put in (see the module), and its std carried.
+
+    Before the mass is valid the profile's is kept, and its std is the prior's: every scaled
+    parameter then carries the prior's 12 %, which is what an undeclared load does to it.
+    """
+    m, sd = (mass.value, mass.std) if mass.valid else (m_used, PRIOR_REL * m_used)
+    if m is None or sd is None or not m > 0:
+        return params
+    ratio, rel_m = m / m_used, sd / m
+    out = dict(params)
+    for name, e in params.items():
+        if e.value is None or e.std is None or e.status == NOT_RUN:
+            continue
+        if name in SCALE:
+            f = ratio ** SCALE[name]
+            value, rel = e.value * f, math.hypot(e.std / abs(e.value), rel_m) if e.value else math.inf
+        elif name == "I_x":
+            value, rel = e.value, math.hypot(e.std / abs(e.value), rel_m, ratio - 1.0) if e.value else math.inf
+        else:
+            continue
+        std = rel * abs(value)
+        valid = e.valid and rel <= USEFUL.get(name, 0.05)
+        why = e.reason
+        if e.valid and not valid:
+            why = f"the mass is known to +-{100 * rel_m:.1f} % only ({'learnt' if mass.valid else 'the prior'})"
+        out[name] = replace(e, value=value, std=std, valid=valid, reason=why,
+                            extra={**e.extra, "mass_used": round(m, 1), "mass_ratio": round(ratio, 4)})  # fmt: skip
+    return out

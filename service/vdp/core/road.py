@@ -1,0 +1,239 @@
+"""The road's slope and the IMU's tilt, separated from the car's acceleration (issue 28, part 2).
+
+An accelerometer reads specific force.  One aligned with the road reads ``f_x = dv/dt +
+g sin(theta)`` on a grade theta: eq (3)'s load transfer wants exactly that (the axle loads
+move with the contact forces, whatever part of them holds the car on the slope), but eq (1)'s
+speed does not.  One fixed to the body also tilts with the suspension: nose up by about
+0.2 deg per m/s^2 of f_x, so its a_x reads ``(1 + kappa) f_x`` (``kappa = g * 0.0035`` rad per
+m/s^2, about 3.4 %) plus the mounting offset; and rolled by the body's roll angle phi, so its
+a_y reads ``f_y + g sin(phi)``, which eq (9) (``m h (a_y + g phi)``) would add a second time.
+
+:class:`Tilt` works on rows of ``ROW`` seconds.  On each it compares the accelerometer's mean
+with the GNSS speed's slope (the kinematic dv/dt; not the wheels', whose slip changes with
+the torque): ``d = mean(a_x) - dv/dt = G + kappa dv/dt``, with ``G`` the grade's
+``(1 + kappa) g sin(theta)`` plus the bias and mounting offset, a random walk (a road's grade
+changes over hundreds of metres), and ``kappa`` the pitch gain, nearly constant.  A two-state
+Kalman filter learns both; a row whose ``d`` is further from that than the grade can move in
+a row (``GATE`` sigma) is counted as ``grade_gated`` (a GNSS glitch, a kerb, a grade too steep
+to follow) and taken by no one.
+
+:meth:`Tilt.correct` then gives each sample the accelerations in the road's axes:
+``a_x / (1 + kappa)`` and ``a_y - g phi_hat`` with ``phi_hat`` the body's roll by the
+profile's own roll model (eq 9 quasi-static, ``m h a_y / (k_phi - m g h)``, lagged by
+``c_phi / k_phi``): the double count of eq (9) is taken out before the learners see a_y.
+The grade itself stays in a_x (stage 1 needs it for eq 3); the speed filter
+(:mod:`vdp.core.speed`) takes it out as its accelerometer offset, which then has to walk as
+fast as a grade changes (:data:`GRADE_BIAS_WALK`).
+
+Pure: no clock, no I/O.  Off unless :class:`RoadConfig` ``on``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+from .. import channels as ch
+
+log = logging.getLogger(__name__)
+
+ROW = 2.0  # s per row: 20 GNSS speeds at 10 Hz give a slope to 0.02 m/s^2
+GATE = 4.0  # sigma: a row beyond this is not the grade and tilt the model has
+# m/s^2 per sqrt(s): how fast the grade term walks; a grade of +-8 % over a few hundred metres at
+# 20 m/s changes g sin(theta) by up to about 0.15 m/s^2 per second
+GRADE_WALK = 0.1
+GRADE_BIAS_WALK = GRADE_WALK  # the speed filter's accelerometer offset, for SpeedConfig.bias_walk
+KAPPA_PRIOR = (0.0, 0.05)  # the pitch gain: 0 for a road-aligned IMU, 0.034 at 0.2 deg per m/s^2
+MIN_SPEED = 3.0  # m/s: below this the GNSS slope and the grade mean little
+LEVEL_BAND = 0.1  # m/s^2 (1 % of grade) from the grade term's slow mean: a level road, for the pitch gain
+LEVEL_RATE = ROW / 60.0  # the slow mean's weight per row (a minute)
+
+
+@dataclass(frozen=True)
+class RoadConfig:
+    on: bool = False  # off: today's estimates, to the bit
+    body_imu: bool = True  # take the body's roll out of a_y (a road-aligned IMU: False)
+    speed_walk: float = GRADE_BIAS_WALK  # the speed filter's a_x offset walk [m/s^2 per sqrt(s)]
+
+
+@dataclass
+class _Row:
+    """One row's sums.  The accelerometer is compared with the GNSS speed on the same footing:
+    its integral u(t) is sampled at the GNSS speeds' times and both get the same least-squares
+    slope (a mean a_x over the row would weight the row's ends more than the slope does, which
+    on a 12.5 s sine of speed reads as a pitch gain of -0.017)."""
+
+    t0: float
+    n: int = 0
+    ax: float = 0.0
+    u: float = 0.0  # integral of a_x since t0 (trapezoid)
+    a_prev: float = math.nan
+    t_prev: float = math.nan
+    # least squares over the GNSS speeds: sums of t, v, t t, t v, and of w = v - u, t w
+    gn: int = 0
+    st: float = 0.0
+    sv: float = 0.0
+    stt: float = 0.0
+    stv: float = 0.0
+    sw: float = 0.0
+    stw: float = 0.0
+
+    def slope(self) -> tuple[float, float, float] | None:
+        """(dv/dt, dv/dt - a_x, their std at 0.05 m/s per speed) by least squares, or None."""
+        if self.gn < 5:
+            return None
+        d = self.gn * self.stt - self.st * self.st
+        if d <= 0:
+            return None
+        k = 1.0 / d
+        dv = (self.gn * self.stv - self.st * self.sv) * k
+        dw = (self.gn * self.stw - self.st * self.sw) * k
+        return dv, dw, 0.05 * math.sqrt(self.gn * k)
+
+    @property
+    def v(self) -> float:
+        return self.sv / self.gn if self.gn else math.nan
+
+
+class Tilt:
+    """The grade and tilt filter and the per-sample correction (see the module)."""
+
+    def __init__(self, vehicle, h: float, cfg: RoadConfig | None = None):
+        self.cfg = cfg or RoadConfig()
+        v = vehicle
+        self.g = v.g
+        # eq 9 quasi-static: phi = m h a_y / (k_phi - m g h); its lag c_phi / k_phi
+        mh = v.mass * h
+        self.roll_gain = mh / max(v.roll_stiffness - mh * v.g, 1e-9 * v.roll_stiffness)
+        self.roll_tau = v.roll_damping / v.roll_stiffness if v.roll_stiffness > 0 else 0.0
+        self.reset()
+
+    def reset(self) -> None:
+        self.G, self.kappa = 0.0, KAPPA_PRIOR[0]
+        self.level: float | None = None  # the grade term's slow mean: a level road's (the bias, the mounting)
+        self.level_rows = 0  # rows the pitch gain learnt from
+        self.moving = 0.0  # how fast the grade term moves now: EWMA of |dG| per sqrt(s) over rows
+        self.P = [[1.0, 0.0], [0.0, KAPPA_PRIOR[1] ** 2]]  # G's prior: 1 m/s^2 (about 10 %)
+        self.row: _Row | None = None
+        self.rows = self.gated = 0
+        self.phi = 0.0
+        self.t: float | None = None
+        self.last: dict | None = None  # the last row: what the mass learner takes
+
+    # -- per sample -------------------------------------------------------------
+    def correct(self, s):
+        """The sample with a_x and a_y in the road's axes (the grade stays in a_x)."""
+        y = s.values
+        ax, ay = y[ch.AX], y[ch.AY]
+        self._accumulate(s, ax, ay)
+        out = list(y)
+        if math.isfinite(ax):
+            out[ch.AX] = ax / (1.0 + self.kappa)
+        if self.cfg.body_imu and math.isfinite(ay):
+            # a_y = f_y + g phi and phi = gain f_y (lagged): f_y = a_y / (1 + g gain)
+            f_y = ay / (1.0 + self.g * self.roll_gain)
+            target = self.roll_gain * f_y
+            dt = 0.0 if self.t is None else min(max(s.t - self.t, 0.0), 0.2)
+            k = 1.0 if self.roll_tau <= 0 else 1.0 - math.exp(-dt / self.roll_tau) if dt > 0 else 0.0
+            self.phi += k * (target - self.phi)
+            out[ch.AY] = ay - self.g * self.phi
+        self.t = s.t
+        return s._replace(values=tuple(out))
+
+    def _accumulate(self, s, ax: float, ay: float) -> None:
+        y = s.values
+        if not math.isfinite(ax) or s.gap:
+            self.row = None
+            return
+        r = self.row
+        if r is None or s.t - r.t0 >= ROW:
+            if r is not None:
+                self._close(r)
+            r = self.row = _Row(s.t)
+        r.n += 1
+        r.ax += ax
+        if math.isfinite(r.a_prev):
+            r.u += 0.5 * (ax + r.a_prev) * (s.t - r.t_prev)
+        r.a_prev, r.t_prev = ax, s.t
+        v = y[ch.SPEED]
+        if s.fresh[ch.SPEED] and math.isfinite(v):
+            age = s.age[ch.SPEED] if math.isfinite(s.age[ch.SPEED]) else 0.0
+            tt = s.t - r.t0 - age
+            w = v - (r.u - ax * age)  # u at the speed's own time
+            r.gn += 1
+            r.st += tt
+            r.sv += v
+            r.stt += tt * tt
+            r.stv += tt * v
+            r.sw += w
+            r.stw += tt * w
+
+    def _close(self, r: _Row) -> None:
+        """One row into the grade and tilt filter (H = [1, dv/dt])."""
+        sl = r.slope()
+        if sl is None or r.v < MIN_SPEED:
+            self.last = None
+            return
+        a = r.ax / r.n
+        dvdt, dw, sd = sl
+        d = -dw  # a_x - dv/dt on the slope's footing
+        P = self.P
+        P[0][0] += GRADE_WALK**2 * ROW
+        P[1][1] += 1e-9 * ROW  # the pitch gain hardly changes: a walk this slow still lets it average
+        # the pitch gain is learnt on a level road only: on a grade the driver's answer to it (slower
+        # uphill) ties the acceleration to the grade's changes, and the filter read that as pitch gain
+        # (kappa 0.056-0.062 against 0.027-0.034 on both models' hills); there the grade is learnt
+        # with kappa held, its uncertainty taken as noise
+        level = self.level is None or abs(self.G - self.level) < LEVEL_BAND
+        h0, h1 = 1.0, dvdt if level else 0.0
+        pred = self.G + self.kappa * dvdt
+        ph0 = P[0][0] * h0 + P[0][1] * h1
+        ph1 = P[1][0] * h0 + P[1][1] * h1
+        S = h0 * ph0 + h1 * ph1 + sd * sd + 0.02**2 + (0.0 if level else dvdt * dvdt * P[1][1])
+        inn = d - pred
+        self.rows += 1
+        if inn * inn > GATE * GATE * S:
+            self.gated += 1
+            self.last = None
+            return
+        k0, k1 = ph0 / S, (ph1 / S if level else 0.0)
+        self.level_rows += level
+        self.moving += 0.3 * (abs(k0 * inn) / math.sqrt(ROW) - self.moving)
+        self.G += k0 * inn
+        self.kappa += k1 * inn
+        if level:
+            self.P = [
+                [P[0][0] - k0 * ph0, P[0][1] - k0 * ph1],
+                [P[1][0] - k1 * ph0, P[1][1] - k1 * ph1],
+            ]
+        else:
+            p01 = P[0][1] - k0 * P[0][1]
+            self.P = [[P[0][0] - k0 * P[0][0], p01], [p01, P[1][1]]]
+        self.level = self.G if self.level is None else self.level + LEVEL_RATE * (self.G - self.level)
+        self.last = {"t": r.t0 + ROW, "a_x": a, "dv_dt": dvdt, "G": self.G}
+
+    def speed_walk(self, base: float) -> float:
+        """The speed filter's a_x offset walk now [m/s^2 per sqrt(s)]: ``base`` on a level road, up
+        to ``speed_walk`` while the grade moves (a walk that fast on a level road costs stage 1 its
+        speed: h was not valid on the paper drive at 0.1 throughout)."""
+        return min(max(base, 2.0 * self.moving), max(base, self.cfg.speed_walk))
+
+    @property
+    def kappa_std(self) -> float:
+        return math.sqrt(max(self.P[1][1], 0.0))
+
+    def state(self) -> dict:
+        """What the road did to the drive, plainly."""
+        return {
+            "pitch_gain_kappa": round(self.kappa, 5),
+            "pitch_gain_std": round(math.sqrt(max(self.P[1][1], 0.0)), 5),
+            "grade_term_mps2": round(self.G, 4),
+            "rows": self.rows,
+            "level_rows": self.level_rows,
+            "grade_gated": self.gated,
+            "reason": None
+            if not self.gated
+            else f"{self.gated} of {self.rows} rows of {ROW:g} s gated out: "
+            "the accelerometer and the GNSS speed disagreed beyond the grade and tilt model",
+        }
