@@ -78,7 +78,9 @@ class Service:
         learner = LearnerConfig(per_axle=settings.service.per_axle, compiled=False, check_executor=self.checks)
         cfg = EstimatorConfig(trace_len=600, learner=learner)
         pipe = pipeline if pipeline is not None else Pipeline(self.profile, cfg)
-        self.estimation = Estimation(pipe, self.ingest.queue, settings.service.publish_interval)
+        self.estimation = Estimation(
+            pipe, self.ingest.queue, settings.service.publish_interval, channel=self.ingest.channel
+        )
         self.writer = StoreWriter(settings.store, self.fingerprint, self.profile.vehicle.name)
         self.restored: dict | None = None
         self.restore_error: str | None = None
@@ -244,8 +246,17 @@ class Service:
         bad = sorted(n for n, p in pub.result.parameters.items() if p.status == INVALID)
         if bad:
             reasons.append(f"invalid estimates: {', '.join(bad)}")
+        lost = info.drops_at
+        if lost is not None and now - lost <= sv.diverged_hold:
+            reasons.append(
+                f"frames lost before vdp read them: {info.kernel_drops or 0} dropped by the kernel (receive "
+                f"buffer full), {info.overruns} controller overrun report(s); the raw log has gaps there"
+            )
         if ing.dropped_at is not None and now - ing.dropped_at <= sv.diverged_hold:
-            reasons.append(f"estimation fell behind: {ing.intake.dropped} frame(s) dropped")
+            reasons.append(
+                f"estimation fell behind: {ing.intake.dropped} frame(s) dropped from estimation "
+                "(thinned; the raw log has them)"
+            )
         if ing.rawlog is not None and ing.rawlog.error:
             reasons.append(f"raw logging stopped: {ing.rawlog.error}")
         if ing.rawlog is not None:
@@ -299,6 +310,8 @@ class Service:
                 "queue": parts["queue"],
                 "estimation": {
                     "frames": pub.fed,
+                    # frames of the bus estimation skipped to keep up (the raw log has every one)
+                    "thinned": self.ingest.intake.dropped,
                     "samples": r.samples,
                     "errors": est.errors,
                     "stage": r.stage,
@@ -359,6 +372,9 @@ class Service:
         return {
             "frames": ing.intake.received,
             "dropped": ing.intake.dropped,
+            "kernel_drops": ing.link.info.kernel_drops,
+            "controller_overruns": ing.link.info.overruns,
+            "receive_buffer": ing.link.info.receive_buffer,
             "fed": pub.fed,
             "samples": r.samples,
             "queue_depth": ing.queue.qsize(),
