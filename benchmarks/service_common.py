@@ -211,8 +211,10 @@ def start_service(netns: bool):
     udp_multicast inside the private namespace (``--netns``), else the virtual bus."""
     import tempfile
 
+    from vdp.cli.serve import tune_interpreter
     from vdp.live import Service
 
+    tune_interpreter()  # as vdp serve does
     tmp = Path(tempfile.mkdtemp(prefix="vdp-bench-"))
     svc = Service(settings(tmp, "udp_multicast", GROUP) if netns else settings(tmp))
     svc.start()

@@ -1,4 +1,10 @@
-"""The JSON routes: health, estimates and their history, status, reset."""
+"""The JSON routes: health, estimates and their history, status, reset.
+
+/health, /estimates and /status read the snapshot the estimation thread published (and counters):
+nothing in them waits, so they run on the event loop itself (``async def``).  A plain ``def`` route
+is run in a worker thread, and each hand-over between threads waits for the GIL, up to
+``sys.getswitchinterval()`` behind a busy estimator: that was most of the API's latency on a
+saturated bus.  /estimates/history (SQLite) and /reset (waits for the worker) stay in threads."""
 
 from __future__ import annotations
 
@@ -17,12 +23,12 @@ router = APIRouter()
 
 
 @router.get("/health", response_model=models.Health, summary="ok, or degraded with the reasons")
-def health(svc: Svc) -> Any:
+async def health(svc: Svc) -> Any:
     return svc.health()
 
 
 @router.get("/estimates", response_model=models.Estimates, summary="current estimates (UKF and EKF baseline)")
-def estimates(svc: Svc) -> Any:
+async def estimates(svc: Svc) -> Any:
     return svc.estimates()
 
 
@@ -44,7 +50,7 @@ def history(
 
 
 @router.get("/status", response_model=models.Status, summary="bus, decoding, channels, gating, logs, store")
-def status(svc: Svc) -> Any:
+async def status(svc: Svc) -> Any:
     return svc.status()
 
 

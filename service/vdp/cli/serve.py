@@ -158,6 +158,17 @@ def build_server(settings, service):
     return uvicorn.Server(config)
 
 
+# s a thread holds the GIL before one waiting gets it (CPython's default: 5 ms).  Each API request
+# passes between threads (the event loop, the socket) while the estimator and the receive thread
+# run Python code; at 5 ms a turn, p99 reached ~50 ms on a saturated bus.
+SWITCH_INTERVAL = float(os.environ.get("VDP_SWITCH_INTERVAL", "0.001"))
+
+
+def tune_interpreter() -> None:
+    """Settings of the interpreter for a live service (vdp serve, and the benchmarks that stand in for it)."""
+    sys.setswitchinterval(SWITCH_INTERVAL)
+
+
 def run(args) -> int:
     from ..api import check_host
     from ..live import Service
@@ -173,6 +184,7 @@ def run(args) -> int:
         sock.close()
         raise
     _raise_nofile()
+    tune_interpreter()
     logging.getLogger("asyncio").addFilter(_AcceptErrors())
     service = Service(settings)
     terminate = _Terminate()
