@@ -28,6 +28,7 @@ log = logging.getLogger(__name__)
 
 _sim_ids = itertools.count(1)
 RATE_WINDOW = 5.0  # s over which frames/s is measured
+SIM_QUEUE = 8192  # frames: the simulator waits while half of this is queued (simfeed.PAUSE_ABOVE)
 
 
 class Ingest:
@@ -63,7 +64,7 @@ class Ingest:
         if settings.simulate.enabled:
             from .simfeed import SimFeed
 
-            self.sim = SimFeed(profile, settings.simulate, bus_cfg.channel, self.backlog)
+            self.sim = SimFeed(profile, settings.simulate, bus_cfg.channel, self.sim_backlog)
         self._rates: deque = deque()
         self.frames_per_s = 0.0
         self._dropped_seen = 0
@@ -116,6 +117,12 @@ class Ingest:
         virtual bus: that queue has no bound, so a lagging receive thread would grow it."""
         flight = self.sim.sent - self.intake.received if self.sim is not None else 0
         return (self.queue.qsize() + max(flight, 0)) / self.queue.maxsize
+
+    def sim_backlog(self) -> float:
+        """The simulator's view of the backlog: against at most SIM_QUEUE frames, so a simulation that
+        runs ahead of estimation holds a few thousand frames in memory, not half of a car-sized queue."""
+        flight = self.sim.sent - self.intake.received if self.sim is not None else 0
+        return (self.queue.qsize() + max(flight, 0)) / min(self.queue.maxsize, SIM_QUEUE)
 
     def silent_for(self) -> float | None:
         last = self.intake.last_rx
