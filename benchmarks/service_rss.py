@@ -148,7 +148,8 @@ def main() -> int:
         report(
             samples,
             seconds,
-            f"vdp serve --simulate --sim-speed 0 --loop: dropped {st['queue']['dropped']}, "
+            f"vdp serve --simulate --sim-speed {a.sim_speed:g} --loop (ran at "
+            f"{st['simulation'].get('running_speed')}x at the end): dropped {st['queue']['dropped']}, "
             f"raw log files closed {st['raw_log']['closed_files']} (deleted "
             f"{st['raw_log']['deleted_files']}), stage {st['estimation']['stage']}",
         )
