@@ -25,8 +25,7 @@ router = APIRouter()
     summary="Prometheus text format",
     responses={200: {"content": {CONTENT_TYPE_LATEST: {}}}},
 )
-async def metrics(request: Request) -> PlainTextResponse:
-    # on the event loop: it reads counters and the latest snapshot, nothing that waits (see routes)
+def metrics(request: Request) -> PlainTextResponse:
     return PlainTextResponse(generate_latest(request.app.state.registry), media_type=CONTENT_TYPE_LATEST)
 
 
