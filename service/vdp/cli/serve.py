@@ -158,10 +158,11 @@ def build_server(settings, service):
     return uvicorn.Server(config)
 
 
-# s a thread holds the GIL before one waiting gets it (CPython's default: 5 ms).  Each API request
-# passes between threads (the event loop, the socket) while the estimator and the receive thread
-# run Python code; at 5 ms a turn, p99 reached ~50 ms on a saturated bus.
-SWITCH_INTERVAL = float(os.environ.get("VDP_SWITCH_INTERVAL", "0.001"))
+# s a thread holds the GIL before one waiting gets it: CPython's own 5 ms.  1 ms was tried against
+# the API's p99 on a saturated bus and made no difference (11.4 against 11.0 ms, BENCHMARKS.md
+# "Live logger on a saturated bus"): what did was the receive thread's blocks and the snapshot
+# routes.  VDP_SWITCH_INTERVAL sets another, for measuring.
+SWITCH_INTERVAL = float(os.environ.get("VDP_SWITCH_INTERVAL", "0.005"))
 
 
 def tune_interpreter() -> None:
