@@ -43,14 +43,15 @@ def summary(results: list[tuple[str, int | None, float, str | None]], wall: floa
         "latency_ms": {q: pct(lat, float(q[1:])) for q in ("p50", "p90", "p99")} | {"max": max(lat, default=None)},
         "per_path": {},
     }
-    for p in PATHS:
+    for p in dict.fromkeys(r[0] for r in results):
         xs = [r[2] for r in results if r[0] == p]
         if xs:
             out["per_path"][p] = {"n": len(xs), "p50": pct(xs, 50), "p99": pct(xs, 99), "max": max(xs)}
     return out
 
 
-def rate(port: int, per_s: float, count: int, seconds: float) -> dict:
+def rate(port: int, per_s: float, count: int, seconds: float, paths: list[str] | None = None) -> dict:
+    paths = paths or PATHS
     base = f"http://127.0.0.1:{port}"
     results = []
     with httpx.Client(base_url=base, timeout=30.0) as c:
@@ -63,7 +64,7 @@ def rate(port: int, per_s: float, count: int, seconds: float) -> dict:
                 time.sleep(due - now)
             if now - t0 > seconds:
                 break
-            path = PATHS[k % len(PATHS)]
+            path = paths[k % len(paths)]
             s = time.perf_counter()
             try:
                 r = c.get(path)
@@ -108,9 +109,10 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=120.0)
     ap.add_argument("--clients", type=int, default=200)
     ap.add_argument("--requests", type=int, default=5)
+    ap.add_argument("--paths", default="", help="rate: comma-separated paths to cycle (default: the mix)")
     a = ap.parse_args()
     if a.mode == "rate":
-        out = rate(a.port, a.rate, a.count, a.seconds)
+        out = rate(a.port, a.rate, a.count, a.seconds, [p for p in a.paths.split(",") if p] or None)
     else:
         out = asyncio.run(burst(a.port, a.clients, a.requests))
     print(json.dumps(out), flush=True)

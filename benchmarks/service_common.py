@@ -46,10 +46,10 @@ def thread_cpu(t: threading.Thread) -> float:
 
 
 def threads_cpu() -> dict[str, float]:
-    """CPU seconds per live thread, by name (python-can's receive thread is 'Notifier for bus ...')."""
+    """CPU seconds per live thread, by name (vdp's receive thread is 'BlockNotifier for bus ...')."""
     out: dict[str, float] = {}
     for t in threading.enumerate():
-        name = "can-notifier (receive)" if t.name.startswith("Notifier for") else t.name
+        name = "can-notifier (receive)" if t.name.startswith(("Notifier for", "BlockNotifier for")) else t.name
         out[name] = out.get(name, 0.0) + thread_cpu(t)
     return out
 
@@ -205,16 +205,22 @@ def settings(tmp: Path, interface: str = "virtual", channel: str | None = None, 
     )
 
 
-def start_service(netns: bool):
+def start_service(netns: bool, interface: str | None = None, channel: str | None = None):
     """A started in-process service on a fresh temp dir: (service, dir), once its bus is up.
 
-    udp_multicast inside the private namespace (``--netns``), else the virtual bus."""
+    udp_multicast inside the private namespace (``--netns``), else the virtual bus (or ``interface``)."""
     import tempfile
 
+    from vdp.cli.serve import tune_interpreter
     from vdp.live import Service
 
+    tune_interpreter()  # as vdp serve does
     tmp = Path(tempfile.mkdtemp(prefix="vdp-bench-"))
-    svc = Service(settings(tmp, "udp_multicast", GROUP) if netns else settings(tmp))
+    if interface:
+        cfg = settings(tmp, interface, channel)
+    else:
+        cfg = settings(tmp, "udp_multicast", GROUP) if netns else settings(tmp)
+    svc = Service(cfg)
     svc.start()
     wait_up(svc)
     return svc, tmp

@@ -45,7 +45,7 @@ def rss_of(pid: int) -> float:
     return float("nan")
 
 
-def serve(seconds: float, every: float, tmp: Path) -> tuple[list, dict]:
+def serve(seconds: float, every: float, tmp: Path, speed: float = 0.0) -> tuple[list, dict]:
     """`vdp serve --simulate --sim-speed 0 --loop` in its own process; (samples, last /status)."""
     err = tmp / "serve.err"
     proc = subprocess.Popen(
@@ -56,7 +56,7 @@ def serve(seconds: float, every: float, tmp: Path) -> tuple[list, dict]:
             "serve",
             "--simulate",
             "--sim-speed",
-            "0",
+            str(speed),
             "--loop",
             "--port",
             "0",
@@ -133,19 +133,23 @@ def main() -> int:
         help="store commits [s]; the default gives a 3.5x-real-time run the car's one commit per "
         "second of drive, so the store grows as it would",
     )
-    ap.add_argument("--serve", action="store_true", help="run `vdp serve --simulate --sim-speed 0 --loop`")
+    ap.add_argument("--serve", action="store_true", help="run `vdp serve --simulate --sim-speed S --loop`")
+    ap.add_argument(
+        "--sim-speed", type=float, default=0.0, help="--serve: S (0: as fast as it keeps up; the README's is 20)"
+    )
     ap.add_argument("--json", type=Path, help="also write the samples here")
     a = ap.parse_args()
     seconds = a.minutes * 60.0
     print(f"{'bus time':>9} {'wall':>7} {'RSS MB':>7} {'frames':>12}")
     if a.serve:
         tmp = Path(tempfile.mkdtemp(prefix="vdp-bench-"))
-        samples, st = serve(seconds, a.every, tmp)
+        samples, st = serve(seconds, a.every, tmp, a.sim_speed)
         shutil.rmtree(tmp, ignore_errors=True)
         report(
             samples,
             seconds,
-            f"vdp serve --simulate --sim-speed 0 --loop: dropped {st['queue']['dropped']}, "
+            f"vdp serve --simulate --sim-speed {a.sim_speed:g} --loop (ran at "
+            f"{st['simulation'].get('running_speed')}x at the end): dropped {st['queue']['dropped']}, "
             f"raw log files closed {st['raw_log']['closed_files']} (deleted "
             f"{st['raw_log']['deleted_files']}), stage {st['estimation']['stage']}",
         )

@@ -40,9 +40,10 @@ UDP_SCRIPT = HELPERS + textwrap.dedent(r"""
     out["metrics"] = get(port, "/metrics")
     proc.send_signal(signal.SIGTERM)
     out["exit"] = proc.wait(60)
-    # the raw files only, not the directory's lock file (.vdp.lock)
+    # the raw log files only, not the directory's lock file (.vdp.lock) nor the index (vdp-index.jsonl)
     raw = os.path.join(tmp, "raw")
-    out["raw"] = sorted(os.path.join(raw, n) for n in os.listdir(raw) if not n.startswith("."))
+    out["raw"] = sorted(os.path.join(raw, n) for n in os.listdir(raw) if n.endswith(".log"))
+    out["index"] = open(os.path.join(raw, "vdp-index.jsonl")).read().splitlines()
     out["serve_err"] = open(os.path.join(tmp, "serve.err")).read()[-3000:]
     print(json.dumps(out))
 """)
@@ -77,3 +78,7 @@ def test_simulate_and_serve_in_two_processes_over_udp_multicast(tmp_path):
         total += sum(1 for _ in src)
         assert src.stats.bad == 0
     assert total == sent
+    # the raw log's index: a line per closed file, its frames, and none lost before vdp read them
+    index = [json.loads(line) for line in out["index"]]
+    assert sum(e["frames"] for e in index) == sent and all(e["dropped"]["kernel"] == 0 for e in index)
+    assert st["bus"]["dropped"]["kernel"] == 0

@@ -37,6 +37,8 @@ class BusSettings:
     # vdp never transmits.  Where python-can can open the interface silent, it does
     # (see live.bus.LISTEN_ONLY); socketcan has no such flag: set it on the netdev.
     listen_only: bool = True
+    # bytes of kernel receive buffer asked for a socket bus (None: live.bus.RECEIVE_BUFFER, ~1 s of a saturated bus)
+    receive_buffer: int | None = None
     kwargs: dict[str, Any] = field(default_factory=dict)  # passed to can.Bus as they are
 
 
@@ -198,12 +200,14 @@ def validate(s: Settings) -> Settings:
     _interface(src, s.bus.interface)
     if s.bus.bitrate is not None:
         _positive(src, "bus", "bitrate", s.bus.bitrate)
+    if s.bus.receive_buffer is not None:
+        _positive(src, "bus", "receive_buffer", s.bus.receive_buffer)
     if s.bus.receive_own_messages:
         raise ConfigError(
             f"{_where(src, 'bus', 'receive_own_messages')}: must be false; vdp never "
             "transmits, so there is nothing of its own to receive"
         )
-    reserved = {"interface", "channel", "bitrate", "receive_own_messages"} & set(s.bus.kwargs)
+    reserved = {"interface", "channel", "bitrate", "receive_own_messages", "receive_buffer"} & set(s.bus.kwargs)
     if reserved:
         raise ConfigError(f"{_where(src, 'bus.kwargs')}: {sorted(reserved)} belong in [bus] itself")
     _positive(src, "raw_log", "max_bytes", s.raw_log.max_bytes)

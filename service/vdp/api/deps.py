@@ -12,14 +12,15 @@ from ..settings import Settings
 from .guard import token_problem
 
 
-def get_service(request: Request) -> Service:
+async def get_service(request: Request) -> Service:
+    # async: a plain def dependency is run in a worker thread (see routes)
     svc = getattr(request.app.state, "service", None)
     if svc is None:
         raise HTTPException(503, "the service is starting")
     return svc
 
 
-def get_settings(request: Request) -> Settings:
+async def get_settings(request: Request) -> Settings:
     return request.app.state.settings
 
 

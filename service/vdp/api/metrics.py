@@ -55,7 +55,16 @@ class Collector:
             return c
 
         yield counter("frames_received", "CAN frames received from the bus", m["frames"])
-        yield counter("frames_dropped", "frames dropped because estimation fell behind", m["dropped"])
+        yield counter("frames_dropped", "frames not estimated because estimation fell behind (thinned)", m["dropped"])
+        lost = CounterMetricFamily(
+            "vdp_frames_lost", "frames lost before vdp read them (not in the raw log), by cause", labels=["cause"]
+        )
+        if m.get("kernel_drops") is not None:
+            lost.add_metric(["kernel_receive_buffer"], m["kernel_drops"])
+        lost.add_metric(["controller_overrun"], m.get("controller_overruns", 0))
+        yield lost
+        if m.get("receive_buffer") is not None:
+            yield gauge("receive_buffer_bytes", "kernel receive buffer of the bus socket", m["receive_buffer"])
         yield counter("frames_estimated", "frames fed to the estimation pipeline", m["fed"])
         yield counter("samples", "aligned samples the estimator saw", m["samples"])
         yield counter("bus_reconnects", "bus reconnects", m["reconnects"])

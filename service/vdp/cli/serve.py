@@ -158,6 +158,26 @@ def build_server(settings, service):
     return uvicorn.Server(config)
 
 
+# s a thread holds the GIL before one waiting gets it: CPython's own 5 ms.  1 ms was tried against
+# the API's p99 on a saturated bus and made no difference (11.4 against 11.0 ms, BENCHMARKS.md
+# "Live logger on a saturated bus"): what did was the receive thread's blocks and the snapshot
+# routes.  VDP_SWITCH_INTERVAL sets another, for measuring.
+SWITCH_INTERVAL = float(os.environ.get("VDP_SWITCH_INTERVAL", "0.005"))
+
+
+def tune_interpreter() -> None:
+    """Settings of the interpreter for a live service (vdp serve, and the benchmarks that stand in for it)."""
+    sys.setswitchinterval(SWITCH_INTERVAL)
+    # glibc gives each thread that allocates an arena of its own (up to 8 a core); a long-running
+    # service of six threads then holds freed memory in all of them.  Two arenas: less RSS.
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").mallopt(-8, 2)  # M_ARENA_MAX
+    except (OSError, AttributeError):
+        pass  # not glibc
+
+
 def run(args) -> int:
     from ..api import check_host
     from ..live import Service
@@ -173,6 +193,7 @@ def run(args) -> int:
         sock.close()
         raise
     _raise_nofile()
+    tune_interpreter()
     logging.getLogger("asyncio").addFilter(_AcceptErrors())
     service = Service(settings)
     terminate = _Terminate()

@@ -34,6 +34,7 @@ import can
 
 from ..errors import BusError
 from ..settings import BusSettings
+from .reader import ERR, BlockNotifier, is_overrun, socket_drops
 
 log = logging.getLogger(__name__)
 
@@ -79,13 +80,23 @@ def bus_socket(bus: can.BusABC) -> socket.socket | None:
     return sock if isinstance(sock, socket.socket) else None
 
 
+def rmem_max() -> int | None:
+    """The most receive buffer a process without CAP_NET_ADMIN may ask for (Linux's net.core.rmem_max)."""
+    try:
+        with open("/proc/sys/net/core/rmem_max") as f:
+            return int(f.read())
+    except (OSError, ValueError):
+        return None
+
+
 def enlarge_receive_buffer(bus: can.BusABC, size: int = RECEIVE_BUFFER) -> int | None:
     """Ask the kernel for ``size`` bytes of receive buffer; return what it gave (None: no socket)."""
     sock = bus_socket(bus)
     if sock is None:
         return None
     # SO_RCVBUFFORCE goes past net.core.rmem_max but needs CAP_NET_ADMIN; SO_RCVBUF is capped by it.
-    for opt in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+    force = getattr(socket, "SO_RCVBUFFORCE", None)
+    for opt in (force, socket.SO_RCVBUF):
         if opt is None:
             continue
         try:
@@ -200,6 +211,11 @@ class LinkState:
     listen_only: bool | None = None  # None: the interface has no such mode
     receive_buffer: int | None = None  # bytes of kernel receive buffer (None: not a socket)
     garbage: int = 0  # datagrams that held no CAN frame (udp_multicast), skipped without a reconnect
+    # frames lost before vdp read them, by cause: the kernel's socket receive buffer overflowed
+    # (sk_drops, summed over every socket opened), and overrun reports of the controller (error frames)
+    kernel_drops: int | None = None  # None: the interface has no such counter
+    overruns: int = 0
+    drops_at: float | None = None  # monotonic time drops were last found
 
 
 class BusLink:
@@ -235,6 +251,9 @@ class BusLink:
         self._lock = threading.Lock()
         self._warned_buffer = False
         self._garbage_said = -60.0
+        self._drops_said = -60.0
+        self._sock: socket.socket | None = None  # the bus's OS socket, for its drop counter
+        self._sock_drops = 0  # its counter when last read
         if cfg.listen_only and cfg.interface not in LISTEN_ONLY and cfg.interface not in ("virtual", "udp_multicast"):
             log.info(
                 "python-can's %s interface has no listen-only mode; vdp never transmits, and for "
@@ -274,7 +293,54 @@ class BusLink:
             "listen_only": i.listen_only,
             "receive_buffer": i.receive_buffer,
             "garbage": i.garbage,
+            "dropped": {"kernel": i.kernel_drops, "controller_overruns": i.overruns},
         }
+
+    def dropped(self) -> int:
+        """Frames lost before vdp read them, as far as counted (kernel drops; controller overrun reports)."""
+        return (self.info.kernel_drops or 0) + self.info.overruns
+
+    def poll_drops(self) -> None:
+        """Read the open socket's drop counter (the keeper calls this every POLL, and at each close)."""
+        with self._lock:
+            sock = self._sock
+            if sock is None:
+                return
+            try:
+                n = socket_drops(sock)
+            except OSError:
+                n = None
+            if n is None:
+                return
+            i = self.info
+            new = n - self._sock_drops
+            if new > 0:
+                self._sock_drops = n
+                i.kernel_drops = (i.kernel_drops or 0) + new
+                i.drops_at = time.monotonic()
+                self._said_drops(new)
+            elif i.kernel_drops is None:
+                i.kernel_drops = 0
+
+    def _said_drops(self, new: int) -> None:
+        now = time.monotonic()
+        if now - self._drops_said >= 60.0:
+            self._drops_said = now
+            log.error(
+                "%s '%s': the kernel dropped %d frame(s) (%d in all): the receive buffer overflowed "
+                "before vdp read it; /status bus.dropped counts them",
+                self.cfg.interface,
+                self.cfg.channel,
+                new,
+                self.info.kernel_drops,
+            )
+
+    def _blocked(self, block: list) -> None:
+        """After each block: count the controller's overrun reports in it (error frames only)."""
+        for f in block:
+            if f[2] & ERR and is_overrun(f):
+                self.info.overruns += 1
+                self.info.drops_at = time.monotonic()
 
     # -- called from the receive thread -----------------------------------------------------------
     def failed(self, exc: BaseException) -> None:
@@ -334,8 +400,19 @@ class BusLink:
         bus = self.opener(self.cfg)
         self._buffer(bus)
         guard_recv(bus, self.frame_channel, self._garbage)
+        sock = bus_socket(bus)
+        with self._lock:
+            self._sock = sock
+            self._sock_drops = 0
+        if sock is not None:
+            try:
+                self._sock_drops = socket_drops(sock) or 0  # a socket starts at 0; counted from here anyway
+            except OSError:
+                pass
         try:
-            notifier = can.Notifier(bus, self.listeners, timeout=POLL)
+            notifier = BlockNotifier(
+                bus, self.listeners, POLL, self.frame_channel, self._garbage, on_block=self._blocked
+            )
         except Exception as exc:
             bus.shutdown()
             raise BusError(f"cannot start receiving from {self.cfg.interface} '{self.cfg.channel}': {exc}") from exc
@@ -358,29 +435,38 @@ class BusLink:
             )
 
     def _buffer(self, bus: can.BusABC) -> None:
+        want = self.cfg.receive_buffer or RECEIVE_BUFFER
         try:
-            got = enlarge_receive_buffer(bus)
+            got = enlarge_receive_buffer(bus, want)
         except Exception as exc:  # a bus without a usable socket is still a bus
             log.debug("receive buffer: %s", exc)
             return
         self.info.receive_buffer = got
-        if got is not None and got < RECEIVE_BUFFER and not self._warned_buffer:
-            self._warned_buffer = True
+        if got is None or self._warned_buffer:
+            return
+        self._warned_buffer = True
+        if got < want:
+            cap = rmem_max()
             log.warning(
-                "the kernel gave the %s bus a receive buffer of %d KiB, not %d: a pause of the "
-                "receive thread may lose frames on a busy bus. Raise the limit (sysctl -w "
-                "net.core.rmem_max=%d) or run vdp with CAP_NET_ADMIN",
+                "the kernel gave the %s bus a receive buffer of %d KiB, not the %d KiB asked for: the OS caps it "
+                "(net.core.rmem_max = %s) and vdp lacks CAP_NET_ADMIN to go past it. A pause of the receive "
+                "thread longer than the buffer holds loses frames (counted in /status bus.dropped). Raise the "
+                "limit (sysctl -w net.core.rmem_max=%d) or run vdp with CAP_NET_ADMIN",
                 self.cfg.interface,
                 got >> 10,
-                RECEIVE_BUFFER >> 10,
-                RECEIVE_BUFFER,
+                want >> 10,
+                "unknown" if cap is None else f"{cap} bytes",
+                want,
             )
+        else:
+            log.info("%s bus: kernel receive buffer of %d KiB", self.cfg.interface, got >> 10)
 
     def _watch(self) -> None:
         """Return when the bus failed or we are stopping; check the receive thread every POLL."""
         while not self._stop.is_set():
             if self._failed.wait(POLL):
                 return
+            self.poll_drops()
             n = self.notifier
             readers = getattr(n, "_readers", [])
             alive = any(getattr(r, "is_alive", lambda: True)() for r in readers) if readers else True
@@ -406,6 +492,9 @@ class BusLink:
                 notifier.stop(timeout=2 * POLL + 1.0)
             except Exception as exc:
                 log.debug("stopping the notifier: %s", exc)
+        self.poll_drops()  # a closed socket's count is gone with it: read it last
+        with self._lock:
+            self._sock = None
         if bus is not None:
             try:
                 bus.shutdown()

@@ -22,10 +22,12 @@ from typing import Any
 
 from ..errors import VdpError
 from ..result import RunResult
+from .reader import ERR, EXT, message_of
 
 log = logging.getLogger(__name__)
 
 _STOP = object()
+_EXT_KEY = 1 << 31  # the decoder's key of an extended id (vdp.io.decoder)
 COMMAND_TIMEOUT = 10.0  # s an API command waits for the worker
 
 
@@ -61,8 +63,9 @@ def _same(a: float | None, b: float | None) -> bool:
 
 
 class Estimation:
-    def __init__(self, pipeline, frames: queue.Queue, publish_interval: float):
+    def __init__(self, pipeline, frames: queue.Queue, publish_interval: float, channel: str | None = None):
         self.pipeline = pipeline
+        self.channel = channel  # the channel frames read from a socket are given (bus.frame_channel)
         self.queue = frames
         self.publish_interval = publish_interval
         self.errors = 0  # frames on which estimation raised, and failed snapshots
@@ -78,6 +81,7 @@ class Estimation:
         self._thread: threading.Thread | None = None
         self._resets_seen: dict = {}
         self._diverged: dict[str, tuple[float, str]] = {}  # filter kind -> (monotonic time, what)
+        self._keep: frozenset | bool | None = False  # decoded ids, found at the first block
 
     # -- life cycle ------------------------------------------------------------------------------
     def restore(self, estimates: Mapping) -> str | None:
@@ -137,13 +141,13 @@ class Estimation:
                 if item.future.set_running_or_notify_cancel():
                     item.future.set_exception(Unavailable("the service is stopping"))
             else:
-                self.dropped += 1
+                self.dropped += len(item) if type(item) is list else 1
             item = q.get()
         self.publish()
 
     # -- the worker --------------------------------------------------------------------------------
     def _work(self) -> None:
-        q, feed = self.queue, self.pipeline.feed
+        q = self.queue
         interval = self.publish_interval
         next_pub = time.monotonic() + interval
         while True:
@@ -162,16 +166,10 @@ class Estimation:
                 if self._stop_by is not None and time.monotonic() > self._stop_by:
                     self._drop_rest(item)  # out of time to stop in: the rest is not estimated
                     return
-                try:
-                    # candump logs keep microseconds: rounding here makes the live estimate
-                    # and a replay of the raw log see the very same numbers.
-                    item.timestamp = round(item.timestamp, 6)
-                    feed(item)
-                except Exception:
-                    self.errors += 1
-                    if self.errors == 1 or self.errors % 1000 == 0:
-                        log.exception("estimation failed on a frame (%d so far); carrying on", self.errors)
-                self.fed += 1
+                if type(item) is list:
+                    self._feed_block(item)
+                else:
+                    self._feed_one(item)
                 self._dirty = True
             now = time.monotonic()
             if now >= next_pub:
@@ -180,6 +178,60 @@ class Estimation:
                 if self._dirty or self._checks_solved() != self._checks:
                     self.publish()
                 next_pub = now + interval
+
+    def _feed_one(self, msg) -> None:
+        try:
+            # candump logs keep microseconds: rounding here makes the live estimate
+            # and a replay of the raw log see the very same numbers.
+            msg.timestamp = round(msg.timestamp, 6)
+            self.pipeline.feed(msg)
+        except Exception:
+            self._failed()
+        self.fed += 1
+
+    def _failed(self) -> None:
+        self.errors += 1
+        if self.errors == 1 or self.errors % 1000 == 0:
+            log.exception("estimation failed on a frame (%d so far); carrying on", self.errors)
+
+    def _feed_block(self, block: list) -> None:
+        """A block of frame records: the frames of ids the decoder decodes become Messages and are fed
+        (one at a time: an error costs one frame); the others are only counted by id, as a replay
+        that leaves them out counts them (Pipeline.pass_over), never made into Messages."""
+        pipe, chan = self.pipeline, self.channel
+        keep = self._decoded_ids()
+        if keep is None:  # a pipeline without a decoder to ask (tests' stand-ins): every frame is fed
+            for f in block:
+                self._feed_one(message_of(f, chan))
+            return
+        feed = pipe.feed
+        other: dict[int, int] = {}
+        for f in block:
+            fl = f[2]
+            key = f[1] | _EXT_KEY if fl & EXT else f[1]
+            if key in keep or fl & ERR:
+                try:
+                    feed(message_of(f, chan))
+                except Exception:
+                    self._failed()
+            else:
+                other[key] = other.get(key, 0) + 1
+        if other:
+            try:
+                pipe.pass_over(other)
+            except Exception:
+                self._failed()
+        self.fed += len(block)
+
+    def _decoded_ids(self) -> frozenset | None:
+        """Ids (extended ones with bit 31 set) the pipeline's decoder decodes; None: feed every frame.
+        Also None when the decoder keeps only other channels than this bus's (it counts those apart)."""
+        if self._keep is False:
+            dec = getattr(self.pipeline, "decoder", None)
+            want = getattr(dec, "_want", None)
+            ok = dec is not None and hasattr(self.pipeline, "pass_over") and (want is None or self.channel in want)
+            self._keep = frozenset(dec.ids) if ok else None
+        return self._keep
 
     def _run(self, cmd: _Command) -> None:
         if not cmd.future.set_running_or_notify_cancel():

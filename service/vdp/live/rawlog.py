@@ -34,6 +34,7 @@ rotation; this listener adds what an unattended logger needs:
 from __future__ import annotations
 
 import errno
+import json
 import logging
 import os
 import re
@@ -43,6 +44,8 @@ import time
 from pathlib import Path
 
 import can
+
+from .reader import EXT, TX, message_of
 
 log = logging.getLogger(__name__)
 
@@ -115,9 +118,24 @@ class RawLog(can.Listener):
     """A Notifier listener; ``on_message_received`` never raises."""
 
     def __init__(
-        self, directory: str | Path, max_bytes: int, max_files: int, prefix: str = "vdp", min_free: int | None = None
+        self,
+        directory: str | Path,
+        max_bytes: int,
+        max_files: int,
+        prefix: str = "vdp",
+        min_free: int | None = None,
+        channel: str = "can0",
+        drops=None,
     ):
         self.dir = Path(directory)
+        self.channel = channel  # the channel written for frames read from a socket (bus.frame_channel)
+        # drops(): {cause: frames lost before vdp read them, so far}; each closed file's line in the
+        # index ({prefix}-index.jsonl) says how many were lost while it was the open file
+        self.drops = drops
+        self.index = self.dir / f"{prefix}-index.jsonl"
+        self._in_file = 0  # frames written to the open file
+        self._drops_at_open: dict = {}
+        self._rolling_all = False  # a block's rollover: every held frame is in the file being closed
         self.max_bytes = max_bytes
         # free-space floor: the oldest files go before the disk fills (default: room for two files)
         self.min_free = 2 * max_bytes if min_free is None else min_free
@@ -171,6 +189,7 @@ class RawLog(can.Listener):
         logger.rotator = lambda src, dst: self._rotate(src, dst, rolling=True)
         self._logger = logger
         self._opened(logger)
+        self._start_file()
         self.error, self.disk_full, self._failed_at = None, False, None
         self._retry = RETRY_MIN
         self._prune()
@@ -247,15 +266,77 @@ class RawLog(can.Listener):
             self._held.append(msg)
             try:
                 self._logger.on_message_received(msg)
+                self._in_file += 1
             except Exception as exc:
                 self._not_written(exc, [msg])
 
-    def _write(self, msgs: list[can.Message]) -> None:
+    def on_block(self, frames: list) -> None:
+        """A block of frame records (:data:`vdp.live.reader.Frame`) from the receive thread: formatted
+        as candump -L lines (python-can's CanutilsLogWriter's, byte for byte) and written in one call."""
+        with self._lock:
+            n = len(frames)
+            self.accepted += n
+            logger = self._logger
+            if logger is None:
+                self._lose(n)
+                return
+            if len(self._held) + n > HOLD_MAX:
+                self._check()
+                logger = self._logger
+                if logger is None:
+                    self._lose(n)
+                    return
+            self._held.extend(frames)
+            try:
+                self._write_lines(logger, frames)
+                self._in_file += n
+                if logger.max_bytes > 0 and logger.writer.file.tell() >= logger.max_bytes:
+                    self._rolling_all = True
+                    try:
+                        logger.do_rollover()
+                    finally:
+                        self._rolling_all = False
+            except _Detached as gone:  # found at the rotation: the held frames go into a new file
+                self._reattach(gone, [])
+            except Exception as exc:  # OSError (disk full) or a bug: what reached the file is counted
+                self._fail(exc)
+
+    def _write_lines(self, logger, frames: list) -> None:
+        """Called with the lock held."""
+        w = logger.writer
+        write = w.file.write
+        first = w.last_timestamp
+        if first is None:  # python-can's writer clamps every timestamp to at least the file's first
+            first = w.last_timestamp = frames[0][0] or 0.0
+        chan = self.channel
+        out: list[str] = []
+        add = out.append
+        for f in frames:
+            fl = f[2]
+            if fl & ~(EXT | TX) or (f[4] is not None and f[4].channel != chan):
+                if out:  # anything unusual (remote, error, FD, another channel): python-can's own writer
+                    write("".join(out))
+                    out.clear()
+                w.on_message_received(message_of(f, chan))
+                continue
+            ts = f[0] if f[0] >= first else first
+            tail = " T\n" if fl & TX else " R\n"
+            if fl & EXT:
+                add(f"({ts:f}) {chan} {f[1]:08X}#{f[3].hex().upper()}{tail}")
+            else:
+                add(f"({ts:f}) {chan} {f[1]:03X}#{f[3].hex().upper()}{tail}")
+        if out:
+            write("".join(out))
+
+    def _write(self, msgs: list) -> None:
         """Write ``msgs`` (held until a check finds them in place); called with the lock held."""
         for k, msg in enumerate(msgs):
             self._held.append(msg)
             try:
+                if type(msg) is tuple:
+                    msg = message_of(msg, self.channel)
                 self._logger.on_message_received(msg)
+                self._in_file += 1
             except Exception as exc:
                 self._not_written(exc, msgs[k:])
                 return
@@ -486,11 +567,42 @@ class RawLog(can.Listener):
             os.close(fd)
         os.replace(src, dst)
         if rolling:
-            self._settled(len(self._held) - 1)
+            self._settled(len(self._held) - (0 if self._rolling_all else 1))
             self._verified = 0
         _fsync_dir(self.dir)
+        self._note(dst)
         self._opened_at = time.time()
+        self._start_file()
         self._prune()
+
+    def _drops_now(self) -> dict:
+        try:
+            return dict(self.drops()) if self.drops is not None else {}
+        except Exception:  # the index must never stop logging
+            return {}
+
+    def _start_file(self) -> None:
+        self._in_file = 0
+        self._drops_at_open = self._drops_now()
+
+    def _note(self, closed: Path) -> None:
+        """One line in the index for a file just closed: its frames, its span, and the frames lost before
+        vdp read them (by cause) while it was the open file: where a replay of it has gaps."""
+        now = self._drops_now()
+        lost = {k: (v or 0) - (self._drops_at_open.get(k) or 0) for k, v in now.items() if v is not None}
+        line = {
+            "file": closed.name,
+            "frames": self._in_file,
+            "opened": round(self._opened_at, 3),
+            "closed": round(time.time(), 3),
+            "dropped": lost,
+            "dropped_total": now,
+        }
+        try:
+            with open(self.index, "a", encoding="utf-8") as f:
+                f.write(json.dumps(line) + "\n")
+        except OSError as exc:
+            log.warning("raw CAN log: could not add %s to the index %s: %s", closed.name, self.index, exc)
 
     def _salvage(self, why: str = "left open by the last run") -> None:
         """A file left open by a crash (or by a close whose flush failed): cut a partial last line,
@@ -602,4 +714,5 @@ class RawLog(can.Listener):
             "disk_full": self.disk_full,
             "max_bytes": self.max_bytes,
             "max_files": self.max_files,
+            "index": str(self.index),
         }

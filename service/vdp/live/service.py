@@ -79,7 +79,9 @@ class Service:
         learner = LearnerConfig(per_axle=settings.service.per_axle, compiled=False, check_executor=self.checks)
         cfg = EstimatorConfig(trace_len=600, learner=learner)
         pipe = pipeline if pipeline is not None else Pipeline(self.profile, cfg)
-        self.estimation = Estimation(pipe, self.ingest.queue, settings.service.publish_interval)
+        self.estimation = Estimation(
+            pipe, self.ingest.queue, settings.service.publish_interval, channel=self.ingest.channel
+        )
         self.writer = StoreWriter(settings.store, self.fingerprint, self.profile.vehicle.name)
         # drives, and the changes between them (a mass step, new tyres, another car on the bus)
         self.drives = Drives(self.profile, self.writer)
@@ -90,6 +92,7 @@ class Service:
         self._stop = threading.Event()
         self._started = time.monotonic()
         self._started_wall = time.time()
+        self._trimmed = time.monotonic()
         self.running = False
 
     # the pieces' parts that callers and tests reach for
@@ -194,6 +197,10 @@ class Service:
         self.ingest.tick()
         if self.running:
             self.estimation.ensure_running()
+        now = time.monotonic()
+        if now - self._trimmed >= TRIM_EVERY:
+            self._trimmed = now
+            trim_heap()
 
     def _drives_check(self, pipe) -> None:
         self._drives(self.drives.check, pipe)
@@ -271,8 +278,17 @@ class Service:
         bad = sorted(n for n, p in pub.result.parameters.items() if p.status == INVALID)
         if bad:
             reasons.append(f"invalid estimates: {', '.join(bad)}")
+        lost = info.drops_at
+        if lost is not None and now - lost <= sv.diverged_hold:
+            reasons.append(
+                f"frames lost before vdp read them: {info.kernel_drops or 0} dropped by the kernel (receive "
+                f"buffer full), {info.overruns} controller overrun report(s); the raw log has gaps there"
+            )
         if ing.dropped_at is not None and now - ing.dropped_at <= sv.diverged_hold:
-            reasons.append(f"estimation fell behind: {ing.intake.dropped} frame(s) dropped")
+            reasons.append(
+                f"estimation fell behind: {ing.intake.dropped} frame(s) dropped from estimation "
+                "(thinned; the raw log has them)"
+            )
         if ing.rawlog is not None and ing.rawlog.error:
             reasons.append(f"raw logging stopped: {ing.rawlog.error}")
         if ing.rawlog is not None:
@@ -327,6 +343,8 @@ class Service:
                 "queue": parts["queue"],
                 "estimation": {
                     "frames": pub.fed,
+                    # frames of the bus estimation skipped to keep up (the raw log has every one)
+                    "thinned": self.ingest.intake.dropped,
                     "samples": r.samples,
                     "errors": est.errors,
                     "stage": r.stage,
@@ -405,6 +423,9 @@ class Service:
         return {
             "frames": ing.intake.received,
             "dropped": ing.intake.dropped,
+            "kernel_drops": ing.link.info.kernel_drops,
+            "controller_overruns": ing.link.info.overruns,
+            "receive_buffer": ing.link.info.receive_buffer,
             "fed": pub.fed,
             "samples": r.samples,
             "queue_depth": ing.queue.qsize(),
@@ -434,6 +455,29 @@ class Service:
             "channels_stale": sum(1 for f in r.channels.values() if f.stale),
             "channels": len(channels.NAMES),
         }
+
+
+TRIM_EVERY = 60.0  # s between returns of freed heap memory to the OS
+
+
+def _load_libc():
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        return libc if hasattr(libc, "malloc_trim") else None
+    except OSError:
+        return None
+
+
+_LIBC = _load_libc()
+
+
+def trim_heap() -> None:
+    """Give the OS back the heap memory the allocator holds freed (glibc's malloc_trim; elsewhere nothing).
+    Blocks of frames come and go all the time: without it RSS creeps up by fragments."""
+    if _LIBC is not None:
+        _LIBC.malloc_trim(0)
 
 
 class CheckThread:

@@ -5,8 +5,15 @@ car; only the bus is virtual.  Timestamps are the simulator's own (the bus
 keeps them: ``preserve_timestamps``), starting at the wall-clock time the feed
 starts, so ``--sim-speed 20`` shows twenty seconds of driving per second
 without changing what the filters see.  Unlike a real bus, a simulation can
-wait: when the estimation queue is half full the feed pauses, so no frame is
-ever dropped however fast it runs.
+wait: when the estimation queue is half full (or holds SIM_QUEUE / 2 frames) the feed
+pauses, so no frame is ever dropped however fast it runs.  And it does not keep
+pausing: a feed that had to wait in a window of ADAPT_EVERY seconds runs on at
+the speed the machine sustained in it (less a tenth, for headroom), says so once,
+and tries a little faster after each window without a wait, up to --sim-speed.
+On a 2-core machine shared with other work the README's 20x is out of reach for
+one Python process (the GIL puts simulator, receive and estimation on one
+core); left alone, the feed ran at 12-14x with the queue half full, and all of a
+core.
 """
 
 from __future__ import annotations
@@ -24,6 +31,9 @@ from ..settings import SimulateSettings
 log = logging.getLogger(__name__)
 
 PAUSE_ABOVE = 0.5  # queue fill fraction at which the feed waits for the estimator
+ADAPT_EVERY = 5.0  # s of wall time between speed adjustments
+HEADROOM = 0.9  # run at this fraction of the speed the machine sustained
+PROBE = 1.2  # after a window without waiting, try this much faster (up to --sim-speed)
 RETRY_MIN, RETRY_MAX = 1.0, 30.0  # s between attempts to start a loop's simulation again
 
 
@@ -54,6 +64,8 @@ class SimFeed:
         # and says so (once in the log, and in status() as the speed it really ran at)
         self.paused_s = 0.0
         self._said_slow = False
+        self.running_speed = cfg.speed  # the speed the feed runs at now (see ADAPT_EVERY)
+        self._said_speed = False
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -81,6 +93,7 @@ class SimFeed:
         return {
             "scenario": self.cfg.scenario,
             "speed": self.cfg.speed,
+            "running_speed": self.running_speed,
             "seed": self.seed,  # the current loop's (--seed, plus one per loop)
             "noise": self.truth.get("noise", {}).get("model", self.cfg.noise),
             "sim_time": self.sim_time,
@@ -155,14 +168,17 @@ class SimFeed:
         return None
 
     def _send(self, sim, bus: can.BusABC) -> float | None:
-        speed = self.cfg.speed
         stop, backlog = self._stop, self.backlog
         t0 = w0 = None
         last = None
+        speed = self.running_speed
+        win_w = win_t = win_p = None  # the adaptation window's start: wall, sim time, paused_s
         for n, msg in enumerate(sim.frames()):
             ts = msg.timestamp
             if t0 is None:
-                t0, w0 = ts, time.monotonic()
+                first = t0 = ts
+                w0 = time.monotonic()
+                win_w, win_t, win_p = w0, ts, self.paused_s
             if speed > 0:
                 ahead = w0 + (ts - t0) / speed - time.monotonic()
                 if ahead > 0.002 and stop.wait(ahead):
@@ -183,10 +199,36 @@ class SimFeed:
                         log.warning(
                             "simulation: estimation cannot keep up with --sim-speed %g; the simulator "
                             "waits for it (/status simulation.paused_s counts the waiting)",
-                            speed,
+                            self.cfg.speed,
                         )
+                now = time.monotonic()
+                if speed > 0 and now - win_w >= ADAPT_EVERY:
+                    new = self._adapt(speed, (ts - win_t) / (now - win_w), self.paused_s > win_p)
+                    if new != speed:
+                        speed = self.running_speed = new
+                        t0, w0 = ts, now  # paced from here at the new speed
+                    win_w, win_t, win_p = now, ts, self.paused_s
             bus.send(msg)
             self.sent += 1
             last = ts
-            self.sim_time = ts - t0
+            self.sim_time = ts - first
         return last
+
+    def _adapt(self, speed: float, achieved: float, waited: bool) -> float:
+        """The next window's speed: what the machine sustained (less HEADROOM) after a wait, a little
+        faster (PROBE, up to --sim-speed) after a window without one."""
+        asked = self.cfg.speed
+        if waited:
+            new = max(round(HEADROOM * achieved, 1), 0.1)
+            if new < speed and not self._said_speed:
+                self._said_speed = True
+                log.warning(
+                    "simulation: this machine sustains about %.1fx real time (simulator, bus and estimation "
+                    "share one Python process); running at %.1fx instead of --sim-speed %g, and trying faster "
+                    "now and then (/status simulation.running_speed)",
+                    achieved,
+                    new,
+                    asked,
+                )
+            return min(new, speed)
+        return min(round(speed * PROBE, 1), asked) if speed < asked else speed
