@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 
 from vdp.buffer import SampleRing
 from vdp.core import batched, learner
+from vdp.core.compiled import kernel
 from vdp.core.estimator import EstimatorConfig, TwoStageEstimator
 from vdp.core.learner import Stage1, Stage2
 from vdp.core.sample import Sample
@@ -21,7 +22,7 @@ from vdp.pipeline import Pipeline
 from vdp.profile import load_profile
 from vdp.sim.run import simulate, write_log
 
-pytestmark = pytest.mark.skipif(batched.kernel() is None, reason="numba is not installed: no compiled pass")
+pytestmark = pytest.mark.skipif(kernel("prepass") is None, reason="numba is not installed: no compiled pass")
 
 
 @pytest.fixture(scope="module")

@@ -19,6 +19,7 @@ import numpy as np
 
 from .. import channels as ch
 from . import batched
+from .compiled import kernel
 from .learner import LearnerConfig, Stage1, Stage2
 from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
 from .sample import Sample
@@ -161,7 +162,12 @@ class TwoStageEstimator:
         """Whether :meth:`handle_block` runs the compiled pass: no trace kept (its rows come from
         every sample), the compiled steps wanted (LearnerConfig.compiled: off, numpy's reference
         runs everything) and numba there, and the speed filter one it repeats (core.batched)."""
-        return self.trace.maxlen == 0 and self.cfg.learner.compiled and batched.batchable(self.speed)
+        return (
+            self.trace.maxlen == 0
+            and self.cfg.learner.compiled
+            and batched.batchable(self.speed)
+            and kernel("prepass") is not None
+        )
 
     def handle_block(self, T: np.ndarray, Y: np.ndarray, F: np.ndarray, A: np.ndarray, gap: bool) -> None:
         """Take aligned samples as arrays (ticks T, values Y, fresh F, ages A by channel; ``gap``:
@@ -181,7 +187,7 @@ class TwoStageEstimator:
         done_from = 0 if self.handover_t is not None else n
         if self._pass_params is None:
             self._pass_params = batched.params(self.cfg, self.vehicle, self.gyro_bias.tau)
-        kern = batched.kernel()
+        kern = kernel("prepass")
         i0 = 0
         while True:
             st, blk, first = st0.copy(), blk0.copy(), first0.copy()

@@ -18,30 +18,27 @@ steps of core.filters.UKF, in the same operations and order.  tests/test_kernels
 holds both paths to the same numbers (models, filter steps, and the estimates of whole
 drives); a change to the models there must be followed here, and that test says so.
 
-Every function is compiled on first use and cached on disk (``cache=True``: the next
-process loads it instead of compiling), in a directory named by a hash of the model
-sources (``_cache_dir``).  The learners import this module only when they
-build their first filter (numba's import costs ~0.5 s), and take the numpy path when
-numba cannot be imported or ``LearnerConfig.compiled`` is off.  Small matrix products are
-loops here, not BLAS, so nothing pulls in scipy's BLAS wrappers.
+Every function is cached on disk by core.jit (the next process loads it instead of compiling);
+core.warm compiles every signature the learners use at once, the first time one is wanted
+(core.compiled.kernel).  The learners import this module only when they build their first
+filter (numba's import costs ~0.5 s), and take the numpy path when numba cannot be imported
+or ``LearnerConfig.compiled`` is off.  Small matrix products are loops here, not BLAS, so
+nothing pulls in scipy's BLAS wrappers.
 """
 
 from __future__ import annotations
 
 import collections
-import hashlib
 import logging
 import math
 import typing
-from pathlib import Path
 
 import numpy as np
-from numba import njit
-from numba.core import config as _numba_config
 
 from ..errors import FilterError
-from . import lateral, longitudinal
+from . import batch, lateral, longitudinal
 from .filters import UKF
+from .jit import jit
 
 log = logging.getLogger(__name__)
 
@@ -63,11 +60,16 @@ FREE, LOG, LOGIT = 0, 1, 2
 
 
 def lat_known(k: lateral.Known) -> Lat:
-    return Lat(k.m, k.L, k.r, k.k_phi, k.c_phi, k.l_f, k.h, k.C_K, k.g, k.per_axle, k.ck_slope, k.roll_by_ay)
+    """As floats and a bool whatever the profile wrote (an integer mass would be another
+    signature: another compile for another profile)."""
+    f = float
+    return Lat(f(k.m), f(k.L), f(k.r), f(k.k_phi), f(k.c_phi), f(k.l_f), f(k.h), f(k.C_K), f(k.g),
+               bool(k.per_axle), f(k.ck_slope), bool(k.roll_by_ay))  # fmt: skip
 
 
 def lon_known(k: longitudinal.Known) -> Lon:
-    return Lon(k.m, k.L, k.r, k.J, k.g)
+    """As floats (see lat_known)."""
+    return Lon(float(k.m), float(k.L), float(k.r), float(k.J), float(k.g))
 
 
 def transforms(bounds) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -82,27 +84,7 @@ def transforms(bounds) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return kind, lo, span
 
 
-def _cache_dir() -> str:
-    """Where the compiled code is cached: a directory named by a hash of the model sources.
-
-    numba invalidates a cached function when its own file changes, not when a function it
-    calls from another file does, nor a module constant it read (numba's caching notes):
-    a change to core/lateral.py or core/longitudinal.py would otherwise leave the old
-    physics compiled here.  Under NUMBA_CACHE_DIR when that is set, else beside this file
-    (numba falls back to its user-wide cache where that is read-only).
-    """
-    h = hashlib.sha1()
-    for f in (__file__, lateral.__file__, longitudinal.__file__):
-        h.update(Path(f).read_bytes())
-    base = Path(_numba_config.CACHE_DIR) if _numba_config.CACHE_DIR else Path(__file__).parent / "__pycache__"
-    return str(base / f"kernels-{h.hexdigest()[:12]}")
-
-
-# numba picks a function's cache directory when it is decorated: set for this module's only
-_user_cache_dir = _numba_config.CACHE_DIR
-_KERNEL_CACHE = _cache_dir()
-_numba_config.CACHE_DIR = _KERNEL_CACHE
-_jit = njit(cache=True, nogil=True)
+_jit = jit()
 
 # the physics, compiled from core.lateral's own source
 _rates = _jit(lateral._rates)
@@ -1014,8 +996,6 @@ def lon_lm(t, U, Z, W, prior_t, P0i, iters, kind, lo, span, k):
 def lon_solve(bounds, known: longitudinal.Known, U, Z, R, prior_t, prior_P, starts, iters: int = 30):
     """core.batch.solve on stage 1's own model (longitudinal.hx of bounds.to_si(t)), compiled:
     the same iterations, the same Fit."""
-    from . import batch
-
     kind, lo, span = transforms(bounds)
     k = lon_known(known)
     W = batch._inv2(R)
@@ -1069,9 +1049,6 @@ def lon_update(x, P, sig, Wm, Wc, R, scale, kind, lo, span, z, u, k):
         _to_si(t, kind, lo, span, s)
         _lon_hx(s, u, k, hz[i])
     return _gain_step(x, P, sig, hz, z, R, Wm, Wc, -1)
-
-
-_numba_config.CACHE_DIR = _user_cache_dir
 
 
 # -- the filters: core.filters.UKF with its steps compiled ---------------------------
@@ -1168,74 +1145,6 @@ class LongitudinalUKF(_CompiledUKF):
         if status != OK:
             _raise("update", status)
         f.x, f.P, f.y, f.S = x, P, y, S
-
-
-def cached() -> bool:
-    """Whether this checkout's kernels are compiled and on disk (False: the first estimate compiles them).
-
-    Looks where they were decorated to go, not at numba's config now: that is the user's
-    again (empty by default), and an empty path would search the working directory."""
-    return any(Path(_KERNEL_CACHE).rglob("*.nbi"))
-
-
-def warm() -> None:
-    """Compile (or load) every kernel the learners call, on small inputs of the types they pass.
-
-    A fresh checkout compiles them at the first estimate (~15 s of CPU, once: the cache is
-    then on disk); deploy/bootstrap.sh runs this before the tests so that no test, and no
-    pair of Dask workers at once, pays it.
-    """
-    from .bounds import Bounds
-
-    lat = lateral.Known(m=1500.0, L=2.7, r=0.3, k_phi=6e4, c_phi=4e3, l_f=1.3, h=0.55, C_K=10.0)
-    b2 = Bounds(lateral.N_X, log=(lateral.C_F, lateral.C_R, lateral.I_Z, lateral.I_X))
-    x2 = b2.from_si(np.array([0.0, 0.1, 0.0, 0.0, 6e4, 6e4, 2000.0, 500.0, 1.3]))
-    f = LateralUKF(x2, np.eye(lateral.N_X) * 1e-4, np.eye(lateral.N_X) * 1e-8, np.eye(3) * 1e-4,
-                   np.ones(lateral.N_X), None, None, b2, lat, lateral.CONSIDER)  # fmt: skip
-    u = np.array([[0.02, 15.0, 50.0, 0.1]] * 3)
-    f.predict(0.04, u)
-    f.update(np.array([0.1, 0.0, 1.5]), np.array([True, False, True]), u[-1])
-    j, w = f._grid(3, 4)
-    Y = np.ones((3, 12))
-    lat_run(np.arange(3) * 0.02, Y, np.zeros((3, 5)), np.zeros(3, dtype=bool), 0, 3, np.arange(11), f._f.x, f._f.P,
-            f._sigmas, f._lam_n, f._Wm, f._Wc, f.Q_rate, f.R, f.scale, f._kind, f._lo, f._span, f._known, f._c, j, w,
-            4, np.zeros(7), np.array([0.05, 2.0, 50.0, 1e-6, 25.0, 1.0]), np.zeros((3, 5)), np.ones(10),
-            np.zeros((4, 10)), np.zeros((4, 50)), np.zeros((3, 8)))  # fmt: skip
-    lon = longitudinal.Known(m=1500.0, L=2.7, r=0.3, J=1.0)
-    b1 = Bounds(longitudinal.N_X, log=(longitudinal.H, longitudinal.C_K), logit={longitudinal.L_F: (0.0, 2.7)})
-    x1 = b1.from_si(np.array([1.3, 0.55, 10.0, 0.0, 0.0, 0.0, 0.0]))
-    g = LongitudinalUKF(x1, np.eye(longitudinal.N_X) * 1e-4, np.eye(longitudinal.N_X) * 1e-9, np.eye(2) * 1e-4,
-                        np.ones(longitudinal.N_X), None, None, b1, lon)  # fmt: skip
-    u1 = np.array([100.0, 50.0, 0.5, 15.0, 0.05, 0.1, 0.1])
-    g.predict(0.1, u1)
-    g.update(np.array([50.2, 50.1]), np.ones(2, dtype=bool), u1)
-    ts = np.arange(5) * 0.02
-    prm = np.array([0.5, 1.0, 0.2, 0.1, 2.0, 1.0])
-    lon_block(g._f.x, g._f.P, g._lam_n, g._Wm, g._Wc, g.Q_rate, g.scale, g._kind, g._lo, g._span, g._known, ts,
-              np.tile(u1, (5, 1)), np.tile([50.2, 50.1], (5, 1)), 0.1, np.eye(2), prm)  # fmt: skip
-    lon_run(ts, np.ones((5, 12)), np.ones((5, 5)), np.zeros(5, dtype=bool), 0, 5, np.arange(7), g._f.x, g._f.P,
-            g._sigmas, g._lam_n, g._Wm, g._Wc, g.Q_rate, g.scale, g._kind, g._lo, g._span, g._known, np.eye(2), prm,
-            np.zeros(7), np.array([0.05, 5.0, 50.0, 20.0, 200.0, 3000.0]), np.zeros((5, 10)), np.empty((2, 7)),
-            np.empty((2, 2)), np.empty((2, 2, 2)))  # fmt: skip
-    U = np.tile(u1, (50, 1))
-    lon_solve(b1, lon, U, np.tile([50.2, 50.1], (50, 1)), np.tile(np.eye(2) * 1e-4, (50, 1, 1)), x1,
-              np.eye(longitudinal.N_X), [x1], iters=2)  # fmt: skip
-    lon_hx_rows(b1.to_si(x1), U, lon_known(lon))
-    from . import output_error
-
-    n = 60
-    tt = np.arange(n) * 0.04
-    d = 0.03 * np.sin(tt)
-    zs = np.stack([0.3 * d, 3.0 * d, 0.01 * np.cos(tt)], axis=1)
-    prob = output_error.Problem(tt, np.stack([d, np.full(n, 15.0), np.full(n, 50.0), np.zeros(n)], axis=1), zs,
-                                [(0, n)], lat, (0.003, 0.08))  # fmt: skip
-    prob.compiled = True
-    theta = np.array([[6e4, 6e4, 2000.0]])
-    for bend in (None, [np.ones((1, n)), np.ones((1, n))]):
-        prob._states(theta, np.zeros(1), bend)
-    from . import batched
-
-    batched.warm()  # the estimator's compiled pass over a replay's blocks
 
 
 # -- stage 2's output-error fit (core.output_error.Problem) ---------------------
