@@ -196,7 +196,7 @@ def test_the_circle_check_sees_a_circle():
 def test_the_checker_sees_a_violation():
     """The checks above would fail on a real back-edge (the graph reader is not blind)."""
     deps = modules()
-    assert "vdp.core.result" in deps["vdp.core.learner"]
+    assert "vdp.core.result" in deps["vdp.core.learn.base"]
     assert "vdp.io.decoder" in deps["vdp.pipeline"]
     assert stage("vdp.api.app") > stage("vdp.store") > stage("vdp.core.learner") > stage("vdp.buffer")
 

@@ -20,7 +20,9 @@ import numpy as np
 from .. import channels as ch
 from . import batched
 from .compiled import kernel
-from .learner import LearnerConfig, Stage1, Stage2
+from .learn.base import LearnerConfig
+from .learn.stage1 import Stage1
+from .learn.stage2 import Stage2
 from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
 from .sample import Sample
 from .speed import SpeedConfig, speed_filter, wheel_reference

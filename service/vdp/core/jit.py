@@ -28,14 +28,15 @@ log = logging.getLogger(__name__)
 
 HERE = Path(__file__).resolve().parent
 # every file whose functions numba compiles or whose constants it freezes into compiled code
-SOURCES = ("jit.py", "kernels.py", "lateral.py", "longitudinal.py", "batched.py", "prepass.py")
+SOURCES = ("jit.py", "lateral.py", "longitudinal.py", "batched.py", "prepass.py", "kernels/*.py")
 MARK = "warm.done"  # written by core.warm once every signature the learners use is compiled
 
 
 def _digest() -> str:
     h = hashlib.sha1()
-    for name in SOURCES:
-        h.update((HERE / name).read_bytes())
+    for pattern in SOURCES:
+        for path in sorted(HERE.glob(pattern)):
+            h.update(path.read_bytes())
     return h.hexdigest()[:12]
 
 
@@ -101,6 +102,8 @@ def cached() -> bool:
 
 
 def mark_cached() -> None:
+    if numba_config.DISABLE_JIT:  # nothing was compiled
+        return
     try:
         (cache_dir() / MARK).write_text(DIGEST + "\n")
     except OSError as exc:  # a read-only install: the code is in numba's own cache, unmarked
