@@ -117,16 +117,16 @@ def blockers(su) -> tuple[np.ndarray, np.ndarray]:
     first = np.full((2, N_CODES), -1, np.int64)
     for stage in (1, 2):
         for why, sec in su.blockers[stage].items():
-            code = _code(su, why)
+            code = _code(why)
             blk[stage - 1, code], first[stage - 1, code] = sec, -2
     return blk, first
 
 
-def _code(su, why: str) -> int:
-    for code in sup.REASONS:
-        if su.why(code) == why:
-            return code
-    raise ValueError(f"not a driving reason: {why!r}")
+def _code(why: sup.Reason) -> int:
+    """The code of a driving reason (the supervisor's blockers are keyed by their reasons)."""
+    if why.code not in sup.REASONS:
+        raise ValueError(f"not a driving reason: {why!r}")
+    return int(why.code)
 
 
 def set_blockers(su, blk: np.ndarray, first: np.ndarray) -> None:
@@ -137,7 +137,7 @@ def set_blockers(su, blk: np.ndarray, first: np.ndarray) -> None:
         for _, code in sorted(new):
             b[su.why(code)] = 0.0  # inserted where the per-sample path would have first
         for why in b:
-            b[why] = float(blk[stage - 1, _code(su, why)])
+            b[why] = float(blk[stage - 1, _code(why)])
 
 
 def windows(su, T: np.ndarray, stage: np.ndarray) -> None:
@@ -159,7 +159,7 @@ def windows(su, T: np.ndarray, stage: np.ndarray) -> None:
             su.windows[-1].samples += b - a
 
 
-def reason(su, code: int, y, needs) -> str | None:
+def reason(su, code: int, y, needs) -> sup.Reason | None:
     """The supervisor's reason for a code at the sample ``y`` (a missing channel's list named)."""
     if code == 0:
         return None
