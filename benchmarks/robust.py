@@ -104,10 +104,10 @@ def run_one(args) -> dict:
     batch_check = rest[0] if rest else True
     import logging
 
-    from vdp.core.learn import axles
+    from vdp.core.learn import tuning
 
     if split is not None:
-        axles.AXLE_SPLIT = split  # where stage 2 reads it
+        tuning.AXLE_SPLIT = split
     from vdp.core.estimator import EstimatorConfig
     from vdp.core.learner import LearnerConfig
     from vdp.pipeline import Pipeline

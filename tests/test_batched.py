@@ -169,7 +169,7 @@ def test_block_pass_gives_the_per_sample_result(drive, paper, monkeypatch):
 def test_windows_that_diverge_and_last_good_copies_inside_the_compiled_steps(drive, paper, monkeypatch):
     """A window diverging, and the last-good copies, are the learner's own step: the compiled steps
     stop before such a sample and leave nothing of it taken.  Made frequent here."""
-    monkeypatch.setattr("vdp.core.learn.stage2.DIVERGED_NIS", 0.1)  # where stage 2 reads it
+    monkeypatch.setattr("vdp.core.learn.tuning.DIVERGED_NIS", 0.1)
     (a, sa), (b, sb), _ = replay_both(drive, paper, monkeypatch)
     assert sa["stage2 ukf"][5] > 3  # windows restarted
     assert b == a and sb == sa

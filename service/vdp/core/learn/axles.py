@@ -12,7 +12,7 @@ import numpy as np
 from .. import lateral, output_error
 from ..params import BY_NAME, STAGE2
 from ..result import finite
-from .tuning import AXLE_CORR_MAX, AXLE_SPLIT, SPLIT_FREE_REL, SPLIT_HELD
+from . import tuning
 from .verdict import honest_std
 
 log = logging.getLogger(__name__)
@@ -52,7 +52,7 @@ class AxleSplit:
         ) @ self._SPLIT.T + self._difference_cov(c.std)
 
     @staticmethod
-    def _difference_cov(c_std: float, share: float = AXLE_SPLIT) -> np.ndarray:
+    def _difference_cov(c_std: float, share: float = tuning.AXLE_SPLIT) -> np.ndarray:
         """Covariance of (+D, -D, 0, 0), D the axles' half-difference, std ``share`` c_std."""
         d = np.zeros((4, 4))
         d[:2, :2] = (share * c_std) ** 2 * np.array([[1.0, -1.0], [-1.0, 1.0]])
@@ -68,10 +68,10 @@ class AxleSplit:
         mean_sd = 0.5 * math.sqrt(
             max(P[lateral.C_F, lateral.C_F] + P[lateral.C_R, lateral.C_R] + 2.0 * P[lateral.C_F, lateral.C_R], 0.0)
         )
-        if not mean_sd < SPLIT_FREE_REL * 0.5 * (f + r):
+        if not mean_sd < tuning.SPLIT_FREE_REL * 0.5 * (f + r):
             return
         c_std = self.priors["C_alpha"].std
-        var = (AXLE_SPLIT**2 - SPLIT_HELD**2) * c_std**2
+        var = (tuning.AXLE_SPLIT**2 - tuning.SPLIT_HELD**2) * c_std**2
         # (C_f, C_r) = (M + D, M - D): D's variance along (+1, -1), in the filter's coordinates
         # (log C: d log C = dC / C)
         v = np.zeros(self._n)
@@ -94,7 +94,7 @@ class AxleSplit:
             P[1, :] = P[:, 1] = 0.0
             P[1, 1] = c_std**2
             return S @ theta, P
-        share = SPLIT_HELD if self.split_held else AXLE_SPLIT
+        share = tuning.SPLIT_HELD if self.split_held else tuning.AXLE_SPLIT
         return S @ theta, S @ cov @ S.T + self._difference_cov(c_std, share)
 
     def _in_range(self, theta) -> bool:
@@ -129,7 +129,7 @@ class AxleSplit:
         why = None
         if self.samples == 0:
             why = "stage 2 has not run"
-        elif not (diff <= 0.5 * self.prior_diff_std and abs(corr) <= AXLE_CORR_MAX):
+        elif not (diff <= 0.5 * self.prior_diff_std and abs(corr) <= tuning.AXLE_CORR_MAX):
             why = (
                 f"the drive does not separate the axles: front minus rear is known to +-{diff:,.0f} N/rad "
                 f"(prior +-{self.prior_diff_std:,.0f}), correlation {corr:+.2f}; only their mean is"

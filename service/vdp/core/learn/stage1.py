@@ -14,24 +14,8 @@ from .. import batch, longitudinal
 from ..bounds import Bounds
 from ..compiled import kernel
 from ..params import BY_NAME, STAGE1
+from . import tuning
 from .base import StageLearner
-from .tuning import (
-    BATCH_BLOCKS,
-    BATCH_EVERY,
-    BATCH_EVERY_MAX,
-    BATCH_FAR_EVERY,
-    BEND_PRIOR,
-    CHI2_MATCHED,
-    CHI2_QUIET,
-    CUBIC_PRIOR,
-    LOAD_SENSITIVITY,
-    OFFSET_SPLIT_STD,
-    OFFSET_STD,
-    RESEED_M2,
-    RHO_MISMATCH,
-    SHAPE_LR,
-    SHAPE_OFF_STD,
-)
 from .verdict import _widen
 
 log = logging.getLogger(__name__)
@@ -73,12 +57,12 @@ class _Blocks:
 def _shape_prior(free: bool) -> tuple[np.ndarray, np.ndarray]:
     """(mean, covariance) of stage 1's tyre shape (b, c, s_0f, s_0r): free, or held at the straight line."""
     if not free:
-        b, c, s = SHAPE_OFF_STD
+        b, c, s = tuning.SHAPE_OFF_STD
         return np.zeros(4), np.diag([b * b, c * c, s * s, s * s])
-    c, d = OFFSET_STD**2, OFFSET_SPLIT_STD**2  # s_0f = common + split, s_0r = common - split
-    P = np.diag([BEND_PRIOR[1] ** 2, CUBIC_PRIOR[1] ** 2, c + d, c + d])
+    c, d = tuning.OFFSET_STD**2, tuning.OFFSET_SPLIT_STD**2  # s_0f = common + split, s_0r = common - split
+    P = np.diag([tuning.BEND_PRIOR[1] ** 2, tuning.CUBIC_PRIOR[1] ** 2, c + d, c + d])
     P[2, 3] = P[3, 2] = c - d
-    return np.array([BEND_PRIOR[0], CUBIC_PRIOR[0], 0.0, 0.0]), P
+    return np.array([tuning.BEND_PRIOR[0], tuning.CUBIC_PRIOR[0], 0.0, 0.0]), P
 
 
 class Stage1(StageLearner):
@@ -94,7 +78,7 @@ class Stage1(StageLearner):
         self.known = longitudinal.Known(m=v.mass, L=v.wheelbase, r=v.wheel_radius, J=v.wheel_inertia, g=v.g)
         super().reset()
         self._acc: list = []
-        self._blocks = _Blocks(BATCH_BLOCKS)  # (u, z, R) of each block the filter took
+        self._blocks = _Blocks(tuning.BATCH_BLOCKS)  # (u, z, R) of each block the filter took
         self._since_batch = 0
         self._since_far = 0  # blocks since the last far check (check_batch)
         self.fit: batch.Fit | None = None
@@ -161,18 +145,18 @@ class Stage1(StageLearner):
         if f is None:
             return 1.0, None
         why = []
-        quiet = f.chi2 < CHI2_QUIET  # residuals far below the noise: their colour says nothing
-        if not quiet and f.rho > RHO_MISMATCH:
+        quiet = f.chi2 < tuning.CHI2_QUIET  # residuals far below the noise: their colour says nothing
+        if not quiet and f.rho > tuning.RHO_MISMATCH:
             why.append(
                 f"stage 1's front-minus-rear residuals follow the manoeuvre "
-                f"(lag-1 correlation {f.rho:.2f} > {RHO_MISMATCH}); the tyre law or a force it leaves out"
+                f"(lag-1 correlation {f.rho:.2f} > {tuning.RHO_MISMATCH}); the tyre law or a force it leaves out"
             )
         if self.shaped:
             why.append(
                 "the tyre's force-slip curve bends or is offset at zero torque (a real tyre): its "
                 "stiffness's load sensitivity, which the slips cannot tell from h, is not in the model"
             )
-        return _widen(f.rho, f.chi2 / CHI2_MATCHED), ("model mismatch: " + "; ".join(why)) if why else None
+        return _widen(f.rho, f.chi2 / tuning.CHI2_MATCHED), ("model mismatch: " + "; ".join(why)) if why else None
 
     def model_error(self) -> np.ndarray | None:
         """How far apart the batch optima of the low- and the high-slip half of the blocks are.
@@ -196,11 +180,11 @@ class Stage1(StageLearner):
             return 1.0
         # from 0.75 RHO_MISMATCH (0.09: vdp's own simulator's residuals reach 0.08, the tuning
         # cases) to RHO_MISMATCH in proportion
-        colour = min(1.0, max(0.0, 4.0 * f.rho / RHO_MISMATCH - 3.0))
+        colour = min(1.0, max(0.0, 4.0 * f.rho / tuning.RHO_MISMATCH - 3.0))
         # residuals far below the noise (a noise-free drive: chi2 0.003-0.011 on vdp's own model,
         # 0.06-0.22 on the independent ones) say nothing by their colour; from CHI2_QUIET to twice
         # it the spread comes in
-        size = min(1.0, max(0.0, f.chi2 / CHI2_QUIET - 1.0))
+        size = min(1.0, max(0.0, f.chi2 / tuning.CHI2_QUIET - 1.0))
         return colour * size
 
     def _test_shape(self, U, Z, R, prior, fit):
@@ -218,8 +202,8 @@ class Stage1(StageLearner):
         if free is None:
             return None
         rho = min(max(free.rho, 0.0), 0.95)
-        drop = (fit.cost - free.cost) / max(free.chi2, CHI2_QUIET) * (1.0 - rho) / (1.0 + rho)
-        if drop <= SHAPE_LR:
+        drop = (fit.cost - free.cost) / max(free.chi2, tuning.CHI2_QUIET) * (1.0 - rho) / (1.0 + rho)
+        if drop <= tuning.SHAPE_LR:
             return None
         self.shaped = True
         self.shape_prior = mean, P
@@ -247,7 +231,7 @@ class Stage1(StageLearner):
             if spread is not None:
                 out = np.maximum(out, spread)
         h = longitudinal.H
-        out[h] = math.hypot(out[h], LOAD_SENSITIVITY * x[h])
+        out[h] = math.hypot(out[h], tuning.LOAD_SENSITIVITY * x[h])
         return out
 
     def _split(self, U, Z, R, t0, P0, fit, lo) -> np.ndarray | None:
@@ -256,7 +240,7 @@ class Stage1(StageLearner):
         b = self.bounds
         halves, var = [], 0.0
         for m in (lo, ~lo):
-            if m.sum() < BATCH_EVERY:
+            if m.sum() < tuning.BATCH_EVERY:
                 return None
             h = self._solve(U[m], Z[m], R[m], t0, P0, [fit.t], iters=15)
             if h is None:
@@ -446,7 +430,7 @@ class Stage1(StageLearner):
         for q, (t, u, z) in enumerate(self._acc):
             acc[q, 0], acc[q, 1:8], acc[q, 8:] = t, u, z
         settings = np.array(
-            [c.max_gap, block, c.save_every, BATCH_EVERY, BATCH_EVERY_MAX, self._blocks.cap], dtype=float
+            [c.max_gap, block, c.save_every, tuning.BATCH_EVERY, tuning.BATCH_EVERY_MAX, self._blocks.cap], dtype=float
         )
         m = (b - a) // block + 1
         out_u, out_z, out_r = np.empty((m, longitudinal.N_U)), np.empty((m, 2)), np.empty((m, 2, 2))
@@ -472,7 +456,7 @@ class Stage1(StageLearner):
         when that is more, at most BATCH_EVERY_MAX; ``final`` (the data have ended): any new block."""
         if final:
             return self._since_batch > 0
-        return self._since_batch >= min(max(BATCH_EVERY, len(self._blocks) // 4), BATCH_EVERY_MAX)
+        return self._since_batch >= min(max(tuning.BATCH_EVERY, len(self._blocks) // 4), tuning.BATCH_EVERY_MAX)
 
     def check_batch(self, full: bool = False) -> batch.Fit | None:
         """Solve the batch problem of the blocks kept; re-seed the filter if it sits off the optimum.
@@ -480,7 +464,7 @@ class Stage1(StageLearner):
         data's end) is a far one: from the prior's mean too, with the tyre-shape test and the
         model's error (spread) on the blocks as they are now."""
         self._since_batch = 0
-        if len(self._blocks) < 2 * BATCH_EVERY or self.filter is None:
+        if len(self._blocks) < 2 * tuning.BATCH_EVERY or self.filter is None:
             return None
         U, Z, R = self._blocks.arrays()
         b, k = self.bounds, self.known
@@ -490,7 +474,7 @@ class Stage1(StageLearner):
         P0 = cov / np.outer(d, d)
         self._checks += 1
         # a far check every BATCH_FAR_EVERY dense checks' worth of blocks, whatever the checks' spacing
-        far = full or self._checks == 1 or self._since_far >= BATCH_FAR_EVERY * BATCH_EVERY
+        far = full or self._checks == 1 or self._since_far >= tuning.BATCH_FAR_EVERY * tuning.BATCH_EVERY
         if far:
             self._since_far = 0
         starts = [self.filter.x.copy()]
@@ -518,7 +502,7 @@ class Stage1(StageLearner):
             m2 = float(d @ np.linalg.solve(fit.cov, d))
         except np.linalg.LinAlgError:
             return fit
-        if m2 > RESEED_M2:
+        if m2 > tuning.RESEED_M2:
             self.reseeds += 1
             log.info("stage 1 %s sat %.1f sigma off its batch optimum; re-seeded there", self.kind, math.sqrt(m2))
             self.filter.set_state(fit.t, fit.cov)

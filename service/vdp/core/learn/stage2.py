@@ -17,23 +17,9 @@ from ..bounds import Bounds
 from ..compiled import kernel
 from ..params import STAGE2
 from ..result import NOT_IDENTIFIABLE, NOT_RUN, Estimate
+from . import tuning
 from .axles import AxleSplit
 from .base import StageLearner
-from .tuning import (
-    AXLE_SPLIT,
-    DIVERGED_NIS,
-    L_F_STD_MIN,
-    PHI_D_WALK,
-    PHI_WALK,
-    ROLL_MODEL_ERROR,
-    SETTLE_TIME,
-    SETTLED_STEER_RATE,
-    SETTLED_YAW_ACC,
-    SPLIT_HELD,
-    V_Y_START_STD,
-    V_Y_WALK,
-    YAW_WALK,
-)
 from .verdict import Consistency, Hard, RollExcitation, _verdict, quad_form
 
 log = logging.getLogger(__name__)
@@ -83,7 +69,7 @@ class Stage2(AxleSplit, StageLearner):
         self.split_held = self.cfg.per_axle and (p.get("C_alpha_f") is None or p.get("C_alpha_r") is None)
         if self.split_held:
             c_std = p["C_alpha"].std
-            self.theta_P = P - self._difference_cov(c_std) + self._difference_cov(c_std, SPLIT_HELD)
+            self.theta_P = P - self._difference_cov(c_std) + self._difference_cov(c_std, tuning.SPLIT_HELD)
             self._good = (self.theta.copy(), self.theta_P.copy(), None)
 
     def set_stage1(
@@ -116,7 +102,7 @@ class Stage2(AxleSplit, StageLearner):
             roll_by_ay=self.cfg.roll_by_ay,
         )
         ok = l_f_std is not None and math.isfinite(l_f_std) and l_f_std > 0
-        self.l_f_std = max(l_f_std, L_F_STD_MIN) if ok else self.priors["l_f"].std
+        self.l_f_std = max(l_f_std, tuning.L_F_STD_MIN) if ok else self.priors["l_f"].std
         ok = h_std is not None and math.isfinite(h_std) and h_std >= 0
         self.h_std = h_std if ok else self.priors["h"].std
 
@@ -206,7 +192,7 @@ class Stage2(AxleSplit, StageLearner):
         factor, why = self.roll_mismatch()
         if why is not None:
             std *= max(1.0, factor / self.mismatch()[0])  # the lateral rows' factor is in std already
-            h_rel = math.hypot(h_rel, ROLL_MODEL_ERROR)
+            h_rel = math.hypot(h_rel, tuning.ROLL_MODEL_ERROR)
         quiet = self.not_excited()
         if quiet is not None:  # no filter's covariance may claim more than the drive holds
             std = max(std, abs(value) * quiet)
@@ -234,7 +220,7 @@ class Stage2(AxleSplit, StageLearner):
             return c.fit
         p, theta = self.priors, self.params()[0]
         rel = np.array([p["C_alpha"].std / p["C_alpha"].value, p["I_z"].std / p["I_z"].value])
-        m, d = rel[0] ** 2, (AXLE_SPLIT * rel[0]) ** 2
+        m, d = rel[0] ** 2, (tuning.AXLE_SPLIT * rel[0]) ** 2
         P0 = np.array([[m + d, m - d, 0.0], [m - d, m + d, 0.0], [0.0, 0.0, rel[1] ** 2]])
         t0 = np.log([p["C_alpha"].value, p["C_alpha"].value, p["I_z"].value])
         c_r = theta[1] if self.cfg.per_axle else theta[0]
@@ -278,7 +264,7 @@ class Stage2(AxleSplit, StageLearner):
         return lateral.jac_h(x, u, self.known)
 
     def _q_rate(self):
-        dyn = np.square([V_Y_WALK, YAW_WALK, PHI_WALK, PHI_D_WALK])
+        dyn = np.square([tuning.V_Y_WALK, tuning.YAW_WALK, tuning.PHI_WALK, tuning.PHI_D_WALK])
         k = self.known
         if k.roll_by_ay:
             # eq (9) driven by the measured a_y takes the accelerometer's noise in as a roll moment:
@@ -335,14 +321,14 @@ class Stage2(AxleSplit, StageLearner):
             return False
         q = self._settle
         q.append((t, z[0], u[lateral.U_DELTA]))
-        while q and t - q[0][0] > SETTLE_TIME + 1e-9:
+        while q and t - q[0][0] > tuning.SETTLE_TIME + 1e-9:
             q.popleft()
         span = t - q[0][0]
-        if span < SETTLE_TIME - 0.5 * self.cfg.tick:
+        if span < tuning.SETTLE_TIME - 0.5 * self.cfg.tick:
             return False
         yaw_acc = abs(q[-1][1] - q[0][1]) / span
         steer_rate = abs(q[-1][2] - q[0][2]) / span
-        return yaw_acc <= SETTLED_YAW_ACC and steer_rate <= SETTLED_STEER_RATE
+        return yaw_acc <= tuning.SETTLED_YAW_ACC and steer_rate <= tuning.SETTLED_STEER_RATE
 
     def _start(self, z, mask, u) -> tuple[np.ndarray, np.ndarray]:
         """(x0, P0) from the data: the steady-state solution at the measured yaw rate and a_y.
@@ -368,7 +354,7 @@ class Stage2(AxleSplit, StageLearner):
         dv_dc = g / (c_r * c_r)  # d v_y / d C_alpha_r
         rest = slice(lateral.C_F, self._n)  # the parameters and the considered l_f
         P0[lateral.V_Y, rest] = P0[rest, lateral.V_Y] = dv_dc * P0[rear, rest]
-        P0[lateral.V_Y, lateral.V_Y] = V_Y_START_STD**2 + dv_dc**2 * P0[rear, rear]
+        P0[lateral.V_Y, lateral.V_Y] = tuning.V_Y_START_STD**2 + dv_dc**2 * P0[rear, rear]
         return x0, P0
 
     def _consistency(self, mask) -> bool:
@@ -409,7 +395,7 @@ class Stage2(AxleSplit, StageLearner):
             e_r = y[r] / math.sqrt(S[r][r])
             self.roll_window.add(e_r * e_r, 1, e_r)
             self.roll_total.add(e_r * e_r, 1, e_r)
-        if self.window.recent() > DIVERGED_NIS:
+        if self.window.recent() > tuning.DIVERGED_NIS:
             self.restarts += 1
             why = f"innovations {self.window.recent():.0f}x their predicted size"
             log.info("stage 2 %s window diverged (%s); restarted from the window's start", self.kind, why)
@@ -459,7 +445,7 @@ class Stage2(AxleSplit, StageLearner):
             cons[q] = (c.n, c.nis, c.rows, c.e2, c.ee, c.ne, 0.0 if c._e is None else c._e, c._e is not None,
                        len(c._recent), len(c._recent) % Consistency.RECENT)  # fmt: skip
             ring[q, : len(c._recent)] = c._recent
-        settings = np.array([cfg.max_gap, every, cfg.save_every, (n.gyro * n.inflate) ** 2, DIVERGED_NIS,
+        settings = np.array([cfg.max_gap, every, cfg.save_every, (n.gyro * n.inflate) ** 2, tuning.DIVERGED_NIS,
                              float(self.known.roll_by_ay)])  # fmt: skip
         rec = np.empty(((b - a) // every + 1, 8))
         r, fs.x, fs.P, sig, y, S, nr = kern(

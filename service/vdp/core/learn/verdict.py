@@ -9,7 +9,7 @@ from collections import deque
 
 from .. import lateral
 from ..result import CONVERGED, UNCERTAIN
-from .tuning import NIS_MATCHED, NIS_MISMATCH, RHO_MISMATCH_2
+from . import tuning
 
 
 def quad_form(y: list[float], S: list[list[float]]) -> float | None:
@@ -166,13 +166,13 @@ def _verdict(c: Consistency, size: str, colour: str, kind: str) -> tuple[float, 
     if nis is None or c.n < Consistency.RECENT:
         return 1.0, None
     why = []
-    if nis > NIS_MISMATCH:
-        why.append(f"{size} {math.sqrt(nis / NIS_MATCHED):.1f}x the size a matching model leaves")
+    if nis > tuning.NIS_MISMATCH:
+        why.append(f"{size} {math.sqrt(nis / tuning.NIS_MATCHED):.1f}x the size a matching model leaves")
     # residuals far below the noise (a noise-free drive): their colour is no finding (the factor
     # charges it in proportion to their size)
-    if rho is not None and rho > RHO_MISMATCH_2 and nis >= 0.5 * NIS_MATCHED:
-        why.append(f"{colour} not white (lag-1 correlation {rho:.3f} > {RHO_MISMATCH_2})")
-    return _widen(rho, nis / NIS_MATCHED), (f"{kind}: " + "; ".join(why)) if why else None
+    if rho is not None and rho > tuning.RHO_MISMATCH_2 and nis >= 0.5 * tuning.NIS_MATCHED:
+        why.append(f"{colour} not white (lag-1 correlation {rho:.3f} > {tuning.RHO_MISMATCH_2})")
+    return _widen(rho, nis / tuning.NIS_MATCHED), (f"{kind}: " + "; ".join(why)) if why else None
 
 
 class Hard(str):
