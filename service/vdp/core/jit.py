@@ -95,16 +95,25 @@ def jit(**options):
     return wrap
 
 
+def _mark_text() -> str:
+    """The marker's text: the sources' digest and core/warm.py's own (a warm-up that learns a new
+    signature makes the cache incomplete again, without recompiling the rest)."""
+    return f"{DIGEST} {hashlib.sha1((HERE / 'warm.py').read_bytes()).hexdigest()[:12]}\n"
+
+
 def cached() -> bool:
     """Whether every compiled signature the estimator uses is on disk (core.warm has run for
     these sources): False means the next estimate compiles them (about 45 s of CPU, once)."""
-    return (cache_dir() / MARK).exists()
+    try:
+        return (cache_dir() / MARK).read_text() == _mark_text()
+    except OSError:
+        return False
 
 
 def mark_cached() -> None:
     if numba_config.DISABLE_JIT:  # nothing was compiled
         return
     try:
-        (cache_dir() / MARK).write_text(DIGEST + "\n")
+        (cache_dir() / MARK).write_text(_mark_text())
     except OSError as exc:  # a read-only install: the code is in numba's own cache, unmarked
         log.debug("cannot mark the compiled cache: %s", exc)
