@@ -28,7 +28,7 @@ log = logging.getLogger(__name__)
 
 HERE = Path(__file__).resolve().parent
 # every file whose functions numba compiles or whose constants it freezes into compiled code
-SOURCES = ("jit.py", "lateral.py", "longitudinal.py", "batched.py", "prepass.py", "kernels/*.py")
+SOURCES = ("lateral.py", "longitudinal.py", "batched.py", "prepass.py", "kernels/*.py")
 MARK = "warm.done"  # written by core.warm once every signature the learners use is compiled
 
 
