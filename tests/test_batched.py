@@ -362,7 +362,9 @@ def test_warm_compiles_every_signature_a_replay_uses(drive, paper):
 
     warm.warm()
     before = _signatures()
-    assert before and all(before.values())
+    # (the pass's helpers are inlined into it: they have no signature of their own)
+    assert all(before[f"vdp.core.kernels.{n}"] for n in ("lat_run", "lon_run", "lon_block", "lon_lm", "oe_states"))
+    assert before["vdp.core.prepass.prepass"]
     for per_axle in (True, False):
         for bulk_read in (True, False):
             cfg = EstimatorConfig(trace_len=0, learner=LearnerConfig(per_axle=per_axle))
