@@ -64,6 +64,7 @@ CORE_MAY_IMPORT |= {"logging", "__future__"}
 CORE_MAY_IMPORT |= {"numba"}  # core.kernels, core.prepass: the compiled steps, imported at the first filter
 CORE_MAY_IMPORT |= {"hashlib", "pathlib"}  # core.jit: its cache directory, named by a hash of the compiled sources
 CORE_MAY_IMPORT |= {"threading"}  # core.warm: one compile at a time
+CORE_MAY_IMPORT |= {"enum"}  # core.supervisor: a reason's Code
 
 
 def module_name(path: Path) -> str:
