@@ -42,7 +42,8 @@ def main() -> int:
     ap.add_argument("--drives", nargs="+", default=["paper:1", "paper:2", "city:3"])
     a = ap.parse_args()
     from helpers import filterpy_ref
-    from vdp.core import filters, learner
+    from vdp.core import filters
+    from vdp.core.learn import base as learner  # where the learners build their filters
     from vdp.profile import load_profile
     from vdp.sim.run import simulate
 

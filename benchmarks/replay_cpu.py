@@ -67,7 +67,7 @@ def main() -> int:
         est = cum("core/estimator.py", "handle")
         for label, v in (
             ("estimator (estimator.handle)", est),
-            ("  learners (both stages)", cum("core/learner.py", "handle")),
+            ("  learners (both stages)", cum("core/learn/", "handle")),
             ("    stage-2 model (lateral fx + hx)", model2),
             ("    filter steps, both stages, models excluded", steps - model2 - model1),
             ("    stage 1's batch check (batch.solve)", cum("core/batch.py", "solve")),

@@ -104,10 +104,10 @@ def run_one(args) -> dict:
     batch_check = rest[0] if rest else True
     import logging
 
-    from vdp.core import learner
+    from vdp.core.learn import tuning
 
     if split is not None:
-        learner.AXLE_SPLIT = split
+        tuning.AXLE_SPLIT = split
     from vdp.core.estimator import EstimatorConfig
     from vdp.core.learner import LearnerConfig
     from vdp.pipeline import Pipeline
@@ -196,7 +196,7 @@ def main() -> int:
     )
     ap.add_argument("--axle-ratio", type=float, default=1.0, help="simulated rear/front cornering stiffness")
     ap.add_argument(
-        "--axle-split", type=float, help="prior std of the axles' half-difference / C_alpha's (learner.AXLE_SPLIT)"
+        "--axle-split", type=float, help="prior std of the axles' half-difference / C_alpha's (tuning AXLE_SPLIT)"
     )
     a = ap.parse_args()
     a.per_axle = not a.one_c

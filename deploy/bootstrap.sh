@@ -42,7 +42,7 @@ case "$mode" in
         # form first: lint and format are part of the test command (pyproject's [tool.ruff])
         .venv/bin/ruff check . && .venv/bin/ruff format --check . || exit 1
         # the compiled filter steps once, before any test (a fresh checkout compiles them: ~15 s)
-        .venv/bin/python -c "from vdp.core import kernels; kernels.warm(); from vdp.io import scan; scan.warm()"
+        .venv/bin/python -c "from vdp.core import warm; warm.warm(); from vdp.io import scan; scan.warm()"
         # on both cores (pytest-xdist), a test file per worker: a file's module fixtures are built
         # once; VDP_TEST_WORKERS=0 runs it in one process
         exec .venv/bin/python -m pytest -n "${VDP_TEST_WORKERS:-2}" --dist loadfile "$@" ;;

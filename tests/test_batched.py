@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vdp.buffer import SampleRing
-from vdp.core import batched, learner
+from vdp.core import batched, lateral, learner, longitudinal
+from vdp.core.compiled import kernel
 from vdp.core.estimator import EstimatorConfig, TwoStageEstimator
 from vdp.core.learner import Stage1, Stage2
 from vdp.core.sample import Sample
@@ -21,7 +22,7 @@ from vdp.pipeline import Pipeline
 from vdp.profile import load_profile
 from vdp.sim.run import simulate, write_log
 
-pytestmark = pytest.mark.skipif(batched.kernel() is None, reason="numba is not installed: no compiled pass")
+pytestmark = pytest.mark.skipif(kernel("prepass") is None, reason="numba is not installed: no compiled pass")
 
 
 @pytest.fixture(scope="module")
@@ -168,7 +169,7 @@ def test_block_pass_gives_the_per_sample_result(drive, paper, monkeypatch):
 def test_windows_that_diverge_and_last_good_copies_inside_the_compiled_steps(drive, paper, monkeypatch):
     """A window diverging, and the last-good copies, are the learner's own step: the compiled steps
     stop before such a sample and leave nothing of it taken.  Made frequent here."""
-    monkeypatch.setattr(learner, "DIVERGED_NIS", 0.1)
+    monkeypatch.setattr("vdp.core.learn.tuning.DIVERGED_NIS", 0.1)
     (a, sa), (b, sb), _ = replay_both(drive, paper, monkeypatch)
     assert sa["stage2 ukf"][5] > 3  # windows restarted
     assert b == a and sb == sa
@@ -335,3 +336,40 @@ sys.exit(1 if errors else 0)
     for _ in range(3):
         run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
         assert run.returncode == 0, run.stdout + run.stderr[-2000:]
+
+
+def _signatures() -> dict[str, int]:
+    """How many signatures each compiled function of the core has in this process."""
+    from numba.core.registry import CPUDispatcher
+
+    from vdp.core import kernels, prepass
+
+    out = {}
+    for mod in (kernels, prepass):
+        for name, fn in vars(mod).items():
+            if isinstance(fn, CPUDispatcher):
+                out[f"{mod.__name__}.{name}"] = len(fn.signatures)
+    return out
+
+
+def test_warm_compiles_every_signature_a_replay_uses(drive, paper):
+    """core.warm is the one compile of an install: after it, a replay of both stages, with each
+    axle mode and sample by sample as well as in blocks, adds no signature (none compiles
+    again, silently, mid-run); and a profile's integer constants are passed as floats."""
+    from vdp.core import warm
+    from vdp.core.kernels import lat_known, lon_known
+    from vdp.core.learner import LearnerConfig
+
+    warm.warm()
+    before = _signatures()
+    # (the pass's helpers are inlined into it: they have no signature of their own)
+    assert all(before[f"vdp.core.kernels.{n}"] for n in ("lat_run", "lon_run", "lon_block", "lon_lm", "oe_states"))
+    assert before["vdp.core.prepass.prepass"]
+    for per_axle in (True, False):
+        for bulk_read in (True, False):
+            cfg = EstimatorConfig(trace_len=0, learner=LearnerConfig(per_axle=per_axle))
+            replay_log(drive, lambda cfg=cfg: Pipeline(paper, cfg), bulk=bulk_read)
+    assert _signatures() == before
+    k = lateral.Known(m=1500, L=3, r=0.3, k_phi=60000, c_phi=4000, l_f=1, h=0.5, C_K=10)
+    assert all(type(v) in (float, bool) for v in lat_known(k))
+    assert all(type(v) is float for v in lon_known(longitudinal.Known(m=1500, L=3, r=0.3, J=1)))

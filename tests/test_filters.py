@@ -124,7 +124,7 @@ def _stage2_pair(kind: str, profile, monkeypatch):
     start: once as vdp.core.filters runs it, once on filterpy's generic steps.  (The compiled
     steps are held to vdp.core.filters' in tests/test_kernels.py.)"""
     from helpers import filterpy_ref
-    from vdp.core import learner as lm
+    from vdp.core.learn import base as lm  # where the learners build their filters
     from vdp.core.learner import LearnerConfig, Stage2
 
     l2 = Stage2(kind, profile.vehicle, profile.priors, LearnerConfig(compiled=False))
@@ -182,8 +182,8 @@ def test_a_drive_gives_the_same_estimates_as_on_filterpys_steps(profile, monkeyp
     every trace row as on filterpy's steps, to float noise (vdp.core.filters' numpy steps;
     tests/test_kernels.py holds the compiled ones to these)."""
     from helpers import filterpy_ref
-    from vdp.core import learner as lm
     from vdp.core.estimator import EstimatorConfig
+    from vdp.core.learn import base as lm  # where the learners build their filters
     from vdp.core.learner import LearnerConfig
     from vdp.pipeline import Pipeline
     from vdp.sim.run import Simulation

@@ -63,8 +63,10 @@ ALLOWED = {
 
 CORE_MAY_IMPORT = {"numpy", "scipy", "math", "dataclasses", "typing", "collections", "functools"}
 CORE_MAY_IMPORT |= {"logging", "__future__"}
-CORE_MAY_IMPORT |= {"numba"}  # core.kernels: the compiled filter steps, imported at the first filter
-CORE_MAY_IMPORT |= {"hashlib", "pathlib"}  # core.kernels: its cache directory, named by a hash of the models' sources
+CORE_MAY_IMPORT |= {"numba"}  # core.kernels, core.prepass: the compiled steps, imported at the first filter
+CORE_MAY_IMPORT |= {"hashlib", "pathlib"}  # core.jit: its cache directory, named by a hash of the compiled sources
+CORE_MAY_IMPORT |= {"threading"}  # core.warm: one compile at a time
+CORE_MAY_IMPORT |= {"enum"}  # core.supervisor: a reason's Code
 
 
 def module_name(path: Path) -> str:
@@ -150,10 +152,54 @@ def test_the_core_imports_no_bus_web_storage_or_clock():
     assert not bad, "\n".join(bad)
 
 
+def _cycles(deps: dict[str, set[str]]) -> list[list[str]]:
+    """The import circles among these modules (Tarjan's strongly connected components of two or more)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in deps.get(v, ()):
+            if w not in deps:
+                continue
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(deps):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_core_has_no_import_circle():
+    """Within the core every import runs one way (lazy imports included): a circle is a design
+    that cannot be read from the bottom up, nor a module tested without the others."""
+    deps = {m: {d for d in ds if d.startswith("vdp.core")} for m, ds in modules().items() if m.startswith("vdp.core")}
+    assert _cycles(deps) == []
+
+
+def test_the_circle_check_sees_a_circle():
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
 def test_the_checker_sees_a_violation():
     """The checks above would fail on a real back-edge (the graph reader is not blind)."""
     deps = modules()
-    assert "vdp.core.result" in deps["vdp.core.learner"]
+    assert "vdp.core.result" in deps["vdp.core.learn.base"]
     assert "vdp.io.decoder" in deps["vdp.pipeline"]
     assert stage("vdp.api.app") > stage("vdp.store") > stage("vdp.core.learner") > stage("vdp.buffer")
 

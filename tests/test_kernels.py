@@ -271,13 +271,14 @@ def test_stage1_keeps_its_blocks_oldest_first_and_the_newest_only():
 
 def test_a_replay_says_when_it_compiles_the_steps_first(monkeypatch, capsys, tmp_path):
     from vdp.cli.replay import compile_note
+    from vdp.core import jit, warm
 
-    kernels.warm()
+    warm.warm()
     monkeypatch.chdir(tmp_path)  # a user replays from anywhere, not from the checkout
-    assert kernels.cached()  # warm() left them on disk: nothing to say
+    assert jit.cached()  # warm() left them on disk: nothing to say
     compile_note()
     assert capsys.readouterr().out == ""
-    monkeypatch.setattr(kernels, "cached", lambda: False)  # a fresh checkout
+    monkeypatch.setattr(jit, "cached", lambda: False)  # a fresh checkout
     compile_note()
     assert "compiling the estimator's filter steps once" in capsys.readouterr().out
 

@@ -7,6 +7,7 @@ import pytest
 
 from vdp.core import progress
 from vdp.core.params import NAMES, STAGE1, STAGE2
+from vdp.core.supervisor import LITTLE_AX, LITTLE_STEER, SPEED_LOW, WAITING, Supervisor
 from vdp.io.logs import open_log
 from vdp.pipeline import Pipeline
 from vdp.profile import load_profile
@@ -18,6 +19,10 @@ PRIORS = {
 }
 
 
+# the supervisor's reasons as it gives them (typed: core.progress reads their codes, never their text)
+WHY = Supervisor().why
+
+
 def snap(stage="stage1", reasons=None, caps=None, **params):
     base = {n: {"value": PRIORS[n].value, "std": PRIORS[n].std, "status": "not_run", "samples": 0} for n in NAMES}
     for n, p in params.items():
@@ -25,7 +30,7 @@ def snap(stage="stage1", reasons=None, caps=None, **params):
     return {
         "parameters": base,
         "stage": stage,
-        "supervisor": {"reasons": reasons or {"1": "open", "2": "waiting for stage 1's l_f"}, "excitation": {}},
+        "supervisor": {"reasons": reasons or {"1": "open", "2": WHY(WAITING)}, "excitation": {}},
         "capabilities": caps or {"1": None, "2": None},
     }
 
@@ -47,7 +52,7 @@ def test_seconds_to_go_follows_one_over_root_n():
 
 
 def test_nothing_driven_is_zero_and_says_what_to_drive():
-    out = progress.assess(snap(reasons={"1": "little longitudinal excitation (a_x varies too little)"}), PRIORS, 0.02)
+    out = progress.assess(snap(reasons={"1": WHY(LITTLE_AX)}), PRIORS, 0.02)
     assert all(p["progress"] == 0 for p in out["parameters"].values())
     assert out["stages"]["1"]["progress"] == 0 and out["stages"]["2"]["progress"] == 0
     assert "accelerate" in out["next"] and "not changing enough" in out["next"]
@@ -143,13 +148,13 @@ def test_next_names_the_stage_behind_or_the_one_being_driven():
     half = {"value": 10.0, "std": 0.5, "status": "uncertain", "samples": 900}
     c2 = {"value": 6.7e4, "std": 500.0, "status": "converged", "samples": 900}
     # stage 2 started once l_f was known; C_K is still uncertain: stage 1's driving is next
-    s = snap(stage="done", reasons={"1": "speed below 5.0 m/s", "2": "open"}, l_f=conv, h=conv, C_K=half)
+    s = snap(stage="done", reasons={"1": WHY(SPEED_LOW), "2": "open"}, l_f=conv, h=conv, C_K=half)
     s["parameters"].update({"C_alpha": c2, "I_z": c2, "I_x": {**c2, "status": "not_identifiable"}})
     out = progress.assess(s, PRIORS, 0.02)
     assert out["stages"]["2"]["progress"] == 1.0 and out["stages"]["1"]["progress"] < 1.0
     assert "accelerate" in out["next"] and "too slow" in out["next"]
     # while a window is open, the driver is told to keep going with it
-    s["supervisor"]["reasons"] = {"1": "open", "2": "little steering excitation"}
+    s["supervisor"]["reasons"] = {"1": "open", "2": WHY(LITTLE_STEER)}
     assert progress.assess(s, PRIORS, 0.02)["next"].startswith("keep going: on a straight")
 
 
@@ -175,7 +180,7 @@ def test_a_model_mismatch_does_not_ask_for_more_of_the_same_driving():
 
 def test_what_the_learners_report_is_used():
     half = {"value": 10.0, "std": 0.5, "status": "uncertain", "samples": 10}
-    s = snap(C_K=half, reasons={"1": "open", "2": "waiting for stage 1's l_f"})
+    s = snap(C_K=half, reasons={"1": "open", "2": WHY(WAITING)})
     s["supervisor"]["learners"] = {
         "ukf": {"stage1": {"seconds_in_windows": 42.0, "blocks_used": 30, "blocks_beyond_small_slip": 90}}
     }
@@ -186,3 +191,21 @@ def test_what_the_learners_report_is_used():
     assert out["stages"]["1"]["blocks_beyond_small_slip"] == 90 and out["stages"]["1"]["window_s"] == 42.0
     s["supervisor"]["learners"]["ukf"]["stage1"]["blocks_beyond_small_slip"] = 5
     assert "ease off" not in progress.assess(s, PRIORS, 0.02)["parameters"]["C_K"]["hint"]
+
+
+def test_a_reason_is_its_text_and_its_code():
+    """What a user reads is the reason's text, unchanged in JSON; the code is what code reads, and
+    survives a pickle (a process pool hands the estimator's state back)."""
+    import json
+    import pickle
+
+    from vdp.core.supervisor import MISSING, Code, Reason
+
+    r = WHY(SPEED_LOW)
+    assert r == "speed below 5.0 m/s" and json.dumps({"1": r}) == '{"1": "speed below 5.0 m/s"}'
+    assert r.code is Code.SPEED_LOW and r.hard and not WHY(LITTLE_AX).hard
+    gone = Reason(MISSING, "channels missing or stale: ax, yaw_rate", ("ax", "yaw_rate"))
+    back = pickle.loads(pickle.dumps(gone))
+    assert back == gone and back.code is Code.MISSING and back.channels == ("ax", "yaw_rate")
+    assert progress._fix(gone) == "check the bus: ax, yaw_rate silent or stale"
+    assert progress._fix("speed below 5.0 m/s") is None  # an untyped text is never parsed

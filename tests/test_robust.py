@@ -176,7 +176,7 @@ def test_stage1s_check_comes_every_20_blocks_then_every_quarter_of_those_kept(pr
         return real(self, full)
 
     monkeypatch.setattr(Stage1, "check_batch", spy)
-    monkeypatch.setattr("vdp.core.learner.BATCH_BLOCKS", 3000)
+    monkeypatch.setattr("vdp.core.learn.tuning.BATCH_BLOCKS", 3000)
     frames, _ = simulate(profile, "city", seed=4, noise="realistic")
     pipe = Pipeline(profile, EstimatorConfig(baseline=False, trace_len=0))
     for msg in frames:

@@ -86,17 +86,18 @@ def compile_note(warm: bool = False) -> None:
     compiles them (~20 s of CPU, once), which would otherwise look like a hang.  ``warm``:
     compile them here and now (vdp batch, before its workers would each compile them)."""
     try:
-        from ..core import kernels
+        from ..core import jit
     except ImportError:  # no numba: the numpy steps run, nothing to compile
         return
-    if kernels.cached():
+    if jit.cached():
         return
     print("compiling the estimator's filter steps once (about 20 s of CPU; later runs load them from the cache)")
     sys.stdout.flush()
     if warm:
+        from ..core import warm as core_warm
         from ..io import scan
 
-        kernels.warm()
+        core_warm.warm()
         scan.warm()  # the bulk reader's parse (a second or two)
 
 

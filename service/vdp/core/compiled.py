@@ -1,7 +1,8 @@
-"""core.kernels on demand: the compiled steps when numba imports, else None (the numpy path).
+"""The core's compiled functions on demand: the first use loads them, else None (the numpy path).
 
-Imported at the first filter or fit, not with the core: numba's import costs ~0.5 s, and a
-live service that never asks for a compiled step never pays it.
+Imported at the first filter, fit or block pass, not with the core: numba's import costs
+~0.5 s, and a live service that never asks for a compiled step never pays it.  The first
+use after an install compiles every signature at once and says so (core.warm.ensure).
 """
 
 from __future__ import annotations
@@ -10,17 +11,31 @@ import logging
 
 log = logging.getLogger(__name__)
 
-_KERNELS: list = []  # core.kernels once imported, or None when numba cannot be
+_MODULES: list = []  # [core.kernels, core.prepass] once imported, or [] and _FAILED set when numba cannot be
+_FAILED: list = []
+
+
+def _load() -> list:
+    if not _MODULES and not _FAILED:
+        try:
+            from . import kernels, prepass, warm
+        except ImportError as exc:
+            log.warning("compiled steps unavailable (%s); using numpy's", exc)
+            _FAILED.append(exc)
+            return _MODULES
+        warm.ensure()
+        if not _MODULES:  # (another thread may have set them meanwhile: the same modules)
+            _MODULES.extend((kernels, prepass))
+    return _MODULES
 
 
 def kernel(name: str):
-    """core.kernels' ``name`` (a compiled function or UKF class), or None when numba is missing:
-    the numpy path then does the same work."""
-    if not _KERNELS:
-        try:
-            from . import kernels
-        except ImportError as exc:
-            log.warning("compiled steps unavailable (%s); using numpy's", exc)
-            kernels = None
-        _KERNELS.append(kernels)
-    return None if _KERNELS[0] is None else getattr(_KERNELS[0], name)
+    """The compiled function or UKF class ``name`` (of core.kernels or core.prepass), or None when
+    numba is missing: the numpy path then does the same work."""
+    for mod in _load():
+        fn = getattr(mod, name, None)
+        if fn is not None:
+            return fn
+    if _MODULES:
+        raise AttributeError(f"no compiled function {name!r}")
+    return None

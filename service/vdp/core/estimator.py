@@ -19,7 +19,10 @@ import numpy as np
 
 from .. import channels as ch
 from . import batched
-from .learner import LearnerConfig, Stage1, Stage2
+from .compiled import kernel
+from .learn.base import LearnerConfig
+from .learn.stage1 import Stage1
+from .learn.stage2 import Stage2
 from .mass import MassConfig, MassLearner, scaled
 from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
 from .road import RoadConfig, Tilt
@@ -179,8 +182,13 @@ class TwoStageEstimator:
         """Whether :meth:`handle_block` runs the compiled pass: no trace kept (its rows come from
         every sample), the compiled steps wanted (LearnerConfig.compiled: off, numpy's reference
         runs everything) and numba there, and the speed filter one it repeats (core.batched)."""
-        ok = self.trace.maxlen == 0 and self.cfg.learner.compiled and batched.batchable(self.speed)
-        return ok and self.tilt is None
+        return (
+            self.trace.maxlen == 0
+            and self.cfg.learner.compiled
+            and batched.batchable(self.speed)
+            and kernel("prepass") is not None
+            and self.tilt is None
+        )
 
     def handle_block(self, T: np.ndarray, Y: np.ndarray, F: np.ndarray, A: np.ndarray, gap: bool) -> None:
         """Take aligned samples as arrays (ticks T, values Y, fresh F, ages A by channel; ``gap``:
@@ -203,7 +211,7 @@ class TwoStageEstimator:
         done_from = 0 if self.handover_t is not None else n
         if self._pass_params is None:
             self._pass_params = batched.params(self.cfg, self.vehicle, self.gyro_bias.tau)
-        kern = batched.kernel()
+        kern = kernel("prepass")
         i0 = 0
         while True:
             st, blk, first = st0.copy(), blk0.copy(), first0.copy()

@@ -339,7 +339,8 @@ class Problem:
         pre, k = self.pre_steps, self.k
         bf, br = (_NO_BEND, _NO_BEND) if bend is None else bend
         args = (np.ascontiguousarray(pre.d), pre.cd, pre.v_x, pre.x0, pre.alpha, pre.phi_dd, self.h, self.frac)
-        return fn(*args, self.first, theta, np.ascontiguousarray(swing), bf, br, k.l_f, k.L, k.m)
+        # floats whatever the profile wrote (an integer mass would be another signature to compile)
+        return fn(*args, self.first, theta, np.ascontiguousarray(swing), bf, br, float(k.l_f), float(k.L), float(k.m))
 
     def _scan(self, m: np.ndarray) -> np.ndarray:
         """Inclusive segmented prefix scan of the maps: (Phi, G) per row, (6, S, n)."""

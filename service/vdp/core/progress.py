@@ -20,6 +20,7 @@ import math
 
 from .params import BY_NAME, NAMES, STAGE1, STAGE2
 from .result import CONVERGED, INVALID, NOT_IDENTIFIABLE, NOT_RUN, UNCERTAIN
+from .supervisor import Code, Reason
 
 STAGE_PARAMS = {1: STAGE1, 2: STAGE2}
 
@@ -31,16 +32,15 @@ DRIVE = {
     "left and right continuously (about a quarter turn each way), one swing every 3 to 10 s",
 }
 
-# The supervisor's reasons (core.supervisor) turned into what to change.
-_FIX = (
-    ("speed below", "too slow: it needs more than 20 km/h"),
-    ("steering (|delta|", "the wheel is turned: hold it straight"),
-    ("yawing", "the car is turning: find a straight stretch"),
-    ("little longitudinal excitation", "the speed is not changing enough"),
-    ("little steering excitation", "not enough steering yet"),
-    ("speed not constant", "the speed is changing: hold it steady (cruise control helps)"),
-    ("channels missing or stale", "check the bus: a sensor the stage needs is silent"),
-)
+# The supervisor's reasons (core.supervisor.Reason, by code) turned into what to change.
+_FIX = {
+    Code.SPEED_LOW: "too slow: it needs more than 20 km/h",
+    Code.STEERING: "the wheel is turned: hold it straight",
+    Code.YAWING: "the car is turning: find a straight stretch",
+    Code.LITTLE_AX: "the speed is not changing enough",
+    Code.LITTLE_STEER: "not enough steering yet",
+    Code.NOT_CONSTANT: "the speed is changing: hold it steady (cruise control helps)",
+}
 
 # Per parameter, what excites it most (where it differs from its stage's manoeuvre).
 _EXTRA = {
@@ -50,15 +50,12 @@ _EXTRA = {
 }
 
 
-def _fix(reason: str | None) -> str | None:
-    if not reason:
-        return None
-    for key, words in _FIX:
-        if reason.startswith(key):
-            if key == "channels missing or stale":
-                return f"check the bus: {reason.split(': ', 1)[-1]} silent or stale"
-            return words
-    return None
+def _fix(reason: Reason | str | None) -> str | None:
+    """What to change for a supervisor's reason (None for "open", the hand-over and the like)."""
+    code = getattr(reason, "code", None)
+    if code == Code.MISSING:
+        return f"check the bus: {', '.join(reason.channels)} silent or stale"
+    return _FIX.get(code)
 
 
 def information(value: float | None, std: float | None, prior_std: float, converged_rel: float) -> float:
@@ -105,9 +102,9 @@ def assess(snapshot: dict, priors: dict, tick: float) -> dict:
     excitation = sup.get("excitation") or {}
     caps = snapshot.get("capabilities") or {}
     # stage 2 waits on stage 1 while the supervisor says so (what it waits for is its to say)
-    gate2 = str(reasons.get("2") or "no data yet")
+    gate2 = reasons.get("2")
     handed_over = snapshot.get("stage") in ("stage2", "done") or not (
-        gate2.startswith("waiting") or gate2 == "no data yet"
+        not gate2 or getattr(gate2, "code", None) in (Code.WAITING, Code.NO_DATA)
     )
 
     # what the UKF learners say they have seen (est's supervisor.learners), when given

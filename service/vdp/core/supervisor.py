@@ -17,6 +17,7 @@ Excitation is tracked with exponential moving statistics, which cost O(1).
 
 from __future__ import annotations
 
+import enum
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -25,9 +26,48 @@ from .. import channels as ch
 
 MAX_WINDOWS = 500  # windows kept for reports and the API
 
-# what keeps a stage's window shut, by code (0: nothing); the compiled block pass (core.batched)
-# returns the codes, so both paths word a reason alike
-SPEED_LOW, STEERING, YAWING, LITTLE_AX, LITTLE_STEER, NOT_CONSTANT, MISSING, WAITING = range(1, 9)
+
+class Code(enum.IntEnum):
+    """What keeps a stage's window shut (0: nothing); the compiled block pass (core.prepass)
+    returns these codes, so both paths word a reason alike."""
+
+    SPEED_LOW = 1
+    STEERING = 2
+    YAWING = 3
+    LITTLE_AX = 4
+    LITTLE_STEER = 5
+    NOT_CONSTANT = 6
+    MISSING = 7  # a channel the stage needs is missing or stale (Reason.channels)
+    WAITING = 8
+    NO_DATA = 9  # before the first sample
+
+
+SPEED_LOW, STEERING, YAWING, LITTLE_AX, LITTLE_STEER, NOT_CONSTANT, MISSING, WAITING = tuple(Code)[:8]
+SOFT = (LITTLE_AX, LITTLE_STEER)  # a little excitation: the hysteresis waits it out (the others shut at once)
+
+
+class Reason(str):
+    """Why a stage's window is shut: the text a user reads (JSON, /estimates, the dashboard) that
+    is also typed, with its :class:`Code` and, for MISSING, the channels, so that no one parses
+    the text back (core.progress, core.batched)."""
+
+    code: Code
+    channels: tuple[str, ...]
+
+    def __new__(cls, code: Code, text: str, channels: tuple[str, ...] = ()):
+        self = super().__new__(cls, text)
+        self.code, self.channels = code, channels
+        return self
+
+    def __reduce__(self):  # (pickled with the estimator: a process pool, a Dask worker)
+        return Reason, (self.code, str(self), self.channels)
+
+    @property
+    def hard(self) -> bool:
+        """Whether it shuts an open window at once (not a little excitation, which the hysteresis waits out)."""
+        return self.code not in SOFT
+
+
 REASONS = {
     SPEED_LOW: "speed below {v_min} m/s",
     STEERING: "steering (|delta| >= 0.62 deg)",
@@ -79,6 +119,8 @@ class Supervisor:
     wheel_radius: float = 0.3
 
     def __post_init__(self):
+        # each code's reason, in this supervisor's limits, made once (the per-sample path hands them out)
+        self._reasons = {code: Reason(code, text.format(v_min=self.cfg.v_min)) for code, text in REASONS.items()}
         self.reset()
 
     def reset(self) -> None:
@@ -94,7 +136,7 @@ class Supervisor:
         self.windows: deque[Window] = deque(maxlen=MAX_WINDOWS)  # the newest; memory stays flat
         self.window_count = 0
         self.active: int | None = None
-        self._r1 = self._r2 = "no data yet"  # (reason)
+        self._r1 = self._r2 = Reason(Code.NO_DATA, "no data yet")
         self._dt, self._k = math.nan, (0.0, 0.0)  # the last step's EMA gains (_gains)
 
     def _ema(self, dt: float, tau: float) -> float:
@@ -136,10 +178,10 @@ class Supervisor:
                 b = self.blockers[stage]
                 b[d] = b.get(d, 0.0) + dt
         r1 = self._missing(y, self.stage1_needs) or d1
-        r2 = REASONS[WAITING] if not stage1_done else self._missing(y, self.stage2_needs) or d2
+        r2 = self._reasons[WAITING] if not stage1_done else self._missing(y, self.stage2_needs) or d2
         self._r1, self._r2 = r1, r2
-        hard1 = r1 is not None and not r1.startswith("little")
-        hard2 = r2 is not None and not r2.startswith("little")
+        hard1 = r1 is not None and r1.hard
+        hard2 = r2 is not None and r2.hard
         o1 = self._hyst(1, t, r1 is None, hard1)
         o2 = self._hyst(2, t, r2 is None, hard2)
         stage = 2 if o2 else 1 if o1 else None  # the conditions exclude each other; 2 wins a tie
@@ -155,44 +197,44 @@ class Supervisor:
         return stage
 
     @property
-    def reason(self) -> dict[int, str]:
+    def reason(self) -> dict[int, Reason | str]:
         """Why each stage's window is not open at the last sample ("open" where it is)."""
         return {1: self._r1 or "open", 2: self._r2 or "open"}
 
-    def why(self, code: int) -> str:
+    def why(self, code: int) -> Reason:
         """The reason of a code (REASONS), in this supervisor's limits."""
-        return REASONS[code].format(v_min=self.cfg.v_min)
+        return self._reasons[code]
 
-    def _missing(self, y, needs) -> str | None:
+    def _missing(self, y, needs) -> Reason | None:
         for i in needs:  # (the usual case, every channel there, without building a list)
             if not math.isfinite(y[i]):
-                bad = [ch.NAMES[i] for i in needs if not math.isfinite(y[i])]
-                return f"channels missing or stale: {', '.join(bad)}"
+                bad = tuple(ch.NAMES[i] for i in needs if not math.isfinite(y[i]))
+                return Reason(MISSING, f"channels missing or stale: {', '.join(bad)}", bad)
         return None
 
-    def _drive1(self, y, speed, c) -> str | None:
+    def _drive1(self, y, speed, c) -> Reason | None:
         """Why the driving does not suit stage 1 (None: it does); a missing channel is not judged."""
         if not speed > c.v_min:
-            return self.why(SPEED_LOW)
+            return self._reasons[SPEED_LOW]
         if abs(y[ch.DELTA]) >= c.delta_max_1:
-            return REASONS[STEERING]
+            return self._reasons[STEERING]
         if abs(y[ch.YAW]) >= c.yaw_max_1:
-            return REASONS[YAWING]
+            return self._reasons[YAWING]
         # the spread of a_x, not its RMS: a constant offset (grade, bias) excites nothing
         if math.sqrt(max(self._ax_sq - self._ax_m * self._ax_m, 0.0)) < c.ax_std_min:
-            return REASONS[LITTLE_AX]
+            return self._reasons[LITTLE_AX]
         return None
 
-    def _drive2(self, y, speed, c) -> str | None:
+    def _drive2(self, y, speed, c) -> Reason | None:
         """Why the driving does not suit stage 2 (None: it does)."""
         # steering first: it is what defines this stage, so it is the blocker worth naming
         d_std = math.sqrt(max(self._d_sq - self._d_m * self._d_m, 0.0))
         if d_std < c.delta_std_min_2 and math.sqrt(max(self._yaw_sq, 0.0)) < c.yaw_rms_min_2:
-            return REASONS[LITTLE_STEER]
+            return self._reasons[LITTLE_STEER]
         if not speed > c.v_min:
-            return self.why(SPEED_LOW)
+            return self._reasons[SPEED_LOW]
         if abs(self._ax_m) > c.ax_mean_max_2:
-            return REASONS[NOT_CONSTANT]
+            return self._reasons[NOT_CONSTANT]
         return None
 
     def excitation(self) -> dict:
