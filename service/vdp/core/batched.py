@@ -45,6 +45,7 @@ N_CODES = len(sup.REASONS) + 1  # reason codes 0 (none) to supervisor.WAITING
 # the supervisor's reason codes, as copies: numba freezes a global into the cached code and invalidates
 # that cache only when this file changes (tests/test_batched.py holds them equal)
 _SPEED_LOW, _STEERING, _YAWING, _LITTLE_AX, _LITTLE_STEER, _NOT_CONSTANT, _MISSING, _WAITING = range(1, 9)
+_GATED, _SHUTS = _WAITING, 6  # supervisor.GATED, gates.SHUTS: gate k's reason code is _GATED + k
 # channel indices, passed in (numba would freeze module globals into its cache)
 CHANNELS = np.array(
     [ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR, ch.T_F, ch.T_R, ch.DELTA, ch.AX, ch.YAW, ch.ROLL, ch.SPEED]
@@ -135,12 +136,13 @@ def _blocked(blk, first, stage, code, dt, i):
     blk[stage, code] += dt
 
 
-def _prepass(T, Y, F, A, gap, st, p, c, needs1, needs2, done_from, blk, first, out, stage):
+def _prepass(T, Y, F, A, gap, gate, st, p, c, needs1, needs2, done_from, blk, first, out, stage):
     """Speed filter, gyro offsets and supervisor over the block's samples, in place on ``st``
     and ``blk`` (the supervisor's blockers, seconds per stage and code; ``first``: the sample
     where a code absent before first blocked); ``out`` gets v_x, its std, the a_x bias and
     the two gyro offsets per sample, ``stage`` the open window's (0: none).  Samples from
-    ``done_from`` on see l_f known.  Returns the reason codes of the last sample."""
+    ``done_from`` on see l_f known; ``gate`` holds each sample's gate code (core.gates).  Returns
+    the reason codes of the last sample."""
     n = T.shape[0]
     r1 = r2 = 0
     for i in range(n):
@@ -220,6 +222,12 @@ def _prepass(T, Y, F, A, gap, st, p, c, needs1, needs2, done_from, blk, first, o
             d2 = _NOT_CONSTANT
         else:
             d2 = 0
+        g = gate[i]
+        if 0 < g <= _SHUTS:  # Supervisor.update: a gate shuts both windows, unless the driving already does
+            if d1 == 0 or d1 == _LITTLE_AX:  # noqa: PLR1714 (numba: no set)
+                d1 = _GATED + g
+            if d2 == 0 or d2 == _LITTLE_STEER:  # noqa: PLR1714
+                d2 = _GATED + g
         st[OBSERVED] += dt
         if d1 == 0:
             st[EXC1] += dt
@@ -270,8 +278,9 @@ def warm() -> None:
     blk, first = blockers(Supervisor())
     need = np.arange(2, dtype=np.int64)
     p = params(EstimatorConfig(), type("V", (), {"wheel_radius": 0.3}), 30.0)
-    kernel()(T, Y, F, A, np.zeros(n, dtype=bool), np.zeros(N_STATE), p, CHANNELS, need, need, 0, blk, first,
-             np.empty((n, 5)), np.empty(n, dtype=np.int64))  # fmt: skip
+    kernel()(T, Y, F, A, np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int64), np.zeros(N_STATE), p, CHANNELS,
+             need, need, 0, blk, first, np.empty((n, 5)), np.empty(n, dtype=np.int64))  # fmt: skip
+    Supervisor().gates.block(T, Y, np.zeros(n, dtype=bool))  # (compiles core.gates' pass too)
 
 
 # -- the state and parameters, from and to the estimator's objects ------------------

@@ -22,6 +22,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from .. import channels as ch
+from . import gates as gt
 
 MAX_WINDOWS = 500  # windows kept for reports and the API
 
@@ -37,6 +38,9 @@ REASONS = {
     NOT_CONSTANT: "speed not constant (|mean a_x| too large)",
     WAITING: "waiting for stage 1's l_f",
 }
+# what the model does not cover (core.gates): reverse, ABS, ESC, TCS, a kerb strike, wheel spin
+GATED = WAITING  # the reason code of gate k is GATED + k
+REASONS.update({GATED + k: f"gated out: {gt.NAMES[k]}" for k in range(1, gt.SHUTS + 1)})
 
 
 @dataclass(frozen=True)
@@ -77,8 +81,10 @@ class Supervisor:
     stage1_needs: tuple[int, ...] = tuple(ch.INDEX[n] for n in ch.STAGE1_NEEDS)
     stage2_needs: tuple[int, ...] = tuple(ch.INDEX[n] for n in ch.STAGE2_NEEDS)
     wheel_radius: float = 0.3
+    gates_cfg: gt.GatesConfig = field(default_factory=gt.GatesConfig)
 
     def __post_init__(self):
+        self.gates = gt.Gates(self.gates_cfg, self.wheel_radius)
         self.reset()
 
     def reset(self) -> None:
@@ -96,6 +102,7 @@ class Supervisor:
         self.active: int | None = None
         self._r1 = self._r2 = "no data yet"  # (reason)
         self._dt, self._k = math.nan, (0.0, 0.0)  # the last step's EMA gains (_gains)
+        self.gates.reset()
 
     def _ema(self, dt: float, tau: float) -> float:
         return 1.0 - math.exp(-dt / tau)
@@ -128,6 +135,13 @@ class Supervisor:
             speed = 0.5 * (y[ch.WS_RL] + y[ch.WS_RR]) * self.wheel_radius
 
         d1, d2 = self._drive1(y, speed, c), self._drive2(y, speed, c)
+        g = self.gates.update(t, s.gap, y)
+        if 0 < g <= gt.SHUTS:  # a gate shuts both windows, unless the driving already does
+            why = REASONS[GATED + g]
+            if d1 is None or d1 == REASONS[LITTLE_AX]:
+                d1 = why
+            if d2 is None or d2 == REASONS[LITTLE_STEER]:
+                d2 = why
         self.observed += dt
         for stage, d in ((1, d1), (2, d2)):
             if d is None:
@@ -227,4 +241,5 @@ class Supervisor:
             "reasons": {str(k): v for k, v in self.reason.items()},
             "windows": self.window_count,
             "excitation": self.excitation(),
+            "gated": self.gates.summary(),
         }

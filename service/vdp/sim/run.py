@@ -27,11 +27,14 @@ from pathlib import Path
 import can
 import numpy as np
 
+from ..channels import STATUS
 from ..errors import BusError, ConfigError, LogFormatError, ProfileError
 from ..outfile import replacing, write_text
 from ..profile import Profile, load_profile
 from .driver import Driver, DriverConfig
 from .encode import Encoder
+from .events import EventRun, Events
+from .events import plan as plan_events
 from .scenario import Scenario, get_scenario
 from .sensors import NoiseModel, Sensors, draw_bias, noise_model
 from .truth import axle_parameters, truth_parameters
@@ -91,6 +94,7 @@ class Simulation:
         start_time: float = START_TIME,
         driver: DriverConfig | None = None,
         bus_channel: str | None = None,
+        events: Events | None = None,
     ):
         self.profile = _profile(profile, dbc)
         veh = self.profile.vehicle
@@ -126,6 +130,8 @@ class Simulation:
         if self.extra_ids > 0x800 - len(self.encoder.frame_ids & set(range(0x800))):
             raise ConfigError(f"--extra-ids {self.extra_ids}: not that many free 11-bit IDs")
         self.bias = draw_bias(self.noise, self._rngs()[0])
+        self.events = events if events is not None and events.any else None
+        self.event_plan = plan_events(self.scenario, self.events, self.duration) if self.events else []
         self.truth = self._truth()
 
     def _rngs(self) -> list[np.random.Generator]:
@@ -148,6 +154,7 @@ class Simulation:
             "start_time": self.start_us / 1e6,
             "duration": self.duration,
             "segments": self.scenario.meta(self.duration),
+            **self._events_truth(),
             "profile": str(self.profile.path.resolve()),
             "dbc": str(self.profile.dbc),
             "bus": {
@@ -174,6 +181,14 @@ class Simulation:
                 "vehicle": "SI; roll_stiffness N m/rad, roll_damping N m s/rad, wheel_inertia per axle",
             },
         }
+
+    def _events_truth(self) -> dict:
+        """The events (sim.events) and their plan, for the truth (none: nothing, as before)."""
+        if self.events is None:
+            return {}
+        ev = self.events
+        counts = {"reverse": ev.reverse, "abs": ev.abs, "kerb": ev.kerb, "spin": ev.spin}
+        return {"events": {"counts": counts, "effects": ev.effects, "plan": [e.meta() for e in self.event_plan]}}
 
     def frames(
         self, tap: Tap | None = None, progress: Callable[[float, float], None] | None = None
@@ -206,9 +221,18 @@ class Simulation:
         hint = 0
         start_us = self.start_us
         every = int(round(1.0 / DT))
+        ev = None
+        if self.events is not None or any(c in self.profile.channels for c in STATUS):
+            # sim.events: the events' commands, friction and sensors, and the status flags on the bus
+            model.mu = p.mu
+            ev = EventRun(self.event_plan, self.events is not None and self.events.effects, p.mu, p.r)
         for n in range(n_steps):
             t = n * DT
             v_cmd, a_cmd, d_cmd, hint = sc.command(t, hint)
+            if ev is not None and ev.at(t):
+                v_cmd, a_cmd, d_cmd = ev.command(t, v_cmd, a_cmd, d_cmd)
+            if ev is not None:
+                model.mu = ev.friction()
             tf, tr, delta = drv.update(DT, v_cmd, a_cmd, d_cmd, x[0], wheel_slips(x, p.r))
             x1, e = model.advance(x, tf, tr, delta, DT)
             ts = (start_us + n * step_ms * 1000) / 1e6
@@ -218,6 +242,8 @@ class Simulation:
                 item[0] += item[1]
                 plan = item[2]
                 values = {c: f(x, e, tf, tr, delta) for c, f in item[3]}
+                if ev is not None:
+                    ev.sensors(t, values, tf + tr < 0.0, tf + tr > 0.0, drv.limited)
                 data = enc.encode(plan, values)
                 if drop and drops() < drop:
                     continue
