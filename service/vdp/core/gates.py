@@ -64,6 +64,7 @@ class GatesConfig:
     hold: float = 0.5  # s a gate stays shut after its cause ends
     standstill: float = 0.3  # m/s
     creep: float = 2.0  # m/s
+    shut: bool = True  # False: count only, shut no window (what the gates are worth: benchmarks/gates.py)
 
 
 # the state: per gate that holds, the time it holds until; the last time; the seconds counted
@@ -201,7 +202,8 @@ class Gates:
         self.st = new_state()
 
     def update(self, t: float, gap: bool, y) -> int:
-        return _step_py(self.st, self._p, self._c, t, gap, y)
+        code = _step_py(self.st, self._p, self._c, t, gap, y)
+        return code if self.cfg.shut or code > SHUTS else 0
 
     def block(self, T: np.ndarray, Y: np.ndarray, gaps: np.ndarray) -> np.ndarray:
         """The codes of a block's samples, the state carried on (a replay's block pass)."""
@@ -209,7 +211,7 @@ class Gates:
         out = np.zeros(len(T), dtype=np.int64)
         kernel()(st, self.p, CHANNELS, T, Y, gaps, out)
         self.st = st.tolist()
-        return out
+        return out if self.cfg.shut else np.where(out > SHUTS, out, 0)
 
     def summary(self) -> dict:
         return summary({NAMES[k]: self.st[SECONDS + k - 1] for k in NAMES}, self.st[ANY], self.st[OBSERVED])

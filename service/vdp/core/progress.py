@@ -40,6 +40,12 @@ _FIX = (
     ("little steering excitation", "not enough steering yet"),
     ("speed not constant", "the speed is changing: hold it steady (cruise control helps)"),
     ("channels missing or stale", "check the bus: a sensor the stage needs is silent"),
+    # core.gates: reverse, ABS, ESC, TCS, a kerb strike, wheel spin
+    (
+        "gated out",
+        "outside the model (reversing, ABS, ESC, traction control, a kerb or a spinning wheel): "
+        "it waits until the car drives forwards on all four tyres again",
+    ),
 )
 
 # Per parameter, what excites it most (where it differs from its stage's manoeuvre).
