@@ -103,24 +103,24 @@ def step(st, p, c, t, gap, y):
     hold = p[HOLD]
     r = p[RADIUS]
     gnss = y[c[_SPEED]]
-    # the wheels' ground speeds: their median, the one farthest from it, their mean (signed)
-    n = 0
-    lo = hi = s = 0.0
-    w0 = w1 = w2 = w3 = 0.0
-    for k in range(4):
-        w = y[c[k]]
-        if math.isfinite(w):
-            w *= r
-            if n == 0:
-                w0 = w
-            elif n == 1:
-                w1 = w
-            elif n == 2:
-                w2 = w
-            else:
-                w3 = w
-            s += w
-            n += 1
+    # the wheels' ground speeds (signed where the bus signs them): those there, first, and their sum
+    w0, w1, w2, w3 = y[c[_FL]] * r, y[c[_FR]] * r, y[c[_RL]] * r, y[c[_RR]] * r
+    s = w0 + w1 + w2 + w3
+    n = 4
+    if not math.isfinite(s):  # (a wheel missing or stale: the rare case)
+        n = 0
+        s = 0.0
+        for k in range(4):
+            w = y[c[k]] * r
+            if math.isfinite(w):
+                if n == 0:
+                    w0 = w
+                elif n == 1:
+                    w1 = w
+                elif n == 2:
+                    w2 = w
+                s += w
+                n += 1
     v = abs(gnss) if math.isfinite(gnss) else (abs(s / n) if n else math.nan)
     # reverse: the gear, or a signed speed (GNSS, wheels) clearly below zero
     # (a flag is on above 0.5; NaN, not mapped or stale, gates nothing)
@@ -135,6 +135,7 @@ def step(st, p, c, t, gap, y):
         st[H_KERB] = t + hold
     # wheel spin: one wheel far from the median of the others (three or four wheels), or from the ground
     if n >= 3:
+        lo = hi = 0.0
         if n == 3:
             med = max(min(w0, w1), min(max(w0, w1), w2))
             far = max(abs(w0 - med), abs(w1 - med), abs(w2 - med))
