@@ -169,7 +169,7 @@ def test_channels_equal_the_physics_at_sample_time():
         for ch, v in values.items():
             assert v == pytest.approx(expect[ch][i], rel=1e-12, abs=1e-12), (ch, t)
             seen.add(ch)
-    assert seen == set(channels.NAMES)
+    assert seen == set(channels.NAMES[: channels.N_SENSORS])  # (paper.toml maps no status flag)
     assert np.abs(tr["a_x"]).max() > 1.0 and np.abs(tr["a_y"]).max() > 1.0  # both directions excited
 
 
@@ -201,7 +201,7 @@ def test_every_shipped_profile_can_be_simulated(path):
 
 
 @settings(max_examples=60, deadline=None)
-@given(ch=st.sampled_from(channels.NAMES), u=st.floats(-1.2, 1.2))
+@given(ch=st.sampled_from(channels.NAMES[: channels.N_SENSORS]), u=st.floats(-1.2, 1.2))
 def test_encoding_inverts_the_profile_mapping(ch, u):
     enc = Encoder(PROFILE, DB)
     plan = next(p for p in enc.plans if ch in p.channels)

@@ -48,7 +48,7 @@ KINDS = ("unknown_id", "dlc", "remote", "error_frame", "range", "nonfinite", "mu
 BAD_RUN_INVALID = 3  # consecutive counter/checksum failures that flag a message invalid
 ALT_AFTER_CYCLES = 5.0  # primary silent this many cycle times: use the alternative source
 DEFAULT_CYCLE = 0.1  # [s] until a message without GenMsgCycleTime has shown its period
-_ACTIVE = object()  # marks a status flag read from an enum's raw values (profile.ChannelMap.active)
+ACTIVE = object()  # marks a status flag read from an enum's raw values (profile.ChannelMap.active)
 
 
 class DecodeStats:
@@ -332,7 +332,7 @@ class FrameDecoder:
                         m.sign_signal,
                         primary,
                         m.fine,
-                        m.status if m.active is None else (_ACTIVE, m.active),
+                        m.status if m.active is None else (ACTIVE, m.active),
                         m.plausible,
                     )
                 )
@@ -390,7 +390,7 @@ class FrameDecoder:
             for idx, sig, mul, add, sign_sig, primary, fine, status, plaus in outs[key]:
                 prim_plan = self._plan(self.db.get_message_by_name(primary.message)) if primary else None
                 valid = None  # (status slot or -1, values, values mean valid, plausible lo, hi)
-                if status is not None and status[0] is _ACTIVE:
+                if status is not None and status[0] is ACTIVE:
                     valid = status  # a status flag read from an enum's raw values (decode)
                 elif status is not None or plaus is not None:
                     lo, hi = plaus if plaus is not None else (-math.inf, math.inf)
@@ -515,7 +515,7 @@ class FrameDecoder:
             v = v * mul + add
             if sign_pos >= 0 and vals[sign_pos]:
                 v = -v
-            if valid is not None and valid[0] is _ACTIVE:
+            if valid is not None and valid[0] is ACTIVE:
                 v = 1.0 if v in valid[1] else 0.0  # (v is the raw value: mul 1, add 0)
             elif valid is not None:
                 why = _invalid(valid, vals, v)
