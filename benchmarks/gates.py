@@ -12,7 +12,8 @@ time with the gates counting only (GatesConfig.shut = False): what the gates are
 Per case it prints the share of each drive gated out, then per parameter the plain drive's value
 and std, and the events drive's difference from it in the plain drive's std, gated and not:
 |d| / std <= 1 is "the same estimate within its std".  The last lines count, per parameter, the
-cases within 1 and 2 std, and the valid estimates (converged) whose truth lies beyond 3 std.
+cases within 1 and 2 std, and the valid estimates (converged) whose truth lies beyond 3 std, gated
+and not.
 """
 
 from __future__ import annotations
@@ -93,12 +94,13 @@ def main() -> None:
     within = {n: [0, 0, 0] for n in NAMES}  # within 1 std, within 2 std, of
     ungated = {n: [0, 0] for n in NAMES}
     bad = dict.fromkeys(NAMES, 0)
+    bad_ungated = dict.fromkeys(NAMES, 0)
     for r in results:
         print(f"\n{r['scenario']} seed {r['seed']}, events {a.events}")
         print(f"  with the events:    {r['events_gated']}")
         print(f"  without them:       {r['plain_gated']}")
         head = f"  {'param':8} {'plain value':>12} {'± std':>9} {'events d/std':>13} {'ungated d/std':>14}"
-        print(head + "  status (events)")
+        print(head + "  status (events, ungated)")
         for n in NAMES:
             p, e, u = r["plain"][n], r["events"][n], r["ungated"][n]
             d, du = _d(e, p), _d(u, p)
@@ -113,18 +115,20 @@ def main() -> None:
             t = r["truth"].get(n)
             if e[2] == "converged" and t is not None and e[1] and abs(e[0] - t) > 3 * e[1]:
                 bad[n] += 1
+            if u[2] == "converged" and t is not None and u[1] and abs(u[0] - t) > 3 * u[1]:
+                bad_ungated[n] += 1
             ds = "-" if d is None else f"{d:+.2f}"
             dus = "-" if du is None else f"{du:+.2f}"
             val = "-" if p[0] is None else f"{p[0]:.5g}"
             sd = "-" if p[1] is None or not math.isfinite(p[1]) else f"{p[1]:.2g}"
-            print(f"  {n:8} {val:>12} {sd:>9} {ds:>13} {dus:>14}  {e[2]}")
+            print(f"  {n:8} {val:>12} {sd:>9} {ds:>13} {dus:>14}  {e[2]}, {u[2]}")
     print(f"\n{len(results)} cases in {time.perf_counter() - t0:.0f} s; the events drive against the plain one:")
-    print(
-        f"  {'param':8} {'within 1 std':>13} {'within 2 std':>13} {'ungated, 1 std':>15} {'valid, truth > 3 std':>21}"
-    )
+    head = f"  {'param':8} {'within 1 std':>13} {'within 2 std':>13} {'ungated, 1 std':>15}"
+    print(head + f" {'valid, truth > 3 std':>21} {'ungated: the same':>18}")
     for n in NAMES:
         w, u = within[n], ungated[n]
-        print(f"  {n:8} {f'{w[0]}/{w[2]}':>13} {f'{w[1]}/{w[2]}':>13} {f'{u[0]}/{u[1]}':>15} {bad[n]:>21}")
+        row = f"  {n:8} {f'{w[0]}/{w[2]}':>13} {f'{w[1]}/{w[2]}':>13} {f'{u[0]}/{u[1]}':>15}"
+        print(row + f" {bad[n]:>21} {bad_ungated[n]:>18}")
 
 
 if __name__ == "__main__":
