@@ -82,6 +82,10 @@ RUN_COLUMNS = {
     "C_alpha_front_std": float,
     "C_alpha_rear": float,
     "C_alpha_rear_std": float,
+    # the share of the log gated out (core.gates: reverse, ABS, ESC, TCS, kerbs, wheel spin, standstill,
+    # creep) and the sentence that splits it by gate; null for a result made before the gates
+    "gated": float,
+    "gated_by": str,
 }
 AXLE_COLUMNS = ("C_alpha_front", "C_alpha_front_std", "C_alpha_rear", "C_alpha_rear_std")
 
@@ -288,6 +292,9 @@ def rows_from_result(res: Any, task: Task, key: dict[str, Any] | None = None) ->
             damage=(src.get("damage") or {}).get("summary") or None,
             wall_s=float(lg.wall_s if lg is not None else 0.0),
         )
+        g = res.supervisor.get("gated") or {}
+        if g.get("of"):
+            row.update(gated=float(g["fraction"]), gated_by=g["text"])
         x = e.extra or {}
         for k in AXLE_COLUMNS:
             if x.get(k) is not None:
