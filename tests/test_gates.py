@@ -202,3 +202,13 @@ def test_the_estimates_agree_with_the_drive_without_the_events(drives):
         a, b = res.parameters[name], plain.parameters[name]
         sd = math.hypot(a.std, b.std)
         assert abs(a.value - b.value) <= 2.0 * sd, (name, a.value, b.value, sd)  # within 2 sigma of the difference
+
+
+def test_the_fleet_rows_carry_the_gated_share(drives):
+    from vdp.fleet import Task, rows_from_result
+
+    res = drives[True][0]
+    rows = rows_from_result(res, Task("city.log", "paper", "paper_status.toml"))
+    g = res.supervisor["gated"]
+    assert len(rows) == 6 and {r["gated"] for r in rows} == {g["fraction"]} and g["fraction"] > 0.1
+    assert rows[0]["gated_by"] == g["text"] and "reverse" in g["text"]
