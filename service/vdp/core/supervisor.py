@@ -8,7 +8,10 @@ Table 2 of the paper, plus what a real drive needs:
 - stage 2 (steady speed, continuous steering): stage 1 converged (the hand-over),
   speed above ``v_min``, nearly constant speed (small mean a_x), and enough
   steering or yaw excitation;
-- both need their channels fresh.
+- both need their channels fresh;
+- neither runs while a gate for what the model does not cover holds (core.gates: reverse,
+  ABS, ESC, TCS, a kerb strike, wheel spin), and the share of the drive each gate took is
+  counted (``state()["gated"]``).
 
 Hysteresis: a window opens after its conditions have held for ``t_on`` and
 closes after they have failed for ``t_off``, so windows don't flicker.
