@@ -123,7 +123,8 @@ def test_log_round_trips_through_logreader_and_cantools(tmp_path):
         if name == "GNSS_VELOCITY":
             assert (decoded["FIX_TYPE"], decoded["NUM_SATS"]) == (3, 12)
     assert back[0].timestamp >= START_TIME
-    assert {m.arbitration_id for m in back} == {m.frame_id for m in DB.messages}
+    # every message of vdp.dbc but the status message, which only paper_status.toml maps
+    assert {m.arbitration_id for m in back} == {m.frame_id for m in DB.messages if m.name != "VEHICLE_STATUS"}
 
 
 def test_channels_carry_the_truth():
