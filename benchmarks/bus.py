@@ -217,4 +217,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    import benchenv
+
+    benchenv.announce()
     sys.exit(main())

@@ -44,4 +44,7 @@ def main(scenarios: list[str]) -> None:
 
 
 if __name__ == "__main__":
+    import benchenv
+
+    benchenv.announce()
     main(sys.argv[1:] or ["paper", "city"])

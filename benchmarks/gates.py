@@ -132,4 +132,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    import benchenv
+
+    benchenv.announce()
     main()

@@ -321,6 +321,34 @@ def targets(runs: list[dict], cases: list[str]) -> list[str]:
     return out
 
 
+def per_car(runs: list[dict], cases: list[str]) -> list[str]:
+    """BENCHMARKS.md's accuracy table: per case, stage 1's and I_x's targets met, and stage 2's
+    UKF errors (signed mean / worst over the runs; each axle where stage 2 estimates them)."""
+    first = ("l_f", "C_K", "h", "I_x")
+    rules = {n: (t, h) for n, t, h in TARGETS}
+    second = [n for n in ("C_alpha", "C_alpha_front", "C_alpha_rear", "I_z") if n in runs[0]["ukf"]]
+    out = [
+        "| case | " + ", ".join(f"`{n}`" for n in first) + " | " + " | ".join(f"`{n}`" for n in second) + " |",
+        "|---" * (len(second) + 2) + "|",
+    ]
+    for case in cases:
+        rs = [r for r in runs if r["case"] == case]
+        met = {n: sum(_meets(r["ukf"].get(n), *rules[n]) for r in rs) for n in first}
+        cell = (
+            f"every target met, {len(rs)}/{len(rs)}"
+            if all(m == len(rs) for m in met.values())
+            else ", ".join(f"{n} {m}/{len(rs)}" for n, m in met.items())
+        )
+        cells = [cell]
+        for n in second:
+            errs = [r["ukf"][n]["err"] for r in rs if r["ukf"].get(n, {}).get("err") is not None]
+            mean = statistics.fmean(errs) if errs else None
+            worst = max(errs, key=abs) if errs else None
+            cells.append(f"{100 * mean:+.1f} / {_pct(worst)}" if errs else "–")
+        out.append(f"| `{case}` | " + " | ".join(cells) + " |")
+    return out
+
+
 def _stage2_ran(r: dict) -> bool:
     w = r["windows"]
     return bool(w.get(2) or w.get("2"))  # int keys in memory, str keys read back from --json
@@ -329,7 +357,9 @@ def _stage2_ran(r: dict) -> bool:
 def report(runs: list[dict], cases: list[str], seeds: int, scale: float) -> str:
     from vdp.sim.independent import DEFINITIONS
 
-    out = ["#### Issue 11's targets: runs meeting each (UKF / EKF)", ""]
+    out = ["#### Per car against its target (UKF; stage 2: mean / worst error over the runs)", ""]
+    out += per_car(runs, cases) + [""]
+    out += ["#### Issue 11's targets: runs meeting each (UKF / EKF)", ""]
     out += targets(runs, cases) + [""]
     for case in cases:
         rs = [r for r in runs if r["case"] == case]
@@ -432,4 +462,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    import benchenv
+
+    benchenv.announce()
     sys.exit(main())

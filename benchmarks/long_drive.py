@@ -102,4 +102,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    import benchenv
+
+    benchenv.announce()
     raise SystemExit(main())

@@ -81,4 +81,7 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    import benchenv
+
+    benchenv.announce()
     raise SystemExit(main())
