@@ -60,7 +60,7 @@ def supervisor_state(su):
     return (
         list(su.blockers[1].items()), list(su.blockers[2].items()), [w.as_dict() for w in su.windows],
         su.window_count, su.active, su.reason, su.observed, su.excited, su._ax_m, su._ax_sq, su._d_m, su._d_sq,
-        su._yaw_sq, [(g.open, g.since) for g in su._gates.values()],
+        su._yaw_sq, [(g.open, g.since) for g in su._gates.values()], su.gates.st,
     )  # fmt: skip
 
 
@@ -166,6 +166,23 @@ def test_block_pass_gives_the_per_sample_result(drive, paper, monkeypatch):
     assert len(sa["supervisor"][2]) > 4  # windows of both stages
 
 
+def test_the_gates_fire_alike_in_both_paths(repo_root, tmp_path, monkeypatch):
+    """Reverse, ABS stops, kerbs and wheel spin (core.gates): the block pass's gate codes shut the
+    windows and count as the supervisor's, to the bit."""
+    from vdp.sim.events import Events
+    from vdp.sim.run import Simulation
+
+    prof = load_profile(repo_root / "profiles" / "paper_status.toml")
+    sim = Simulation(prof, "city", seed=4, duration=100.0, events=Events.parse("reverse=1,abs=1,kerb=3,spin=1"))
+    write_log(sim.frames(), tmp_path / "events.log")
+    monkeypatch.setattr(bulk, "BLOCK", 1 << 16)
+    (a, sa), (b, sb), _ = replay_both(tmp_path / "events.log", prof, monkeypatch)
+    assert b == a and sb == sa
+    gated = a["supervisor"]["gated"]["by_gate"]
+    assert {"reverse", "ABS", "kerb strike", "TCS"} <= set(gated)
+    assert any(k.startswith("gated out") for k in dict(sa["supervisor"][0]))  # a gate blocked stage 1
+
+
 def test_windows_that_diverge_and_last_good_copies_inside_the_compiled_steps(drive, paper, monkeypatch):
     """A window diverging, and the last-good copies, are the learner's own step: the compiled steps
     stop before such a sample and leave nothing of it taken.  Made frequent here."""
@@ -269,9 +286,9 @@ def test_the_pass_words_reasons_as_the_supervisor():
     from vdp.core import supervisor as sup
 
     copies = (batched._SPEED_LOW, batched._STEERING, batched._YAWING, batched._LITTLE_AX, batched._LITTLE_STEER,
-              batched._NOT_CONSTANT, batched._MISSING, batched._WAITING)  # fmt: skip
+              batched._NOT_CONSTANT, batched._MISSING, batched._WAITING, batched._GATED, batched._SHUTS)  # fmt: skip
     assert copies == (sup.SPEED_LOW, sup.STEERING, sup.YAWING, sup.LITTLE_AX, sup.LITTLE_STEER, sup.NOT_CONSTANT,
-                      sup.MISSING, sup.WAITING)  # fmt: skip
+                      sup.MISSING, sup.WAITING, sup.GATED, sup.gt.SHUTS)  # fmt: skip
     little = [c for c in range(1, batched.N_CODES) if c != sup.MISSING and sup.REASONS[c].startswith("little")]
     assert little == [sup.LITTLE_AX, sup.LITTLE_STEER]  # the ones Supervisor.update does not shut at once
     # what became of a stage-1 block, as the learner reads core.kernels.lon_block's answer

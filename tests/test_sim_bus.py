@@ -123,7 +123,8 @@ def test_log_round_trips_through_logreader_and_cantools(tmp_path):
         if name == "GNSS_VELOCITY":
             assert (decoded["FIX_TYPE"], decoded["NUM_SATS"]) == (3, 12)
     assert back[0].timestamp >= START_TIME
-    assert {m.arbitration_id for m in back} == {m.frame_id for m in DB.messages}
+    # every message of vdp.dbc but the status message, which only paper_status.toml maps
+    assert {m.arbitration_id for m in back} == {m.frame_id for m in DB.messages if m.name != "VEHICLE_STATUS"}
 
 
 def test_channels_carry_the_truth():
@@ -169,7 +170,7 @@ def test_channels_equal_the_physics_at_sample_time():
         for ch, v in values.items():
             assert v == pytest.approx(expect[ch][i], rel=1e-12, abs=1e-12), (ch, t)
             seen.add(ch)
-    assert seen == set(channels.NAMES)
+    assert seen == set(channels.NAMES[: channels.N_SENSORS])  # (paper.toml maps no status flag)
     assert np.abs(tr["a_x"]).max() > 1.0 and np.abs(tr["a_y"]).max() > 1.0  # both directions excited
 
 
@@ -201,7 +202,7 @@ def test_every_shipped_profile_can_be_simulated(path):
 
 
 @settings(max_examples=60, deadline=None)
-@given(ch=st.sampled_from(channels.NAMES), u=st.floats(-1.2, 1.2))
+@given(ch=st.sampled_from(channels.NAMES[: channels.N_SENSORS]), u=st.floats(-1.2, 1.2))
 def test_encoding_inverts_the_profile_mapping(ch, u):
     enc = Encoder(PROFILE, DB)
     plan = next(p for p in enc.plans if ch in p.channels)

@@ -22,6 +22,12 @@ CHANNELS: tuple[tuple[str, str], ...] = (
     ("yaw_rate", "rad/s"),  # positive left (counter-clockwise from above)
     ("roll_rate", "rad/s"),
     ("speed", "m/s"),  # GNSS ground speed
+    # status flags (1 while on, 0 while off; optional: a car whose bus lacks one is not gated by it).
+    # They gate what the model does not cover (core.gates); no learner reads them.
+    ("reverse", "1"),  # reverse gear engaged (a profile maps a gear enum with active_when)
+    ("abs_active", "1"),  # ABS regulating a wheel
+    ("esc_active", "1"),  # stability control braking a wheel
+    ("tcs_active", "1"),  # traction control cutting torque or braking a spinning wheel
 )
 
 NAMES: tuple[str, ...] = tuple(n for n, _ in CHANNELS)
@@ -29,7 +35,9 @@ UNITS: dict[str, str] = dict(CHANNELS)
 INDEX: dict[str, int] = {n: i for i, n in enumerate(NAMES)}
 N = len(NAMES)
 
-WS_FL, WS_FR, WS_RL, WS_RR, T_F, T_R, DELTA, AX, AY, YAW, ROLL, SPEED = range(N)
+WS_FL, WS_FR, WS_RL, WS_RR, T_F, T_R, DELTA, AX, AY, YAW, ROLL, SPEED, REVERSE, ABS, ESC, TCS = range(N)
+N_SENSORS = SPEED + 1  # the measured channels, before the status flags
+STATUS = NAMES[N_SENSORS:]  # the status flags: a profile may map them with active_when
 
 # What a missing channel means, in the words of a car's sensor set.
 DESCRIPTIONS: dict[str, str] = {
@@ -45,6 +53,10 @@ DESCRIPTIONS: dict[str, str] = {
     "yaw_rate": "yaw-rate gyro",
     "roll_rate": "roll-rate gyro",
     "speed": "GNSS ground speed",
+    "reverse": "reverse gear",
+    "abs_active": "ABS status",
+    "esc_active": "ESC status",
+    "tcs_active": "traction control status",
     # sources of the axle torques (vdp.profile.SOURCES)
     "drive_torque": "drive torque at the wheels",
     "brake_torque": "brake torque",
@@ -96,6 +108,7 @@ def limits(vehicle) -> tuple[list[float], list[float]]:
         "yaw_rate": RATE_MAX,
         "roll_rate": RATE_MAX,
         "speed": SPEED_MAX,
+        **dict.fromkeys(STATUS, 1.0),  # (a flag beyond 1 is a mapping fault: map it with active_when)
         "wheel_torque_front": vehicle.mass * r * TORQUE_ACCEL,
         "wheel_torque_rear": vehicle.mass * r * TORQUE_ACCEL,
     }

@@ -89,6 +89,10 @@ RUN_COLUMNS = {
     "wheel_scale": float,  # wheel speeds against the ground speed (vdp.core.change.fit_scale)
     "wheel_scale_std": float,
     "bus_print": str,  # JSON {id: period [s]} of its periodic CAN ids (vdp.core.change.bus_print)
+    # the share of the log gated out (core.gates: reverse, ABS, ESC, TCS, kerbs, wheel spin, standstill,
+    # creep) and the sentence that splits it by gate; null for a result made before the gates
+    "gated": float,
+    "gated_by": str,
 }
 AXLE_COLUMNS = ("C_alpha_front", "C_alpha_front_std", "C_alpha_rear", "C_alpha_rear_std")
 
@@ -303,6 +307,9 @@ def rows_from_result(res: Any, task: Task, key: dict[str, Any] | None = None) ->
             damage=(src.get("damage") or {}).get("summary") or None,
             wall_s=float(lg.wall_s if lg is not None else 0.0),
         )
+        g = res.supervisor.get("gated") or {}
+        if g.get("of"):
+            row.update(gated=float(g["fraction"]), gated_by=g["text"])
         x = e.extra or {}
         for k in AXLE_COLUMNS:
             if x.get(k) is not None:

@@ -92,6 +92,9 @@ class ChannelMap:
     # a status signal of the same message: (signal, values, True if those values mean valid)
     status: tuple[str, frozenset[int], bool] | None = None
     plausible: tuple[float, float] | None = None  # [min, max] of the SI value; outside is invalid
+    # a status flag (channels.STATUS) read from an enum: the raw values that mean "on" (a gear
+    # signal's reverse); the channel is then 1 while the signal holds one of them, else 0
+    active: frozenset[int] | None = None
     where: str = ""  # "profile.toml [channels.x]" for error messages
 
     def factor(self, vehicle: Vehicle) -> float:
@@ -383,6 +386,7 @@ _MAP_KEYS = {
     "valid_when",
     "invalid_when",
     "plausible",
+    "active_when",
 }
 
 
@@ -465,6 +469,17 @@ def _channel(where: str, name: str, raw: Any, nested: bool = False, label: str |
         if not lo < hi:
             raise ProfileError(f"{w}: 'plausible' must be [minimum, maximum] with minimum < maximum, got {r}")
         plaus = (lo, hi)
+    active = None
+    if "active_when" in raw:
+        v = raw["active_when"]
+        if name not in channels.STATUS:
+            raise ProfileError(f"{w}: 'active_when' applies to the status flags only ({', '.join(channels.STATUS)})")
+        if not isinstance(v, list) or not v or not all(isinstance(x, int) and not isinstance(x, bool) for x in v):
+            raise ProfileError(
+                f"{w}: 'active_when' must be a list of the signal's raw integer values that mean on, "
+                f"e.g. [2] for a gear signal whose reverse is 2"
+            )
+        active = frozenset(v)
     alt = None
     if "alt" in raw:
         if nested:
@@ -485,6 +500,7 @@ def _channel(where: str, name: str, raw: Any, nested: bool = False, label: str |
         range=rng,
         status=status,
         plausible=plaus,
+        active=active,
         where=w,
     )
 

@@ -231,6 +231,8 @@ def check_bounds(refused: Mapping[int, list], decoded: list[int] | None, report:
         extra = ""
         if name.startswith("wheel_torque"):
             extra = " (the drive torque, or the brake pressure times brake_gain, that make it)"
+        elif name in ch.STATUS:  # a flag is 0 or 1: an enum maps through active_when
+            extra = " (a status flag: map a state or gear signal with active_when = [the raw values that mean on])"
         report.add(
             f"{name}_bounds",
             name,
@@ -238,7 +240,7 @@ def check_bounds(refused: Mapping[int, list], decoded: list[int] | None, report:
             + (f" of {of} ({100 * share:.0f} %)" if of else "")
             + f" beyond what a car can read (seen {lo:.4g} to {hi:.4g} {unit}), kept from the estimator: "
             f"check the signal's unit, scale, offset and layout in the profile and the DBC",
-            DEPENDS.get(_subject(name), ("I_x",)) if share > BOUNDS_SHARE else (),
+            DEPENDS.get(_subject(name), ("I_x",)) if share > BOUNDS_SHARE and name not in ch.STATUS else (),
         )
     return report
 

@@ -86,6 +86,13 @@ def stage_lines(result: RunResult) -> list[str]:
     return lines
 
 
+def gate_lines(result: RunResult) -> list[str]:
+    """The share of the drive gated out (core.gates): "16 % of the drive gated out: reverse 4 %,
+    ABS 3.1 %, ..."; nothing for a result without the gates' counts (one stored before them)."""
+    g = result.supervisor.get("gated") or {}
+    return [f"gates: {g['text']}"] if g.get("of") else []
+
+
 # what to check when the decoder refuses frames of a message the profile maps
 _DECODE_HINTS = {
     "dlc": "shorter than the DBC says; if the car sends them short, set [can] pad_short = true, "

@@ -165,7 +165,7 @@ def _elsewhere(ch: str, name: str) -> bool:
 def candidates(db, top: int = 5) -> dict[str, list[Candidate]]:
     """Per channel (and source), the best-scoring signals of the DBC by name and unit."""
     out: dict[str, list[Candidate]] = {}
-    names = [*channels.NAMES, *SOURCES]
+    names = [*channels.NAMES[: channels.N_SENSORS], *SOURCES]  # (the status flags: not proposed yet)
     for ch in names:
         must, more = _PATTERNS[ch]
         kinds = CHANNEL_KINDS[ch]
@@ -454,7 +454,7 @@ def draft(
             "",
         ]
     L.append("[channels]")
-    for ch in [*channels.NAMES, *SOURCES]:
+    for ch in [*channels.NAMES[: channels.N_SENSORS], *SOURCES]:
         cs = cands.get(ch) or []
         if not _drafted(ch, has_sources):
             continue

@@ -124,8 +124,8 @@ class ChannelTap:
             self._n = 0
 
     def columns(self) -> list[str]:
-        unit = {"rad/s": "rad_s", "N*m": "Nm", "rad": "rad", "m/s^2": "m_s2", "m/s": "m_s"}
-        return ["t", *(f"{n}_{unit[channels.UNITS[n]]}" for n in channels.NAMES), "v_x_est_m_s", "gap"]
+        unit = {"rad/s": "_rad_s", "N*m": "_Nm", "rad": "_rad", "m/s^2": "_m_s2", "m/s": "_m_s", "1": ""}  # (1: a flag)
+        return ["t", *(f"{n}{unit[channels.UNITS[n]]}" for n in channels.NAMES), "v_x_est_m_s", "gap"]
 
     def array(self, t0: float | None) -> np.ndarray:
         a = np.concatenate([*self._chunks, self._buf[: self._n]]) if (self._chunks or self._n) else np.empty((0, 15))

@@ -64,6 +64,11 @@ CHANNEL_KINDS: dict[str, tuple[str, ...]] = {
     "yaw_rate": ("angular_rate",),
     "roll_rate": ("angular_rate",),
     "speed": ("speed",),
+    # status flags: a 0/1 bit as it is, or an enum's raw values through active_when
+    "reverse": ("ratio",),
+    "abs_active": ("ratio",),
+    "esc_active": ("ratio",),
+    "tcs_active": ("ratio",),
 }
 
 # Source channels: what production buses send instead of per-axle torque.  They never

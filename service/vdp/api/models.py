@@ -45,6 +45,11 @@ class Supervisor(_Model):
     active_stage: int | None = Field(None, description="the stage whose gating window is open, or null")
     reasons: dict[str, str] = Field(default_factory=dict, description="per stage: 'open' or why it is closed")
     windows: int = 0
+    gated: dict[str, Any] | None = Field(
+        None,
+        description="the share of the drive gated out, in all and per gate (reverse, ABS, ESC, TCS, kerb strike, "
+        "wheel spin, standstill, creep): fraction, seconds, of, by_gate, and a sentence (text)",
+    )
 
 
 class Estimates(_Model):

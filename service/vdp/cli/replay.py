@@ -277,6 +277,8 @@ def run(args) -> int:
     )
     for line in report.stage_lines(result):
         print(line)
+    for line in report.gate_lines(result):
+        print(line)
     print(report.table(result, truth))
     for line in _coaching(result):
         print(line)

@@ -99,6 +99,19 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--bus-interface", help="send live with python-can: virtual, udp_multicast, socketcan, ...")
     p.add_argument("--bus-channel", help="bus channel (default depends on the interface)")
     p.add_argument(
+        "--events",
+        metavar="KIND=N,...",
+        help="events the model does not cover (off by default): reverse manoeuvres in stops, ABS stops on a "
+        "slippery patch, kerb strikes in turns, wheel spin pulling away, e.g. reverse=2,abs=2,kerb=4,spin=2; "
+        "their flags go on the bus where the profile maps them (profiles/paper_status.toml)",
+    )
+    p.add_argument(
+        "--events-plain",
+        action="store_true",
+        help="with --events: the same drive without them (a stop for each reverse manoeuvre, a dry road for "
+        "each ABS stop, no kerbs, no spin), to compare estimates with",
+    )
+    p.add_argument(
         "--sim-speed",
         type=float,
         default=1.0,
@@ -147,11 +160,21 @@ def run(args: argparse.Namespace) -> int:
     if args.repeat < 1:
         raise ConfigError(f"--repeat must be at least 1, got {args.repeat}")
     if args.model != "vdp":
+        if args.events:
+            raise ConfigError("--events applies to --model vdp only")
         if args.repeat != 1:
             raise ConfigError("--repeat applies to --model vdp only")
         return _run_independent(args)
     if args.car:
         raise ConfigError("--car chooses a car of an independent model; give --model brush or --model mb too")
+
+    events = None
+    if args.events:
+        from ..sim.events import Events
+
+        events = Events.parse(args.events, effects=not args.events_plain)
+    elif args.events_plain:
+        raise ConfigError("--events-plain goes with --events KIND=N,...: the drive without those events")
 
     def make(k: int = 0, start: float = simrun.START_TIME) -> simrun.Simulation:
         return simrun.Simulation(
@@ -167,6 +190,7 @@ def run(args: argparse.Namespace) -> int:
             duration=args.duration,
             start_time=start,
             **_world(args),
+            events=events,
         )
 
     sim = make() if args.repeat == 1 else simrun.Repeated(make, args.repeat)

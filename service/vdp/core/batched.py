@@ -38,7 +38,7 @@ from .speed import SpeedFilter
 (V, P_VV, P_VB, P_BB, BIAS, S_T, A_PREV, G_YAW, G_ROLL, G_N, G_T, U_T, OBSERVED, EXC1, EXC2, AX_M, AX_SQ, D_M, D_SQ,
  YAW_SQ, OPEN1, SINCE1, OPEN2, SINCE2, K_DT, K_AX, K_STEER) = range(27)  # fmt: skip
 N_STATE = 27
-N_CODES = len(sup.REASONS) + 1  # reason codes 0 (none) to supervisor.WAITING
+N_CODES = max(sup.REASONS) + 1  # reason codes 0 (none) to supervisor.WAITING, then the gates' (GATED + k)
 # the parameters array
 (ACCEL_NOISE, BIAS_WALK, GNSS_NOISE, MAX_GAP, WHEEL_REF, WHEEL_NOISE, BRAKE_MAX, RADIUS, GYRO_TAU, V_MIN,
  DELTA_MAX_1, YAW_MAX_1, AX_STD_MIN, AX_MEAN_MAX_2, DELTA_STD_MIN_2, YAW_RMS_MIN_2, TAU_AX, TAU_STEER, T_ON,
@@ -46,6 +46,7 @@ N_CODES = len(sup.REASONS) + 1  # reason codes 0 (none) to supervisor.WAITING
 # the supervisor's reason codes, as copies: numba freezes a global into the cached code and invalidates
 # that cache only when this file changes (tests/test_batched.py holds them equal)
 _SPEED_LOW, _STEERING, _YAWING, _LITTLE_AX, _LITTLE_STEER, _NOT_CONSTANT, _MISSING, _WAITING = range(1, 9)
+_GATED, _SHUTS = _WAITING, 6  # supervisor.GATED, gates.SHUTS: gate k's reason code is _GATED + k
 # channel indices, passed in (numba would freeze module globals into its cache)
 CHANNELS = np.array(
     [ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR, ch.T_F, ch.T_R, ch.DELTA, ch.AX, ch.YAW, ch.ROLL, ch.SPEED]

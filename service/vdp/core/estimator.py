@@ -212,13 +212,14 @@ class TwoStageEstimator:
         if self._pass_params is None:
             self._pass_params = batched.params(self.cfg, self.vehicle, self.gyro_bias.tau)
         kern = kernel("prepass")
+        gate = su.gates.block(T, Y, gaps)  # core.gates: what the model does not cover, per sample
         i0 = 0
         while True:
             st, blk, first = st0.copy(), blk0.copy(), first0.copy()
             out = np.empty((n, 5))
             stage = np.empty(n, dtype=np.int64)
-            codes = kern(T, Y, F, A, gaps, st, self._pass_params, batched.CHANNELS, self._needs[0], self._needs[1],
-                         done_from, blk, first, out, stage)  # fmt: skip
+            codes = kern(T, Y, F, A, gaps, gate, st, self._pass_params, batched.CHANNELS, self._needs[0],
+                         self._needs[1], done_from, blk, first, out, stage)  # fmt: skip
             handed = self._visit(T, Y, F, A, gaps, out, stage, i0, prev0)
             if handed is None:
                 break

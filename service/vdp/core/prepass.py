@@ -12,10 +12,12 @@ from __future__ import annotations
 import math
 
 from .batched import (
+    _GATED,
     _LITTLE_AX,
     _LITTLE_STEER,
     _MISSING,
     _NOT_CONSTANT,
+    _SHUTS,
     _SPEED_LOW,
     _STEERING,
     _WAITING,
@@ -174,12 +176,13 @@ def _blocked(blk, first, stage, code, dt, i):
 
 
 @jit()
-def prepass(T, Y, F, A, gap, st, p, c, needs1, needs2, done_from, blk, first, out, stage):
+def prepass(T, Y, F, A, gap, gate, st, p, c, needs1, needs2, done_from, blk, first, out, stage):
     """Speed filter, gyro offsets and supervisor over the block's samples, in place on ``st``
     and ``blk`` (the supervisor's blockers, seconds per stage and code; ``first``: the sample
     where a code absent before first blocked); ``out`` gets v_x, its std, the a_x bias and
     the two gyro offsets per sample, ``stage`` the open window's (0: none).  Samples from
-    ``done_from`` on see l_f known.  Returns the reason codes of the last sample."""
+    ``done_from`` on see l_f known; ``gate`` holds each sample's gate code (core.gates).  Returns
+    the reason codes of the last sample."""
     n = T.shape[0]
     r1 = r2 = 0
     for i in range(n):
@@ -259,6 +262,12 @@ def prepass(T, Y, F, A, gap, st, p, c, needs1, needs2, done_from, blk, first, ou
             d2 = _NOT_CONSTANT
         else:
             d2 = 0
+        g = gate[i]
+        if 0 < g <= _SHUTS:  # Supervisor.update: a gate shuts both windows, unless the driving already does
+            if d1 == 0 or d1 == _LITTLE_AX:  # noqa: PLR1714 (numba: no set)
+                d1 = _GATED + g
+            if d2 == 0 or d2 == _LITTLE_STEER:  # noqa: PLR1714
+                d2 = _GATED + g
         st[OBSERVED] += dt
         if d1 == 0:
             st[EXC1] += dt

@@ -41,6 +41,14 @@ _FIX = {
     Code.LITTLE_STEER: "not enough steering yet",
     Code.NOT_CONSTANT: "the speed is changing: hold it steady (cruise control helps)",
 }
+# core.gates: reverse, ABS, ESC, TCS, a kerb strike, wheel spin
+_FIX.update(
+    dict.fromkeys(
+        (Code.GATED_REVERSE, Code.GATED_ABS, Code.GATED_ESC, Code.GATED_TCS, Code.GATED_KERB, Code.GATED_SPIN),
+        "outside the model (reversing, ABS, ESC, traction control, a kerb or a spinning wheel): "
+        "it waits until the car drives forwards on all four tyres again",
+    )
+)
 
 # Per parameter, what excites it most (where it differs from its stage's manoeuvre).
 _EXTRA = {

@@ -8,7 +8,10 @@ Table 2 of the paper, plus what a real drive needs:
 - stage 2 (steady speed, continuous steering): stage 1 converged (the hand-over),
   speed above ``v_min``, nearly constant speed (small mean a_x), and enough
   steering or yaw excitation;
-- both need their channels fresh.
+- both need their channels fresh;
+- neither runs while a gate for what the model does not cover holds (core.gates: reverse,
+  ABS, ESC, TCS, a kerb strike, wheel spin), and the share of the drive each gate took is
+  counted (``state()["gated"]``).
 
 Hysteresis: a window opens after its conditions have held for ``t_on`` and
 closes after they have failed for ``t_off``, so windows don't flicker.
@@ -23,6 +26,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 from .. import channels as ch
+from . import gates as gt
 
 MAX_WINDOWS = 500  # windows kept for reports and the API
 
@@ -39,7 +43,14 @@ class Code(enum.IntEnum):
     NOT_CONSTANT = 6
     MISSING = 7  # a channel the stage needs is missing or stale (Reason.channels)
     WAITING = 8
-    NO_DATA = 9  # before the first sample
+    # core.gates' codes that shut the windows, GATED + k for gate k (reverse ... wheel spin)
+    GATED_REVERSE = 9
+    GATED_ABS = 10
+    GATED_ESC = 11
+    GATED_TCS = 12
+    GATED_KERB = 13
+    GATED_SPIN = 14
+    NO_DATA = 15  # before the first sample
 
 
 SPEED_LOW, STEERING, YAWING, LITTLE_AX, LITTLE_STEER, NOT_CONSTANT, MISSING, WAITING = tuple(Code)[:8]
@@ -77,6 +88,9 @@ REASONS = {
     NOT_CONSTANT: "speed not constant (|mean a_x| too large)",
     WAITING: "waiting for stage 1's l_f",
 }
+# what the model does not cover (core.gates): reverse, ABS, ESC, TCS, a kerb strike, wheel spin
+GATED = WAITING  # the reason code of gate k is GATED + k
+REASONS.update({Code(GATED + k): f"gated out: {gt.NAMES[k]}" for k in range(1, gt.SHUTS + 1)})
 
 
 @dataclass(frozen=True)
@@ -117,10 +131,12 @@ class Supervisor:
     stage1_needs: tuple[int, ...] = tuple(ch.INDEX[n] for n in ch.STAGE1_NEEDS)
     stage2_needs: tuple[int, ...] = tuple(ch.INDEX[n] for n in ch.STAGE2_NEEDS)
     wheel_radius: float = 0.3
+    gates_cfg: gt.GatesConfig = field(default_factory=gt.GatesConfig)
 
     def __post_init__(self):
         # each code's reason, in this supervisor's limits, made once (the per-sample path hands them out)
         self._reasons = {code: Reason(code, text.format(v_min=self.cfg.v_min)) for code, text in REASONS.items()}
+        self.gates = gt.Gates(self.gates_cfg, self.wheel_radius)
         self.reset()
 
     def reset(self) -> None:
@@ -138,6 +154,7 @@ class Supervisor:
         self.active: int | None = None
         self._r1 = self._r2 = Reason(Code.NO_DATA, "no data yet")
         self._dt, self._k = math.nan, (0.0, 0.0)  # the last step's EMA gains (_gains)
+        self.gates.reset()
 
     def _ema(self, dt: float, tau: float) -> float:
         return 1.0 - math.exp(-dt / tau)
@@ -170,6 +187,13 @@ class Supervisor:
             speed = 0.5 * (y[ch.WS_RL] + y[ch.WS_RR]) * self.wheel_radius
 
         d1, d2 = self._drive1(y, speed, c), self._drive2(y, speed, c)
+        g = self.gates.update(t, s.gap, y)
+        if 0 < g <= gt.SHUTS:  # a gate shuts both windows, unless the driving already does
+            why = self._reasons[GATED + g]
+            if d1 is None or d1.code == LITTLE_AX:
+                d1 = why
+            if d2 is None or d2.code == LITTLE_STEER:
+                d2 = why
         self.observed += dt
         for stage, d in ((1, d1), (2, d2)):
             if d is None:
@@ -269,4 +293,5 @@ class Supervisor:
             "reasons": {str(k): v for k, v in self.reason.items()},
             "windows": self.window_count,
             "excitation": self.excitation(),
+            "gated": self.gates.summary(),
         }

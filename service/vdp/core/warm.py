@@ -18,6 +18,7 @@ import numpy as np
 from .. import channels as ch
 from . import batched, jit, kernels, lateral, longitudinal, prepass
 from .bounds import Bounds
+from .supervisor import Supervisor
 
 log = logging.getLogger(__name__)
 
@@ -137,6 +138,7 @@ def _prepass() -> None:
         F,
         A,
         np.zeros(n, dtype=bool),
+        np.zeros(n, dtype=np.int64),
         np.zeros(batched.N_STATE),
         p,
         batched.CHANNELS,
@@ -148,3 +150,4 @@ def _prepass() -> None:
         np.empty((n, 5)),
         np.empty(n, dtype=np.int64),
     )
+    Supervisor().gates.block(np.arange(n) * 0.02, Y, np.zeros(n, dtype=bool))  # core.gates' pass

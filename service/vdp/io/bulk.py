@@ -38,7 +38,7 @@ import numpy as np
 from .. import channels
 from ..result import RunResult
 from . import scan  # (no numba: the compiled parse is made at its first use)
-from .decoder import MAX_UNKNOWN, compile_extractor
+from .decoder import ACTIVE, MAX_UNKNOWN, compile_extractor
 from .formats.base import _ID_CACHE_MAX, _MAX_CHANNELS, EXT_KEY, LogStats, channel_keys
 from .logs import open_log
 from .signals import range_limits as limits  # with the profile's range overrides
@@ -287,7 +287,8 @@ class BulkSource:
                 need is not None
                 and compile_extractor(msg, need, getattr(dec, "ranges", None)) is not None
                 and all(o[5] is None for o in p.outputs)  # an alternative source depends on another's state
-                and all(o[7] is None for o in p.outputs)  # status and plausibility: the per-frame path
+                # status and plausibility: the per-frame path (a status flag read from an enum: here too)
+                and all(o[7] is None or o[7][0] is ACTIVE for o in p.outputs)
                 and all(o[0] < channels.N for o in p.outputs)  # composite channels' terms: the per-frame path
             )
             out[key] = _Plan(p, msg, need, getattr(dec, "ranges", None)) if ok else None
@@ -527,8 +528,12 @@ class BulkSource:
         good[np.flatnonzero(ok_dlc)[good_sub]] = True
         n_range = int(bad_range.sum())
         idxs, cols = [], []
-        for idx, pos, mul, add, sign_pos, _primary, fine_pos, _valid in p.outputs:
+        for idx, pos, mul, add, sign_pos, _primary, fine_pos, valid in p.outputs:
             v = vals[pos - 1][good_sub]
+            if valid is not None:  # a status flag from an enum's raw values (FrameDecoder.decode)
+                idxs.append(idx)
+                cols.append(np.isin(v, list(valid[1])).astype(np.float64))
+                continue
             if fine_pos >= 0:
                 v = v + vals[fine_pos - 1][good_sub]
             v = v * mul + add

@@ -48,6 +48,7 @@ KINDS = ("unknown_id", "dlc", "remote", "error_frame", "range", "nonfinite", "mu
 BAD_RUN_INVALID = 3  # consecutive counter/checksum failures that flag a message invalid
 ALT_AFTER_CYCLES = 5.0  # primary silent this many cycle times: use the alternative source
 DEFAULT_CYCLE = 0.1  # [s] until a message without GenMsgCycleTime has shown its period
+ACTIVE = object()  # marks a status flag read from an enum's raw values (profile.ChannelMap.active)
 
 
 class DecodeStats:
@@ -312,7 +313,7 @@ class FrameDecoder:
                 plan = self._plan(msg)
                 msgs[plan.key] = msg
                 need = needs.setdefault(plan.key, [])
-                _need(need, m.signal, raw=False, check=True)
+                _need(need, m.signal, raw=m.active is not None, check=m.active is None)
                 if m.sign_signal:
                     _need(need, m.sign_signal, raw=False, check=False)
                 if m.fine:
@@ -326,12 +327,12 @@ class FrameDecoder:
                     (
                         channels.INDEX[cmap.channel],
                         m.signal,
-                        f * m.scale,
-                        f * m.offset,
+                        f * m.scale if m.active is None else 1.0,
+                        f * m.offset if m.active is None else 0.0,
                         m.sign_signal,
                         primary,
                         m.fine,
-                        m.status,
+                        m.status if m.active is None else (ACTIVE, m.active),
                         m.plausible,
                     )
                 )
@@ -389,7 +390,9 @@ class FrameDecoder:
             for idx, sig, mul, add, sign_sig, primary, fine, status, plaus in outs[key]:
                 prim_plan = self._plan(self.db.get_message_by_name(primary.message)) if primary else None
                 valid = None  # (status slot or -1, values, values mean valid, plausible lo, hi)
-                if status is not None or plaus is not None:
+                if status is not None and status[0] is ACTIVE:
+                    valid = status  # a status flag read from an enum's raw values (decode)
+                elif status is not None or plaus is not None:
                     lo, hi = plaus if plaus is not None else (-math.inf, math.inf)
                     if status is not None:
                         valid = (pos[status[0]], status[1], status[2], lo, hi, f"{status[0]}")
@@ -512,7 +515,9 @@ class FrameDecoder:
             v = v * mul + add
             if sign_pos >= 0 and vals[sign_pos]:
                 v = -v
-            if valid is not None:
+            if valid is not None and valid[0] is ACTIVE:
+                v = 1.0 if v in valid[1] else 0.0  # (v is the raw value: mul 1, add 0)
+            elif valid is not None:
                 why = _invalid(valid, vals, v)
                 if why is not None:  # never becomes a sample; counted per channel and reason
                     if idx >= channels.N:

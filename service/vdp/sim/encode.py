@@ -84,6 +84,7 @@ class SignalPlan:
     fine_hi: float = 0.0
     grid: float = 0.0  # the coarse signal's DBC offset: its values are grid + k * step
     step: float = 1.0  # the coarse signal's DBC step (0: a float signal)
+    active: tuple[float, float] | None = None  # a status flag from an enum: its (on, off) values
 
     def decoded(self, si: float) -> float:
         """The canonical value a decoder reads back after :meth:`raw` of ``si`` (range and
@@ -115,6 +116,9 @@ class SignalPlan:
 
     def raw(self, si: float, out: dict) -> None:
         """Put the DBC physical value of canonical ``si`` into ``out`` (and the sign flag)."""
+        if self.active is not None:
+            out[self.signal] = self.active[0] if si > 0.5 else self.active[1]
+            return
         q = si * self.inv_factor
         if self.sign_signal is not None:
             flip = q < 0.0
@@ -288,6 +292,9 @@ class Encoder:
             grid=float(sig.offset),
             step=0.0 if sig.is_float else abs(float(sig.scale)),
         )
+        if cm.active is not None:  # on: the first raw value that means on; off: the first that does not
+            off = next(v for v in range(1 << 16) if v not in cm.active)
+            sp.active = tuple(float(v * sig.scale + sig.offset) for v in (min(cm.active), off))
         if cm.fine is not None:
             try:
                 fine = msg.get_signal_by_name(cm.fine)

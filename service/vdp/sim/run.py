@@ -28,11 +28,14 @@ from pathlib import Path
 import can
 import numpy as np
 
+from ..channels import STATUS
 from ..errors import BusError, ConfigError, LogFormatError, ProfileError
 from ..outfile import replacing, write_text
 from ..profile import Profile, load_profile
 from .driver import Driver, DriverConfig
 from .encode import Encoder
+from .events import EventRun, Events
+from .events import plan as plan_events
 from .road import Imu, Road, add_load, body_accel, get_road, placement
 from .scenario import Scenario, get_scenario
 from .sensors import NoiseModel, Sensors, draw_bias, noise_model
@@ -96,6 +99,7 @@ class Simulation:
         road: str | Road | None = None,
         load: float = 0.0,
         imu: Imu | None = None,
+        events: Events | None = None,
     ):
         self.profile = _profile(profile, dbc)
         veh = self.profile.vehicle
@@ -140,6 +144,8 @@ class Simulation:
         if self.extra_ids > 0x800 - len(self.encoder.frame_ids & set(range(0x800))):
             raise ConfigError(f"--extra-ids {self.extra_ids}: not that many free 11-bit IDs")
         self.bias = draw_bias(self.noise, self._rngs()[0])
+        self.events = events if events is not None and events.any else None
+        self.event_plan = plan_events(self.scenario, self.events, self.duration) if self.events else []
         self.truth = self._truth()
 
     def _rngs(self) -> list[np.random.Generator]:
@@ -162,6 +168,7 @@ class Simulation:
             "start_time": self.start_us / 1e6,
             "duration": self.duration,
             "segments": self.scenario.meta(self.duration),
+            **self._events_truth(),
             "profile": str(self.profile.path.resolve()),
             "dbc": str(self.profile.dbc),
             "bus": {
@@ -202,6 +209,14 @@ class Simulation:
             out["imu"] = self.imu.describe()
         return out
 
+    def _events_truth(self) -> dict:
+        """The events (sim.events) and their plan, for the truth (none: nothing, as before)."""
+        if self.events is None:
+            return {}
+        ev = self.events
+        counts = {"reverse": ev.reverse, "abs": ev.abs, "kerb": ev.kerb, "spin": ev.spin}
+        return {"events": {"counts": counts, "effects": ev.effects, "plan": [e.meta() for e in self.event_plan]}}
+
     def frames(
         self, tap: Tap | None = None, progress: Callable[[float, float], None] | None = None
     ) -> Iterator[can.Message]:
@@ -236,19 +251,29 @@ class Simulation:
         road, imu, dist = self.road, self.imu if self.imu is not None and self.imu.body else None, 0.0
         ang = (0.0, 0.0)
         hold = 0.5 * p.L if road is not None and road.bank else 0.0  # rad of steer per (rad/s of yaw error / m/s)
+        ev = None
+        if self.events is not None or any(c in self.profile.channels for c in STATUS):
+            # sim.events: the events' commands, friction and sensors, and the status flags on the bus
+            model.mu = p.mu
+            ev = EventRun(self.event_plan, self.events is not None and self.events.effects, p.mu, p.r)
         for n in range(n_steps):
             t = n * DT
             v_cmd, a_cmd, d_cmd, hint = sc.command(t, hint)
             if hold:  # on a bank the driver holds the line the wheel is meant to give (an oversteering car drifts)
                 d_cmd += hold * (x[0] * d_cmd / p.L - x[2]) / max(x[0], 1.0)
+            event = ev is not None and ev.at(t)
+            if event:
+                v_cmd, a_cmd, d_cmd = ev.command(t, v_cmd, a_cmd, d_cmd)
+            if ev is not None:
+                model.mu = ev.friction()
             tf, tr, delta = drv.update(DT, v_cmd, a_cmd, d_cmd, x[0], wheel_slips(x, p.r))
             if road is not None:
                 ang = road.angles(dist)
                 model.set_road(*ang)
                 dist += x[0] * DT
             # the steering ramps to the next step's angle (continuous, as the sensor samples it)
-            d_next = sc.command(t + DT, hint)[2]
-            if hold:
+            d_next = d_cmd if event else sc.command(t + DT, hint)[2]  # (an event's own command: held)
+            if hold and not event:
                 d_next += hold * (x[0] * d_next / p.L - x[2]) / max(x[0], 1.0)
             x1, e = model.advance(x, tf, tr, delta, DT, drv.next_delta(d_next))
             if imu is not None:
@@ -260,6 +285,8 @@ class Simulation:
                 item[0] += item[1]
                 plan = item[2]
                 values = {c: f(x, e, tf, tr, delta) for c, f in item[3]}
+                if ev is not None:
+                    ev.sensors(t, values, tf + tr < 0.0, tf + tr > 0.0, drv.limited)
                 data = enc.encode(plan, values)
                 if drop and drops() < drop:
                     continue

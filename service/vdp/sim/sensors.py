@@ -98,6 +98,8 @@ def _truth_readers() -> dict:
         "yaw_rate": lambda x, e, tf, tr, d: x[WZ],
         "roll_rate": lambda x, e, tf, tr, d: x[P],
         "speed": lambda x, e, tf, tr, d: math.hypot(x[VX], x[VY]),
+        # the status flags: off (sim.events sets them in the frames it changes)
+        **{c: (lambda x, e, tf, tr, d: 0.0) for c in channels.STATUS},
         # sources (profile.SOURCES): the total drive torque and the brake torque's magnitude
         "drive_torque": lambda x, e, tf, tr, d: max(tf + tr, 0.0),
         "brake_torque": lambda x, e, tf, tr, d: max(-(tf + tr), 0.0),

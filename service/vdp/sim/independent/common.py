@@ -204,14 +204,14 @@ def drive(
     T = sc.duration if duration is None else min(float(duration), sc.duration)
     drv = Driver(driver or DriverConfig(), model.mass, model.wheel_radius, model.wheel_inertia_axle)
     n_steps = int(round(T / DT))
-    out = np.empty((n_steps, channels.N + len(AUX)))
+    out = np.empty((n_steps, channels.N_SENSORS + len(AUX)))
     x = model.initial(sc.v0)
     v_x = sc.v0
     # settle straight at the start speed first (the driver's integrator learns the drag), not recorded
     for _ in range(int(round(SETTLE / DT))):
         tf, tr, delta = drv.update(DT, sc.v0, 0.0, 0.0, v_x)
         x, row = model.step(x, tf, tr, delta, DT)
-        v_x = row[channels.N + AUX.index("v_x")]
+        v_x = row[channels.N_SENSORS + AUX.index("v_x")]
     hint = 0
     every = int(round(1.0 / DT))
     road, dist = model.road, 0.0
@@ -224,12 +224,14 @@ def drive(
             dist += v_x * DT
         x, row = model.step(x, tf, tr, delta, DT, drv.next_delta(sc.command(t + DT, hint)[2]))
         out[n] = row
-        v_x = row[channels.N + AUX.index("v_x")]
+        v_x = row[channels.N_SENSORS + AUX.index("v_x")]
         if not math.isfinite(v_x):
             raise ConfigError(f"{model.name}/{model.car}: the model diverged at t = {t:.3f} s")
         if progress is not None and n % every == 0:
             progress(t, T)
-    return Trace(model.name, model.car, sc.name, T, out[:, : channels.N], out[:, channels.N :], sc.meta(T))
+    return Trace(
+        model.name, model.car, sc.name, T, out[:, : channels.N_SENSORS], out[:, channels.N_SENSORS :], sc.meta(T)
+    )
 
 
 # -- truth ------------------------------------------------------------------------------

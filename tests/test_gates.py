@@ -1,0 +1,214 @@
+"""Gates for what the model does not cover (core.gates): each gate from its own evidence, its hold,
+its count, the drive's sentence; the supervisor shutting its windows by them; a profile's status
+flags (active_when) decoded and encoded; and a seeded simulated drive with reverse manoeuvres,
+ABS stops, kerb strikes and wheel spin against the same drive without them."""
+
+import math
+
+import pytest
+
+from vdp import channels as ch
+from vdp.core import gates as gt
+from vdp.core.sample import Sample
+from vdp.core.supervisor import REASONS, Supervisor
+from vdp.errors import ProfileError
+from vdp.profile import load_profile
+
+R = 0.3  # m, the wheel radius the gates are made with
+
+
+def values(speed=20.0, ay=0.0, yaw=0.0, wheels=None, gnss=None, **flags):
+    y = [0.0] * ch.N
+    for i, w in zip((ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR), wheels or (speed,) * 4):
+        y[i] = w / R
+    y[ch.AY], y[ch.YAW] = ay, yaw
+    y[ch.SPEED] = speed if gnss is None else gnss
+    for name in ch.STATUS:
+        y[ch.INDEX[name]] = flags.get(name, math.nan)  # not mapped: NaN
+    return y
+
+
+def feed(g, rows, t0=0.0, dt=0.02):
+    return [g.update(t0 + k * dt, False, y) for k, y in enumerate(rows)]
+
+
+def test_ordinary_driving_passes_every_gate():
+    g = gt.Gates(wheel_radius=R)
+    # cornering at 3 m/s^2 (a_y = v r), the inner and outer wheels 4 % apart, braking slip on one axle
+    rows = [values(15.0, ay=3.0, yaw=0.2, wheels=(14.7, 15.3, 14.7, 15.3))] * 50
+    rows += [values(15.0, wheels=(13.8, 13.8, 15.0, 15.0), reverse=0.0, abs_active=0.0)] * 50
+    assert set(feed(g, rows)) == {0}
+    assert g.summary()["text"] == "nothing of the drive gated out"
+
+
+@pytest.mark.parametrize(
+    "row, code",
+    [
+        (values(2.0, reverse=1.0), gt.REVERSE),  # the gear
+        (values(gnss=-1.2, speed=1.2), gt.REVERSE),  # a signed GNSS speed
+        (values(-1.2), gt.REVERSE),  # signed wheel speeds (and GNSS)
+        (values(12.0, abs_active=1.0), gt.ABS),
+        (values(12.0, esc_active=1.0), gt.ESC),
+        (values(12.0, tcs_active=1.0), gt.TCS),
+        (values(12.0, ay=5.0, yaw=0.05), gt.KERB),  # 5 m/s^2 where the yaw explains 0.6
+        (values(8.0, wheels=(13.0, 8.0, 8.0, 8.0)), gt.SPIN),  # one wheel 5 m/s ahead of the others
+        (values(8.0, wheels=(11.0, 11.0, 11.0, 11.0), gnss=8.0), gt.SPIN),  # all four ahead of the ground
+        (values(0.1), gt.STANDSTILL),
+        (values(1.0), gt.CREEP),
+    ],
+)
+def test_each_gate_from_its_evidence(row, code):
+    g = gt.Gates(wheel_radius=R)
+    assert g.update(0.0, False, row) == code
+
+
+def test_a_gate_holds_after_its_cause_and_the_first_of_several_counts():
+    g = gt.Gates(wheel_radius=R)
+    codes = feed(g, [values(12.0, abs_active=1.0, esc_active=1.0)] * 10 + [values(12.0)] * 40)
+    # ABS before ESC; 0.5 s after the flag goes (the sample at 0.18 s was its last) the gate opens
+    assert codes[:10] == [gt.ABS] * 10
+    assert set(codes[10:34]) == {gt.ABS} and set(codes[35:]) == {0}  # (0.68 s itself: at the float's whim)
+    s = g.summary()
+    n = codes.count(gt.ABS)
+    assert s["by_gate"]["ABS"]["seconds"] == pytest.approx(0.01 + (n - 1) * 0.02)  # (the first sample counts 10 ms)
+    assert "ESC" not in s["by_gate"]
+    assert s["text"] == f"{100 * s['fraction']:.0f} % of the drive gated out: ABS {100 * s['fraction']:.0f} %"
+    assert 0.65 < s["fraction"] < 0.72
+
+
+def test_a_missing_or_stale_flag_gates_nothing():
+    g = gt.Gates(wheel_radius=R)
+    y = values(12.0)
+    y[ch.AY] = y[ch.YAW] = math.nan
+    y[ch.WS_FL] = y[ch.WS_FR] = math.nan  # two wheels: no spin test
+    assert feed(g, [y] * 5) == [0] * 5
+
+
+def test_the_sentence_names_each_gate_with_its_share():
+    s = gt.summary({"reverse": 6.0, "ABS": 30.0, "kerb strike": 0.0}, 36.0, 600.0)
+    assert s["text"] == "6 % of the drive gated out: reverse 1 %, ABS 5 %"
+    assert s["fraction"] == 0.06 and s["by_gate"]["ABS"] == {"seconds": 30.0, "fraction": 0.05}
+    assert gt.summary({}, 0.0, 0.0)["text"] == "no data yet"
+
+
+def sample(t, speed=20.0, ax=0.0, **flags):
+    y = values(speed, **flags)
+    y[ch.AX], y[ch.T_F], y[ch.T_R], y[ch.DELTA], y[ch.AY] = ax, 100.0, 100.0, 0.0, 0.0
+    return Sample(t, tuple(y), (True,) * ch.N, (0.0,) * ch.N, v_x=speed)
+
+
+def test_a_gate_shuts_the_supervisors_open_window_at_once_and_says_why():
+    sup = Supervisor(wheel_radius=R)
+    stages = [sup.update(k * 0.01, sample(k * 0.01, ax=3.0 * math.sin(k * 0.05)), False) for k in range(600)]
+    assert stages[-1] == 1  # straight acceleration and braking: stage 1's window open
+    t = 6.0
+    assert sup.update(t, sample(t, ax=-4.0, abs_active=1.0), False) is None  # shut at once, no t_off
+    assert sup.reason[1] == REASONS[gt.ABS + 8] == "gated out: ABS"
+    assert sup.state()["gated"]["by_gate"]["ABS"]["seconds"] > 0
+    # the driving's own reasons come first: at standstill the gate counts but the reason stays the speed
+    sup.update(t + 0.01, sample(t + 0.01, speed=0.0), False)
+    assert sup.reason[1].startswith("speed below")
+
+
+def test_a_profile_maps_a_gear_enum_and_status_bits(repo_root, tmp_path):
+    prof = load_profile(repo_root / "profiles" / "paper_status.toml")
+    assert prof.channels["reverse"].active == frozenset({1}) and prof.channels["abs_active"].active is None
+    text = (repo_root / "profiles" / "paper.toml").read_text()
+    text = text.replace('dbc = "../dbc/vdp.dbc"', f'dbc = "{repo_root / "dbc" / "vdp.dbc"}"')
+    for extra, words in (
+        ('speed = { message = "GNSS_VELOCITY", signal = "GNSS_SPEED", unit = "m/s", active_when = [1] }',
+         "applies to the status flags only"),
+        ('reverse = { message = "VEHICLE_STATUS", signal = "GEAR", unit = "1", active_when = 1 }',
+         "must be a list of the signal's raw integer values"),
+        ('reverse = { message = "VEHICLE_STATUS", signal = "GEAR", unit = "m/s" }', "cannot be converted"),
+    ):  # fmt: skip
+        lines = [ln for ln in text.splitlines() if not ln.startswith(extra.split(" ")[0] + " ")]
+        at = lines.index("[checks]")
+        p = tmp_path / "p.toml"
+        p.write_text("\n".join(lines[:at] + [extra, ""] + lines[at:]) + "\n")
+        with pytest.raises(ProfileError, match=words):
+            load_profile(p)
+
+
+def test_the_status_flags_go_on_the_bus_and_come_back(repo_root):
+    from vdp.io.decoder import FrameDecoder
+    from vdp.sim.encode import Encoder
+
+    prof = load_profile(repo_root / "profiles" / "paper_status.toml")
+    enc, dec = Encoder(prof), FrameDecoder(prof)
+    plan = next(p for p in enc.plans if p.name == "VEHICLE_STATUS")
+    assert sorted(plan.channels) == sorted(ch.STATUS)
+    import can
+
+    for flags in ((1.0, 0.0, 1.0, 0.0), (0.0, 1.0, 0.0, 1.0)):
+        data = enc.encode(plan, dict(zip(ch.STATUS, flags)))
+        got = dict(
+            dec.decode(can.Message(timestamp=1.0, arbitration_id=plan.frame_id, data=data, is_extended_id=False))
+        )
+        assert [got[ch.INDEX[n]] for n in ch.STATUS] == list(flags)
+    gear = plan.message.decode(enc.encode(plan, dict(zip(ch.STATUS, (1.0, 0.0, 0.0, 0.0)))), decode_choices=False)
+    assert gear["GEAR"] == 1  # REVERSE in vdp.dbc's table
+
+
+# -- a seeded drive with the events against the same drive without them ---------------------------
+EVENTS = "reverse=2,abs=2,kerb=4,spin=2"
+
+
+@pytest.fixture(scope="module")
+def drives(repo_root, tmp_path_factory):
+    """The city drive (seed 11) with the events and without them, replayed with the status profile."""
+    from vdp.io.bulk import replay_log
+    from vdp.pipeline import Pipeline
+    from vdp.sim.events import Events
+    from vdp.sim.run import Simulation, write_log
+
+    prof = load_profile(repo_root / "profiles" / "paper_status.toml")
+    d = tmp_path_factory.mktemp("gates")
+    out = {}
+    for effects in (True, False):
+        sim = Simulation(prof, "city", seed=11, events=Events.parse(EVENTS, effects=effects))
+        path = d / f"city_{effects}.log"
+        write_log(sim.frames(), path)
+        out[effects] = (replay_log(path, lambda: Pipeline(prof))[0], sim.truth)
+    return out
+
+
+def test_the_gate_counts_match_the_events(drives):
+    (res, truth), (plain, _) = drives[True], drives[False]
+    g, g0 = res.supervisor["gated"]["by_gate"], plain.supervisor["gated"]["by_gate"]
+    plan = truth["events"]["plan"]
+    hold = gt.GatesConfig().hold
+    end = truth["duration"]
+    span = {
+        k: sum(min(e["end"] + hold, end) - e["start"] for e in plan if e["kind"] == k)
+        for k in ("reverse", "kerb", "spin")
+    }
+    # reverse: the gear's span, plus the hold (up to the drive's end); the sensors are sampled every 20 ms
+    # (tolerance 0.1 s an event)
+    assert g["reverse"]["seconds"] == pytest.approx(span["reverse"], abs=0.2)
+    # a kerb strike: its 80 ms and the hold, each (tolerance 40 ms an event)
+    assert g["kerb strike"]["seconds"] == pytest.approx(span["kerb"], abs=4 * 0.04)
+    # the spin: traction control's flag on meanwhile (TCS counts before the wheel's own test)
+    assert g["TCS"]["seconds"] == pytest.approx(span["spin"], abs=0.2)
+    assert g["ABS"]["seconds"] > 2.0  # the driver's ABS regulated on both slippery patches
+    for k in ("reverse", "kerb strike", "TCS", "ABS", "wheel spin", "ESC"):
+        assert k not in g0, k  # the same drive without the events: none of these gates fired
+    assert set(g0) <= {"standstill", "creep"}
+
+
+def test_the_estimates_agree_with_the_drive_without_the_events(drives):
+    (res, _), (plain, _) = drives[True], drives[False]
+    for name in ("l_f", "h", "C_K", "C_alpha", "I_z"):
+        a, b = res.parameters[name], plain.parameters[name]
+        sd = math.hypot(a.std, b.std)
+        assert abs(a.value - b.value) <= 2.0 * sd, (name, a.value, b.value, sd)  # within 2 sigma of the difference
+
+
+def test_the_fleet_rows_carry_the_gated_share(drives):
+    from vdp.fleet import Task, rows_from_result
+
+    res = drives[True][0]
+    rows = rows_from_result(res, Task("city.log", "paper", "paper_status.toml"))
+    g = res.supervisor["gated"]
+    assert len(rows) == 6 and {r["gated"] for r in rows} == {g["fraction"]} and g["fraction"] > 0.1
+    assert rows[0]["gated_by"] == g["text"] and "reverse" in g["text"]
