@@ -24,6 +24,7 @@ STAGES = {"1": ("l_f", "h", "C_K"), "2": ("C_alpha", "I_z"), "I_x": ("I_x",)}
 # what each car runs from its own signals (docs/PROFILES.md's table says why)
 RUNS = {
     "paper": {"1", "2", "I_x"},
+    "paper_status": {"1", "2", "I_x"},  # paper with the gates' status flags mapped (core.gates)
     "ford_escape_2020": {"1", "2", "I_x"},
     "vw_golf_mk7": {"1", "2"},  # drive torque = engine torque x the DSG's ratio; no roll-rate gyro
     "toyota_rav4": {"2"},  # stage 2 standalone on the published l_f; no wheel torque

@@ -346,7 +346,7 @@ def test_coast_down_is_drag_plus_rolling_resistance(model, car):
     x = m.initial(25.0)
     for _ in range(1500):  # let the tyres settle to their free-rolling slip
         x, row = m.step(x, 0.0, 0.0, 0.0, 1e-3)
-    v, ax = row[ch.N + AUX.index("v_x")], row[ch.AX]
+    v, ax = row[ch.N_SENSORS + AUX.index("v_x")], row[ch.AX]
     if model == "brush":
         c = m.c
         drag, f_r = 0.5 * c.rho * c.cda * v * v, c.f_r

@@ -14,6 +14,7 @@ from vdp.core import batch, lateral, learner, longitudinal
 from vdp.core.bounds import Bounds
 from vdp.core.estimator import EstimatorConfig
 from vdp.core.learner import LearnerConfig
+from vdp.core.params import BY_NAME
 from vdp.pipeline import Pipeline
 from vdp.profile import Prior, load_profile
 from vdp.sim.run import simulate
@@ -308,7 +309,7 @@ def test_per_axle_prior_and_a_drive_that_does_not_separate_the_axles(profile):
     l2.samples = 5000
     l2.theta_P[:2, :2] = np.array([[m * m + d * d, m * m - d * d], [m * m - d * d, m * m + d * d]])
     e = l2.snapshot()["C_alpha"]
-    floor = learner.BY_NAME["C_alpha"].floor_rel * c.value  # the model's floor (honest_std), never averaged out
+    floor = BY_NAME["C_alpha"].floor_rel * c.value  # the model's floor (honest_std), never averaged out
     assert e.valid and e.std == pytest.approx(math.hypot(m, floor))
     assert e.extra["per_axle_valid"] is False and "does not separate the axles" in e.extra["per_axle_reason"]
     assert e.extra["C_alpha_axle_corr"] < -0.95
@@ -404,7 +405,7 @@ def test_innovations_larger_than_predicted_and_coloured_mark_stage_2_as_model_mi
         s = snap[name]
         # the finding stands beside the value; the std it widened decides the verdict (issue 24)
         assert s.reason.startswith("model mismatch:"), s
-        assert s.valid == (s.std <= learner.BY_NAME[name].useful_rel * s.value)
+        assert s.valid == (s.std <= BY_NAME[name].useful_rel * s.value)
     assert snap["C_alpha"].std > 3 * narrow
     # a white, predicted-size sequence leaves it alone
     w = Consistency()

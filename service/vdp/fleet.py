@@ -35,7 +35,7 @@ Z_FLAG = 3.0  # |z| of a drive against the others' combination that flags it as 
 # The share of each drive's std that is common to all drives of a car, and so does not average
 # out: the model's error, the profile's constants and the priors are the same in every drive.
 # On vdp's own simulator, 12 paper drives of one car scattered by ~0.6 of their stds around a
-# value ~0.6 of a std off the truth; independent drives would scatter by 1 (BENCHMARKS.md,
+# value ~0.6 of a std off the truth; independent drives would scatter by 1 (docs/decisions/0010;
 # "Combining a car's drives").  Without it 12 drives' combination was 2.1-2.6 of its std off.
 COMMON = 0.7
 P_CONSISTENT = 0.01  # chi^2 p-value below which a vehicle's drives are called inconsistent
@@ -307,7 +307,7 @@ def rows_from_result(res: Any, task: Task, key: dict[str, Any] | None = None) ->
             damage=(src.get("damage") or {}).get("summary") or None,
             wall_s=float(lg.wall_s if lg is not None else 0.0),
         )
-        g = res.supervisor.get("gated") or {}
+        g = (getattr(res, "supervisor", None) or {}).get("gated") or {}
         if g.get("of"):
             row.update(gated=float(g["fraction"]), gated_by=g["text"])
         x = e.extra or {}

@@ -45,7 +45,7 @@ def add_parser(sub):
         choices=("none", "ekf"),
         default="none",
         help="run a baseline filter beside the UKF and report it (JSON 'baseline_ekf', the table's EKF "
-        "column): ekf, the paper's EKF (Table 5), about 1.5x the replay's CPU (BENCHMARKS.md); default none",
+        "column): ekf, the paper's EKF (Table 5), about 4x the replay's CPU (docs/decisions/0009); default none",
     )
     p.add_argument("--no-ekf", action="store_true", help="no EKF baseline (the default; kept for scripts)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -60,7 +60,7 @@ def add_parser(sub):
         "--one-c",
         action="store_true",
         help="one cornering stiffness for both axles, as the paper (worse on a car whose axles differ: "
-        "BENCHMARKS.md, 'Stage 2 on the independent models')",
+        "docs/decisions/0008)",
     )
     p.add_argument(
         "--mass",

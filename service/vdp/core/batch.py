@@ -6,7 +6,7 @@ block's wheel-speed residual, weighted by the block's R.  A filter linearised fa
 from the answer can settle where the problem has no optimum (a prior 40 % off
 left C_K 7 % low at 20 sigma on vdp's own simulator; on an independent car the
 filter sat far from this optimum while a batch fit of the same model landed
-close; BENCHMARKS.md, "Independent truth").  So the learner solves the batch problem from
+close; docs/decisions/0004).  So the learner solves the batch problem from
 several starts (the filter's estimate, the prior and a linear solution that
 needs no start at all), compares, and re-seeds the filter when it is off.
 

@@ -16,7 +16,7 @@ The learners' own steps over an open window's run of samples are compiled as wel
 ``Stage1.steps``): each stops before the first sample that needs the learner's Python step
 (a window that ends, restarts or diverges, a failed step, a batch check or a last-good copy
 due), so the rare paths are written once.  With both, an hour of a busy bus replays in ~2.8 s
-of CPU where it took ~5.8 s sample by sample (BENCHMARKS.md, "A replay a block at a time").
+of CPU where it took ~5.8 s sample by sample (docs/decisions/0003).
 
 The state crosses over as one float array (:func:`pack`, :func:`unpack`): the Python objects
 stay the state's owners, so a live service and a replay can hand a drive to each other.

@@ -395,7 +395,7 @@ class TwoStageEstimator:
 
     # -- helpers -------------------------------------------------------
     def l_f_known(self) -> bool:
-        """Stage 2 needs l_f only (BENCHMARKS.md, sensitivity: h and C_K hardly move it): measured
+        """Stage 2 needs l_f only (docs/decisions/0007: h and C_K hardly move it): measured
         in the profile, or stage 1's UKF estimate converged or known to L_F_KNOWN, whether or not
         h and C_K are.  Stage 2 carries l_f's std (lateral.CONSIDER), so a car whose stage 1 is
         widened by a model mismatch (l_f 0.8-1.8 % on the independent models, never converged with

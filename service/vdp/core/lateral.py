@@ -32,7 +32,7 @@ Errata applied (NOTES.md):
   where there is one (Known.roll_by_ay): the accelerometer measures a_y directly, so the
   roll-rate row need not re-estimate it through C_alpha and I_z.  Driven by the model's
   a_y, the roll row pulled C_alpha 20-50 % either way on cars whose roll eq (9) describes
-  only roughly (a sprung mass rolling about a roll axis; BENCHMARKS.md, "Stage 2 on the
+  only roughly (a sprung mass rolling about a roll axis; docs/decisions/0008, "Stage 2 on the
   independent models");
 - Table 6: k_phi, c_phi per radian.
 - NOTES 8: the front longitudinal force is C_sigma s_f with C_sigma = F_zf C_K from

@@ -7,7 +7,7 @@ it and not reported:
 
 * **the bend** ``b``, ``c``: a real tyre's force-slip curve bends long before the
   friction limit, so at the loads of brisk driving eq (14)'s straight line reads a
-  stiffness 12-24 % low (brush tyres, BENCHMARKS.md).  The slip is taken as eq (14)
+  stiffness 12-24 % low (brush tyres, docs/decisions/0005).  The slip is taken as eq (14)
   times ``1 + b|u| + c u^2`` with ``u = F_x / F_z``, the inverse law's series to third
   order: a brush tyre's has ``b = 1 / (3 mu)`` and ``c = 5 / (27 mu^2)``; a Magic-Formula
   tyre's is odd and smooth at zero slip, ``b = 0`` and ``c > 0`` (with c tied to b, C_K

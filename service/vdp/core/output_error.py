@@ -5,7 +5,7 @@ Stage 2's filter is a joint state-parameter filter: its dynamic states walk, its
 error otherwise than a simulation does.  Where the model describes the car (vdp's own
 simulator) that lands on the truth; on a car it does not describe, the filter ended
 -29 % ... +25 % off while the best fit of its own model class stayed within -10 % ... +24 %
-(BENCHMARKS.md, "Per-axle cornering stiffness", "Where the common -15...-35 % comes from").
+(docs/decisions/0008).
 
 So the learner keeps the windows' samples (at the filter's step, bounded: :class:`Record`)
 and fits the single track without roll, eqs (5), (7), (10)-(12) with NOTES 8's front drive
@@ -29,7 +29,7 @@ six to seven times less CPU per fit; the live service keeps numpy).
 than their uncertainties, the model cannot explain the data one way, and the filter's
 std widens to cover the difference (not valid, with the reason).
 
-Two terms beyond the filter's model make the fit's class richer (BENCHMARKS.md, "A tyre shape
+Two terms beyond the filter's model make the fit's class richer (docs/decisions/0013, "A tyre shape
 the data must earn"): the roll swing a_y += s phi'' (SWING), fitted wherever there is a
 roll-rate gyro, and the tyre's shape (SHAPE_B, SHAPE_C), freed only where it takes most of the
 linear law's structured misfit away (Check.solve).  Where the shape is freed, the values
@@ -65,7 +65,7 @@ OFFSET_STD = 0.3  # m/s^2: accelerometer bias and road bank (g sin 2 deg = 0.34)
 # single track lacks; shared/notes: it biased I_z +11...+24 % on the brush cars).  s = m_s d / m is
 # fitted with phi'' from the roll-rate gyro: on the brush cars it lands within 3.4 % of m_s d / m,
 # and where the IMU rides the sprung mass (the multi-body cars) it ends small and negative
-# (BENCHMARKS.md, "Which terms an estimator could use").
+# (docs/decisions/0017).
 SWING_STD = 0.5  # m
 HELD = 1e-6  # the prior std of a parameter the fit holds (its shape while the tyre is linear)
 # The tyre's shape, freed only where the data need it (Check.solve): F_y = C alpha (1 - b u + c u^2),
@@ -441,7 +441,7 @@ class Problem:
     def swung(self) -> bool:
         """Whether the swing is free: wherever there is a roll-rate gyro, in the linear fit too
         (held at 0 there, the multi-body cars' structure made the shaped fit look better and it
-        bent their C_alpha +8...+12 %, I_z +19 %: BENCHMARKS.md, "A tyre shape the data must earn")."""
+        bent their C_alpha +8...+12 %, I_z +19 %: docs/decisions/0013)."""
         return self.has_roll
 
     def _variant(self, **changes) -> Problem:
@@ -643,7 +643,7 @@ SMOOTH = 25  # rows (1 s at 40 ms): a model's error follows the manoeuvre, the s
 # (structured()) is below this share: the brush cars' 0.05 noise-free, 0.18-0.21 with realistic
 # noise; the multi-body cars' (mostly camber thrust and roll-rate slip, which a tyre curve must not
 # absorb: freed there it bent C_alpha 10-14 % high) 0.90-0.98, vdp's own simulator's 0.99
-# (BENCHMARKS.md, "A tyre shape the data must earn").
+# (docs/decisions/0013).
 SHAPE_GAIN = 0.5
 # ... and tried only where the linear law leaves structure (structured() per row used, in units of
 # the sensors' noise squared): 0.0004-0.004 on vdp's paper drive with realistic noise (0.0101 on one
@@ -743,7 +743,7 @@ def compare(name: str, value: float, std: float, fit: Fit, z_max: float) -> tupl
     wide = math.hypot(std, abs(value - b), fit_std)
     # only a freed shape makes the fit's value the one reported: where the linear fit merely
     # disagrees, the filter's is kept (the multi-body cars' linear fit with the swing reads
-    # I_z +15 %, the UKF's within 9 %; BENCHMARKS.md, "A tyre shape the data must earn")
+    # I_z +15 %, the UKF's within 9 %; docs/decisions/0013)
     return (b if beyond is not None else value), wide, why
 
 

@@ -72,7 +72,7 @@ class Service:
         # The live trace only backs plots of recent data; history lives in the store.
         # numpy's filter steps, not the compiled ones (core.kernels): a live bus brings 50 samples/s,
         # which they keep up with at a few per cent of a core, and numba's LLVM would add ~135 MB
-        # to the service's RSS (BENCHMARKS.md, "Compiled estimator").
+        # to the service's RSS (docs/decisions/0012, 0002).
         # Stage 2's batch check solves in a background thread: numpy's ~20 s for a full record of a
         # bending tyre would stop this worker, whose queue holds ~8 s of a saturated bus.
         self.checks = CheckThread()

@@ -49,7 +49,7 @@ class LearnerConfig:
     # their mean as C_alpha, each in its extra); off: one C_alpha for both axles.  On by default
     # since eq (9) is driven by the measured a_y (roll_by_ay): one C_alpha cannot fit a car whose
     # axles differ (its best fit of mb/bmw_320i's drive is C_alpha +46 %, I_z +53 %), and the
-    # roll row no longer pulls it back (BENCHMARKS.md, "Stage 2 on the independent models")
+    # roll row no longer pulls it back (docs/decisions/0008)
     per_axle: bool = True
     # Stage 2's roll, eq (9), driven by the measured a_y (lateral.Known.roll_by_ay): the roll-rate
     # row then informs the roll states and I_x, not C_alpha and I_z

@@ -30,7 +30,7 @@ SETTLED_YAW_ACC: Final[float] = 0.15  # rad/s^2
 SETTLED_STEER_RATE: Final[float] = math.radians(3.0)  # rad/s of road-wheel angle
 # m/s: the steady-state start's own error (transients, slopes), beside C_alpha's share
 V_Y_START_STD: Final[float] = 0.05
-# Model mismatch (BENCHMARKS.md, "The independent models after est's work"): on vdp's own simulator, whose model
+# Model mismatch (docs/decisions/0006): on vdp's own simulator, whose model
 # is the estimator's, stage 2's NIS per row is about 0.18 and both lag-1 autocorrelations
 # about 0; on the independent models they reached 1.2 and 0.65.  Beyond these the model
 # does not explain the data: the stds widen by sqrt((1 + rho) / (1 - rho)) (the evidence
@@ -40,7 +40,7 @@ NIS_MATCHED: Final[float] = 0.2
 NIS_MISMATCH: Final[float] = 0.6
 # stage 1's front-minus-rear batch residuals with the bending tyre and the slip offsets
 # (core.longitudinal): -0.05 to 0.08 on vdp's own simulator with realistic noise, 0.15-0.39
-# on the independent models (BENCHMARKS.md, "A stage 1 that holds with a real tyre")
+# on the independent models (docs/decisions/0005)
 RHO_MISMATCH: Final[float] = 0.12
 # A tyre whose stiffness per unit load falls with load (by q per unit of relative load) shows
 # only (1 - q) of the load transfer in its slips, and nothing in the slips tells q from h.
@@ -74,7 +74,7 @@ BATCH_BLOCKS: Final[int] = 3000  # 5 min of stage-1 windows in 0.1 s blocks
 # blocks between checks: 20 (2 s of window), or a quarter of the blocks kept once that is more,
 # at most BATCH_EVERY_MAX (Stage1.check_due).  A check costs about in proportion to the blocks
 # kept, so at every 20 it grew with the square of the drive until the record was full: 27 % of
-# an hour's replay, 2.1 s of CPU (BENCHMARKS.md, "scan").  The early checks, which re-seed a
+# an hour's replay, 2.1 s of CPU (docs/decisions/0004).  The early checks, which re-seed a
 # filter started far off, come as often as before; the cap keeps what a live service commits
 # and hands to stage 2 at most 20 s of window behind the check; the log's end solves once more
 # on every block (TwoStageEstimator.finish).  The far check (the prior's mean as a start, the
@@ -115,7 +115,7 @@ OFFSET_SPLIT_STD: Final[float] = 0.0005  # (s_0f - s_0r) / 2
 # shape held at 0 by a prior this tight) and frees the shape once the data demand it: the
 # batch cost falls by more than SHAPE_LR times the residuals' noise level (reduced chi-square,
 # times (1 + rho) / (1 - rho) for their correlation) when the shape is free.  On vdp's own
-# simulator that drop stayed at 0.3-25, on the independent models 119-1,001 (BENCHMARKS.md,
+# simulator that drop stayed at 0.3-25, on the independent models 119-1,001 (docs/decisions/0008;
 # "A stage 1 that holds with a real tyre").
 SHAPE_OFF_STD: Final[tuple[float, ...]] = (1e-4, 1e-4, 1e-6)  # b, c, each offset
 SHAPE_LR: Final[float] = 60.0
