@@ -354,14 +354,18 @@ class Store:
                 cur = con.execute(sql, args)
                 con.execute("COMMIT")
             except sqlite3.Error as exc:
-                try:
-                    con.execute("ROLLBACK")
-                except sqlite3.Error:
-                    pass
-                if _kind(exc) == "damaged":
-                    raise StoreDamaged(f"{self.path}: {exc}") from None
-                raise StoreError(f"{self.path}: could not commit: {exc}") from None
+                raise self._failed(con, exc, "could not commit") from None
         return int(cur.lastrowid or 0)
+
+    def _failed(self, con, exc: sqlite3.Error, what: str) -> StoreError:
+        """Roll the write transaction back (SQLite may have done so itself) and name the failure."""
+        try:
+            con.execute("ROLLBACK")
+        except sqlite3.Error:
+            pass
+        if _kind(exc) == "damaged":
+            return StoreDamaged(f"{self.path}: {exc}")
+        return StoreError(f"{self.path}: {what}: {exc}")
 
     def meta(self, key: str) -> str | None:
         with self._rlock, self._reading():
@@ -522,13 +526,7 @@ class Store:
                     self._prune()
                 con.execute("COMMIT")
             except sqlite3.Error as exc:
-                try:
-                    con.execute("ROLLBACK")
-                except sqlite3.Error:
-                    pass
-                if _kind(exc) == "damaged":
-                    raise StoreDamaged(f"{self.path}: {exc}") from None
-                raise StoreError(f"{self.path}: could not commit estimates: {exc}") from None
+                raise self._failed(con, exc, "could not commit estimates") from None
         self._last.update(seen)
         self.commits += 1
         return len(hist)
