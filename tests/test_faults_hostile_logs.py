@@ -219,14 +219,19 @@ _HWM = (
 
 
 def _peak_rss_reading(path: Path) -> tuple[int, str]:
-    """(peak RSS in MB, stats) of a fresh process reading ``path`` with open_log."""
+    """(growth of peak RSS in MB while reading, stats) of a fresh process reading ``path`` with
+    open_log.  Growth over the peak once the compiled scan is loaded (numba and LLVM: about
+    120 MB of their own), so the bound judges the reader, not the compiler."""
     code = (
         "import sys\n"
         f"{_HWM}"
+        "from vdp.io import scan\n"
         "from vdp.io.logs import open_log\n"
+        "scan.lines(b'(1.0) can0 123#00\\n', False)\n"
         "src = open_log(sys.argv[1])\n"
+        "base = hwm()\n"
         "n = sum(1 for _ in src)\n"
-        "print(hwm(), n, src.stats.bad, src.stats.reasons)\n"
+        "print(hwm() - base, n, src.stats.bad, src.stats.reasons)\n"
     )
     r = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=120, env=ENV)
     assert r.returncode == 0, r.stderr
@@ -244,8 +249,8 @@ def test_a_gzip_line_bomb_is_skipped_in_bounded_memory(tmp_path, msgs):
             f.write(z.compress(chunk))
         f.write(z.compress(("\n" + "".join(_candump(m) for m in msgs[50:100])).encode()))
         f.write(z.flush())
-    rss, rest = _peak_rss_reading(p)
-    assert rss < 200, rest
+    grew, rest = _peak_rss_reading(p)
+    assert grew < 64, rest  # the line is 400 MB: reading it whole would grow by that much
     n, bad = (int(x) for x in rest.split()[:2])
     assert n == 100 and bad == 1 and "line longer than" in rest
     # and through vdp replay, whose bulk reader hands such a log to the bounded per-frame one
@@ -261,8 +266,8 @@ def test_an_endless_plain_line_is_skipped_in_bounded_memory(tmp_path, msgs):
     with open(p, "wb") as f:
         f.write("".join(_candump(m) for m in msgs[:200]).encode())
         f.truncate(200 << 20)  # then 200 MB of NUL bytes and no newline: sparse, cheap to make
-    rss, rest = _peak_rss_reading(p)
-    assert rss < 200 and rest.split()[:2] == ["200", "1"], rest
+    grew, rest = _peak_rss_reading(p)
+    assert grew < 64 and rest.split()[:2] == ["200", "1"], rest  # 200 MB line, read whole: +200
 
 
 @pytest.mark.parametrize("kind", ["fifo", "device"])
