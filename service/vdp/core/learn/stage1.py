@@ -156,7 +156,7 @@ class Stage1(StageLearner):
                 "the tyre's force-slip curve bends or is offset at zero torque (a real tyre): its "
                 "stiffness's load sensitivity, which the slips cannot tell from h, is not in the model"
             )
-        return _widen(f.rho, f.chi2 / tuning.CHI2_MATCHED), ("model mismatch: " + "; ".join(why)) if why else None
+        return _widen(f.rho, f.chi2), ("model mismatch: " + "; ".join(why)) if why else None
 
     def model_error(self) -> np.ndarray | None:
         """How far apart the batch optima of the low- and the high-slip half of the blocks are.
