@@ -154,7 +154,9 @@ class Stage1(StageLearner):
         if self.shaped:
             why.append(
                 "the tyre's force-slip curve bends or is offset at zero torque (a real tyre): its "
-                "stiffness's load sensitivity, which the slips cannot tell from h, is not in the model"
+                "stiffness's load sensitivity, which the slips cannot tell from h, is not in the model: "
+                f"a tyre whose stiffness per unit load falls with load (by q, 0-0.3 on road tyres) makes h "
+                f"read low by about q x h, so h's std carries {100 * tuning.LOAD_SENSITIVITY:.0f} % for it"
             )
         return _widen(f.rho, f.chi2), ("model mismatch: " + "; ".join(why)) if why else None
 

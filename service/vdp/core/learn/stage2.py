@@ -210,6 +210,11 @@ class Stage2(AxleSplit, StageLearner):
         if why is not None:
             std *= max(1.0, factor / self.mismatch()[0])  # the lateral rows' factor is in std already
             h_rel = math.hypot(h_rel, tuning.ROLL_MODEL_ERROR)
+            why = (
+                f"{why}; eq (9) rolls the whole mass about the ground, a car its sprung mass about a roll "
+                f"axis above it: the I_x that fits is an effective one, and its std carries "
+                f"{100 * tuning.ROLL_MODEL_ERROR:.0f} % for that"
+            )
         quiet = self.not_excited()
         if quiet is not None:  # no filter's covariance may claim more than the drive holds
             std = max(std, abs(value) * quiet)
