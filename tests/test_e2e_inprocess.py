@@ -20,7 +20,6 @@ from fastapi.testclient import TestClient
 
 from vdp.api import create_app
 from vdp.cli import main as vdp_main
-from vdp.core.params import BY_NAME
 from vdp.live import Service
 from vdp.settings import simulate_settings
 
@@ -92,11 +91,7 @@ def test_every_frame_is_estimated_logged_and_replays_to_the_same_estimates(drive
             # numbers to rounding, which a drive's thousands of steps grow to ~1e-9 (per-axle stage 2:
             # I_z 1.2e-9); tests/test_kernels.py holds a drive to DRIVE_RTOL = 1e-7
             assert got["value"] == pytest.approx(e["value"], rel=1e-7), (kind, name)
-            # stage 1's std scales with its batch check's residuals (learn.verdict._widen); a replay
-            # solves that check once more on every block at the log's end (TwoStageEstimator.finish),
-            # a live service never sees an end: its latest check is up to BATCH_EVERY blocks older
-            rel = 1e-3 if BY_NAME[name].stage == 1 else 1e-7
-            assert got["std"] == pytest.approx(e["std"], rel=rel), (kind, name)
+            assert got["std"] == pytest.approx(e["std"], rel=1e-7), (kind, name)
 
 
 def test_stage_1_converges_live(drive):

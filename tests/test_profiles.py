@@ -323,13 +323,11 @@ def test_paper_drive_converges_on_the_cars_layout(name, stage, tmp_path_factory)
         assert car(name).channels["steering_angle"].fine == "STEER_FRACTION"
     for p in STAGES[stage]:
         est = res.parameters[p]
-        if name == "toyota_rav4" and stage == 2:
+        if name == "toyota_rav4" and stage == 2 and not est.valid:
             # stage 2 takes the profile's l_f, 1.17 +- 0.08 m (truth 1.20), and carries that 7 % std:
-            # C_alpha and I_z are not pinned to the estimator issue's 3 and 5 % (C_alpha -4.5 %, std
-            # 3.6 %; I_z -5.5 %, std 3.9 %); the truth must be inside their 2 std, and a valid value
-            # within issue 24's band (10 %)
+            # per axle, C_alpha's mean is not pinned to 3 % (-4.5 %, std 6.5 %; BENCHMARKS.md, "Stage 2
+            # on the independent models"); it must then say so, with the truth inside its 2 std
             assert est.status != "converged" and abs(est.value - truth[p]) <= 2.0 * est.std, (p, est, truth[p])
-            assert not est.valid or abs(est.value / truth[p] - 1.0) <= 0.10, (p, est, truth[p])
             continue
         assert est.value == pytest.approx(truth[p], rel=TOLERANCE[p]), (p, est, truth[p])
         # And not by luck: the filter's own std is inside the tolerance.  Not half of it, which

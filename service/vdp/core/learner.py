@@ -28,6 +28,7 @@ from .learn.tuning import (
     BATCH_EVERY_MAX,
     BATCH_FAR_EVERY,
     BEND_PRIOR,
+    CHI2_MATCHED,
     CHI2_QUIET,
     CUBIC_PRIOR,
     DIVERGED_NIS,

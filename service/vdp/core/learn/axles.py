@@ -13,7 +13,7 @@ from .. import lateral, output_error
 from ..params import BY_NAME, STAGE2
 from ..result import finite
 from . import tuning
-from .verdict import honest_std, scaled_std
+from .verdict import honest_std
 
 log = logging.getLogger(__name__)
 
@@ -111,13 +111,9 @@ class AxleSplit:
         if name != "C_alpha" or not self.cfg.per_axle:
             return {}
         var_f, var_r, cov_fr = cov[0, 0], cov[1, 1], cov[0, 1]
-        P0 = self._prior()[1]
-        held = self.consider_var(published=False) if factor < 1.0 else None
-        hf, hr = (0.0, 0.0) if held is None else (held[0], held[1])
-        sf, sr = scaled_std(var_f, P0[0, 0], factor, hf), scaled_std(var_r, P0[1, 1], factor, hr)
+        sf, sr = factor * math.sqrt(max(var_f, 0.0)), factor * math.sqrt(max(var_r, 0.0))
         corr = cov_fr / math.sqrt(var_f * var_r) if var_f > 0 and var_r > 0 else math.nan
-        # whether the drive separates the axles is what it taught (the covariance), not how quiet it was
-        diff = max(factor, 1.0) * math.sqrt(max(var_f + var_r - 2.0 * cov_fr, 0.0))
+        diff = factor * math.sqrt(max(var_f + var_r - 2.0 * cov_fr, 0.0))
         f, r = float(theta[0]), float(theta[1])
         axle_why = None  # the batch check (core.output_error) per axle, as adjust() does for the mean
         if self.cfg.batch_check and self.known is not None and (fit := self.batch_fit()) is not None:

@@ -16,7 +16,7 @@ from ..compiled import kernel
 from ..filters import EKF, UKF
 from ..params import BY_NAME
 from ..result import CONVERGED, INVALID, NOT_IDENTIFIABLE, NOT_RUN, UNCERTAIN, Estimate, finite
-from .verdict import Hard, honest_std, scaled_std, too_wide, useful
+from .verdict import Hard, honest_std, too_wide, useful
 
 log = logging.getLogger(__name__)
 
@@ -175,11 +175,10 @@ class StageLearner:
         out = {}
         factor, why = self.mismatch()
         err = self.model_error()  # None, or weighted by how strongly the data show the mismatch
-        held = self.consider_var() if factor < 1.0 else None
         for i, name in enumerate(self.names):
             spec = BY_NAME[name]
             value = float(pub[i])
-            std = scaled_std(pcov[i, i], self.pub_prior_std[i] ** 2, factor, 0.0 if held is None else held[i])
+            std = factor * math.sqrt(pcov[i, i]) if pcov[i, i] > 0 else math.nan
             if err is not None:
                 std = math.hypot(std, err[i])
             filtered = value
@@ -246,11 +245,6 @@ class StageLearner:
         """Per parameter, a std for the model's own error, added when it mismatches (or None)."""
         return None
 
-    def consider_var(self, published: bool = True) -> np.ndarray | None:
-        """Per parameter (published, else the filter's), the variance a considered state brings
-        in (not the data's: scaled_std keeps it whole), or None where there is none."""
-        return None
-
     def adjust(self, name: str, value: float, std: float) -> tuple[float, float, str | None]:
         """One parameter's (value, std, reason it is not valid or None) after what the stage knows
         of it beyond the filter's covariance; by default both as they are."""
@@ -261,12 +255,7 @@ class StageLearner:
         theta, var = self._publish(*self.params())
         var = np.diagonal(var)
         k = self.mismatch()[0]
-        p0 = np.square(self.pub_prior_std)
-        held = self.consider_var() if k < 1.0 else None
-        held = np.zeros(len(var)) if held is None else held
-        return tuple(
-            (float(v), scaled_std(c, c0, k, h) if c > 0 else None) for v, c, c0, h in zip(theta, var, p0, held)
-        )
+        return tuple((float(v), k * math.sqrt(c) if c > 0 else None) for v, c in zip(theta, var))
 
     def converged(self) -> bool:
         return all(e.valid for e in self.snapshot().values())

@@ -158,7 +158,7 @@ class Stage1(StageLearner):
                 f"a tyre whose stiffness per unit load falls with load (by q, 0-0.3 on road tyres) makes h "
                 f"read low by about q x h, so h's std carries {100 * tuning.LOAD_SENSITIVITY:.0f} % for it"
             )
-        return _widen(f.rho, f.chi2), ("model mismatch: " + "; ".join(why)) if why else None
+        return _widen(f.rho, f.chi2 / tuning.CHI2_MATCHED), ("model mismatch: " + "; ".join(why)) if why else None
 
     def model_error(self) -> np.ndarray | None:
         """How far apart the batch optima of the low- and the high-slip half of the blocks are.

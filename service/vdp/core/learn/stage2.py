@@ -123,35 +123,18 @@ class Stage2(AxleSplit, StageLearner):
         super().end_window()
         self._settle.clear()
 
-    def _l_f_cross(self) -> tuple[np.ndarray, float, np.ndarray] | None:
-        """(covariance of the filter's parameters with the considered l_f, l_f's std, the
-        parameters' covariance): the open window's, else the kept one; None before any window."""
-        if self.filter is not None:
-            P, p, c = self.filter_state()[1], self._p, lateral.L_F
-            return P[p, c], math.sqrt(P[c, c]), P[p, p]
-        if self.cross is not None:
-            (cov, sd), Pp = self.cross, self.theta_P
-            return cov, sd, Pp
-        return None
-
     def l_f_correlation(self) -> np.ndarray | None:
         """Correlation of the published (C_alpha, I_z, I_x) with the considered l_f: the open
         window's, else the kept one; None before any window."""
-        x = self._l_f_cross()
-        if x is None:
+        if self.filter is not None:
+            P, p, c = self.filter_state()[1], self._p, lateral.L_F
+            cov, sd, Pp = P[p, c], math.sqrt(P[c, c]), P[p, p]
+        elif self.cross is not None:
+            (cov, sd), Pp = self.cross, self.theta_P
+        else:
             return None
-        cov, sd, Pp = x
         M = self._M
         return (M @ cov) / (sd * np.sqrt(np.diagonal(M @ Pp @ M.T)))
-
-    def consider_var(self, published: bool = True) -> np.ndarray | None:
-        """The share of each parameter's variance that l_f's uncertainty (stage 1's, or the
-        profile's) brings in: not the data's, so quiet residuals do not narrow it (scaled_std)."""
-        x = self._l_f_cross()
-        if x is None or not x[1] > 0.0:
-            return None
-        cov, sd, _ = x
-        return np.square((self._M @ cov) if published else cov) / (sd * sd)
 
     flagged = ("C_alpha", "I_z", "I_x")
 

@@ -42,43 +42,19 @@ def quad_form(y: list[float], S: list[list[float]]) -> float | None:
 
 
 def _widen(rho: float | None, size: float = 1.0) -> float:
-    """Factor on the data's stds: the square root of the sandwich's factor on the filter's
-    variance, the residuals' ``size`` against the noise the filter assumes (reduced chi-square,
-    or NIS per row: 1 when they are as large as R says) times what their colour costs,
-    (1 + rho) / (1 - rho): a mean over AR(1) residuals holds n (1 - rho) / (1 + rho)
-    independent ones (the effective sample size).  Continuous in both: no statistic crossing a
-    limit makes the std jump (issue 24).
-
-    Below 1 where the residuals are quieter than R: the filters' R is the sensors' noise
-    inflated (LearnerConfig's ``Noise.inflate``) to keep them robust, and a std scaled to R
-    alone stood 1.8-2.2x the scatter of the estimates over noise seeds on every car, vdp's own
-    too (docs/decisions/0018).  Apply it with :func:`scaled_std`, which scales the data's
-    information only, never the prior's."""
+    """Factor on the stds: the square root of the sandwich's factor on the filter's variance,
+    the residuals' ``size`` against what a matching model leaves (1) times what their colour
+    costs, (1 + rho) / (1 - rho): a mean over AR(1) residuals holds n (1 - rho) / (1 + rho)
+    independent ones (the effective sample size).  Never below 1: the filter's own std is the
+    least.  Continuous in both: no statistic crossing a limit makes the std jump (issue 24).
+    Residuals far below the noise (a noise-free drive) cost their colour in proportion: before,
+    their colour was either ignored or charged in full, and a noise-free drive of a car vdp
+    does not model could sit with l_f's std 6x too wide and stage 2 never starting."""
     k = size
     if rho is not None and rho > 0.0:
         r = min(rho, 0.95)
         k *= (1.0 + r) / (1.0 - r)
-    return math.sqrt(max(k, 0.0))
-
-
-def scaled_std(var: float, prior_var: float, factor: float, held: float = 0.0) -> float:
-    """The std of a parameter of variance ``var`` (prior variance ``prior_var``) when the data's
-    residuals are ``factor`` times the size the filter assumed (:func:`_widen`).
-
-    Widening (factor >= 1) scales the whole std, as a sandwich does.  Narrowing scales only the
-    information the data added to the prior's, 1 / var - 1 / prior_var: a parameter the drive
-    has not taught keeps its prior's std however quiet the residuals.  ``held``: the part of
-    ``var`` a considered state brings in (stage 2's l_f), which quiet residuals do not narrow."""
-    if not var > 0.0:
-        return math.nan
-    if factor >= 1.0:
-        return factor * math.sqrt(var)
-    held = min(max(held, 0.0), var)
-    own = var - held  # the variance given the considered state
-    if not (prior_var > own > 0.0 and factor > 0.0):
-        return math.sqrt(var)
-    info = (1.0 / own - 1.0 / prior_var) / (factor * factor)
-    return math.sqrt(1.0 / (info + 1.0 / prior_var) + held)
+    return math.sqrt(max(k, 1.0))
 
 
 class Consistency:
@@ -196,7 +172,7 @@ def _verdict(c: Consistency, size: str, colour: str, kind: str) -> tuple[float, 
     # charges it in proportion to their size)
     if rho is not None and rho > tuning.RHO_MISMATCH_2 and nis >= 0.5 * tuning.NIS_MATCHED:
         why.append(f"{colour} not white (lag-1 correlation {rho:.3f} > {tuning.RHO_MISMATCH_2})")
-    return _widen(rho, nis), (f"{kind}: " + "; ".join(why)) if why else None
+    return _widen(rho, nis / tuning.NIS_MATCHED), (f"{kind}: " + "; ".join(why)) if why else None
 
 
 class Hard(str):
