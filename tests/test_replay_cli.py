@@ -42,8 +42,13 @@ def test_replay_writes_the_documented_json_and_a_plot(drive, repo_root, capsys):
     res = json.loads(out.read_text())
     for key in ("parameters", "baseline_ekf", "windows", "log"):
         assert key in res
+    # the six and the mass after them (said to be off: core.mass); the EKF baseline is of the six
+    assert list(res["parameters"]) == [*NAMES, "mass"] and list(res["baseline_ekf"]) == list(NAMES)
+    assert (
+        res["parameters"]["mass"]["status"] == "not_run"
+        and "mass estimation is off" in res["parameters"]["mass"]["reason"]
+    )
     for kind in ("parameters", "baseline_ekf"):
-        assert set(res[kind]) == set(NAMES)
         for p in res[kind].values():
             assert {"value", "std", "unit", "valid", "stage"} <= set(p)
     assert res["parameters"]["l_f"]["stage"] == 1 and res["parameters"]["I_z"]["stage"] == 2
@@ -73,7 +78,7 @@ def test_json_never_carries_nan(drive, repo_root):
     res = json.loads(text)
     # the EKF baseline runs only when asked (--baseline ekf); its key is there, empty
     assert "baseline_ekf" in res and res["baseline_ekf"] is None
-    assert set(res["parameters"]) == set(NAMES)
+    assert list(res["parameters"]) == [*NAMES, "mass"]
 
 
 def test_per_axle_reports_each_axle_in_c_alphas_extra(drive, repo_root, capsys):

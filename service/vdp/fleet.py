@@ -24,13 +24,13 @@ from pathlib import Path
 from typing import Any
 
 from . import __version__
-from .core.params import NAMES
+from .core.params import NAMES, PUBLISHED
 from .core.result import CONVERGED, INVALID, NOT_IDENTIFIABLE, NOT_RUN, UNCERTAIN
 from .errors import VdpError
 
 log = logging.getLogger(__name__)
 
-PARAMETERS = NAMES
+PARAMETERS = PUBLISHED  # the six and the mass (its row says not_run where its estimation is off)
 Z_FLAG = 3.0  # |z| of a drive against the others' combination that flags it as disagreeing
 # The share of each drive's std that is common to all drives of a car, and so does not average
 # out: the model's error, the profile's constants and the priors are the same in every drive.

@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from . import channels as ch
-from .core.params import STAGE2
-from .core.result import Estimate
+from .core.params import MASS, STAGE2
+from .core.result import NOT_RUN, Estimate
 from .errors import ProfileError
 from .profile import PARAMETERS, Profile
 
@@ -109,13 +109,37 @@ class Report:
 
 
 def mark_invalid(params: Mapping[str, Estimate], report: Report) -> dict[str, Estimate]:
-    """The estimates with ``valid = False`` and the ``reason`` on every parameter a finding concerns."""
+    """The estimates with ``valid = False`` and the ``reason`` on every parameter a finding concerns;
+    a learnt mass (core.mass) where a finding concerns the channels it rests on.  A valid learnt mass
+    that the six are scaled with answers the finding on the profile's mass: that one marks nothing."""
     out = dict(params)
-    for name, why in report.invalid.items():
+    m = out.get(MASS)
+    if m is not None and m.status != NOT_RUN:
+        why = next((f.message for f in report.findings if _under_mass(f)), None)
+        if why is not None:
+            out[MASS] = dataclasses.replace(m, valid=False, reason=f"profile check: {why}")
+    findings = report.findings
+    if _mass_learnt(out):
+        findings = [f for f in findings if f.subject != "vehicle.mass"]
+    for name, why in Report(findings).invalid.items():
         e = out.get(name)
         if e is not None:
             out[name] = dataclasses.replace(e, valid=False, reason=why)
     return out
+
+
+def _mass_learnt(params: Mapping[str, Estimate]) -> bool:
+    """A valid learnt mass that the six are scaled with (core.mass.scaled marks them ``mass_used``)."""
+    m = params.get(MASS)
+    used = any("mass_used" in (e.extra or {}) for n, e in params.items() if n != MASS)
+    return m is not None and m.status != NOT_RUN and m.valid and used
+
+
+def _under_mass(f: Finding) -> bool:
+    """A finding on a channel the learnt mass rests on: the torques, a_x and the speeds, which
+    stage 1 rests on too (C_K among its parameters).  Not the profile's mass (the learnt one
+    replaces it) nor a prior (the mass takes none from the geometry)."""
+    return "C_K" in f.params and not f.subject.startswith(("vehicle.", "priors."))
 
 
 def _factor_name(ratio: float) -> str | None:

@@ -24,6 +24,8 @@ from .learn.base import LearnerConfig
 from .learn.stage1 import Stage1
 from .learn.stage2 import Stage2
 from .mass import MassConfig, MassLearner, scaled
+from .mass import off as mass_off
+from .params import MASS
 from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
 from .road import RoadConfig, Tilt
 from .sample import Sample
@@ -331,6 +333,13 @@ class TwoStageEstimator:
             self.trace.clear()
             self._trace_every = self.cfg.trace_every
 
+    def reset_mass(self) -> bool:
+        """Start the mass learner again from its prior (core.mass); False where mass estimation is off."""
+        if self.mass is None:
+            return False
+        self.mass.reset()
+        return True
+
     def finish(self) -> None:
         """The data have ended (a log's last frame): the next snapshot is the whole log's, its batch
         checks solved on every row (stage 2) and block (stage 1) kept.  Without this a replay
@@ -428,8 +437,9 @@ class TwoStageEstimator:
             out["l_f"] = replace(e, reason=why)
         if self.cfg.mass.use:  # the learnt mass into the six, its std carried (core.mass.scaled)
             out = scaled(out, self.mass.snapshot(), self.vehicle.mass)
-        if self.cfg.mass.report:
-            out["mass"] = self.mass.snapshot()
+        if kind == "ukf":  # the mass after the six: learnt (core.mass), or said to be off (never left out)
+            # (one learner, not a filter kind's: the EKF baseline's six are scaled by it, not given it again)
+            out[MASS] = self.mass.snapshot() if self.mass is not None else mass_off(self.vehicle.mass)
         return out
 
     def stage(self) -> str:

@@ -33,7 +33,7 @@ import numpy as np
 
 from .. import channels as ch
 from ..core.change import Measure, bus_print, combine, compare_prints, detect, fit_mass, fit_scale, id_counts
-from ..core.params import STAGE1, STAGE2
+from ..core.params import MASS, STAGE1, STAGE2
 from ..core.result import CONVERGED, UNCERTAIN
 from ..errors import StoreError
 
@@ -277,7 +277,7 @@ class Drives:
                     ref[name], cur[name] = Measure(a.value, a.std), Measure(b.value, b.std)
         else:
             ref["radius"] = None
-        for change in detect(ref, cur, mass_estimated="mass" in params):
+        for change in detect(ref, cur, mass_estimated=_mass_used(pipe)):
             if change.kind in self.named:
                 continue
             self._apply(pipe, change, params)
@@ -331,6 +331,11 @@ class Drives:
                     seed[n] = e
         if seed:
             pipe.restore(seed)
+        m = params.get(MASS)
+        if MASS in change.params and m is not None and pipe.reset_mass():
+            # the learnt mass was the car's before the load: it starts again from the profile's prior
+            old[MASS] = {"value": m.value, "std": m.std, "status": m.status}
+            hit.append(MASS)
         now = pipe.result().parameters
         for n in hit:
             self.start[n] = now[n]  # the tyres are judged from here on against the new values
@@ -377,6 +382,13 @@ class Drives:
             "wheel_speed_scale": _doc(self.scale),
             "changes": self.changes,
         }
+
+
+def _mass_used(pipe) -> bool:
+    """Whether the estimator puts a learnt mass into C_K and C_alpha (core.mass.scaled): then a
+    mass step leaves them alone (core.change.affected)."""
+    est = getattr(pipe, "estimator", None)
+    return bool(est is not None and est.cfg.mass.use)
 
 
 def _doc(m: Measure | None) -> dict | None:
