@@ -331,3 +331,29 @@ def test_a_long_stop_with_the_bus_on_ends_a_drive_and_a_short_one_does_not():
     assert stops.feed(t[:1500], v[:1500]) is None  # the 60 s stop at a light
     got = stops.feed(t, v)  # the samples seen already are not counted twice
     assert got is not None and got[0] == pytest.approx(200.0) and got[1] == pytest.approx(350.0)
+
+
+def test_a_logs_own_measures_are_read_as_the_profile_check_reads_it(tmp_path, monkeypatch):
+    """vdp batch's per-log mass, wheel-speed scale and bus print (fleet.drive_measures) come from
+    the profile check's reading of the log's first minutes (profilecheck.first_seconds): the
+    same numbers whether the log is read a block at a time or frame by frame."""
+    from vdp import fleet
+    from vdp.io import bulk
+    from vdp.sim.run import write_log
+
+    profile = load_profile(PROFILE)
+    sim = Simulation(profile, "stage1", 7, "realistic", load=300.0)
+    log = tmp_path / "loaded.log"
+    write_log(sim.frames(), log)
+    got = {}
+    for blocks in (True, False):
+        monkeypatch.setattr(bulk, "pays", lambda path, blocks=blocks: blocks)
+        got[blocks] = fleet.drive_measures(str(log), profile)
+    assert got[True] == got[False]
+    m = got[True]
+    truth = sim.model.params.m  # 1900 kg: the profile says 1600
+    assert abs(m["mass"] - truth) < 3 * m["mass_std"] and m["mass_std"] < 0.03 * truth, m
+    assert abs(m["wheel_scale"] - 1.0) < 3 * m["wheel_scale_std"], m
+    prn = {int(k, 16): v for k, v in json.loads(m["bus_print"]).items()}
+    assert prn and all(0.0 < v < 1.0 for v in prn.values())
+    assert compare_prints(prn, prn) is None

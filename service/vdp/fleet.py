@@ -329,41 +329,29 @@ MEASURE_SECONDS = 300.0  # of bus time from a log's start (the profile check rea
 
 def drive_measures(path: str, profile: Any, seconds: float = MEASURE_SECONDS) -> dict[str, Any]:
     """The columns of a log's own mass, wheel-speed scale and bus print, from its first
-    ``seconds`` (decoded and aligned as the profile check does, kept at 10 Hz)."""
+    ``seconds``, decoded and aligned as the profile check reads them (profilecheck.first_seconds:
+    the samples the running service's self-check gives its drives' measures), kept at 10 Hz."""
     import json
 
     import numpy as np
 
     from . import channels as ch
-    from .buffer import Aligner
     from .core.change import bus_print, fit_mass, fit_scale, id_counts
-    from .io.decoder import FrameDecoder
-    from .io.logs import open_log
+    from .profilecheck import first_seconds
 
-    dec = FrameDecoder(profile)
-    al = Aligner(stale_after=np.full(ch.N, 0.5), tick=0.01, limits=ch.limits(profile.vehicle))
-    ts: list[float] = []
-    ys: list[np.ndarray] = []
-    t0 = t1 = None
-    with open_log(path, channel=profile.bus_channel, quiet=True) as src:
-        for msg in src:
-            if t0 is None:
-                t0 = msg.timestamp
-            if msg.timestamp - t0 > seconds:
-                break
-            t1 = msg.timestamp
-            pairs = dec.decode(msg)
-            if pairs:
-                for smp in al.push(msg.timestamp, pairs):
-                    if not ts or smp.t - ts[-1] >= 0.1:
-                        ts.append(smp.t)
-                        ys.append(np.asarray(smp.values, dtype=float))
+    head = first_seconds(path, profile, seconds, quiet=True)
     out: dict[str, Any] = dict.fromkeys(("mass", "mass_std", "wheel_scale", "wheel_scale_std", "bus_print"))
-    if t0 is not None and t1 is not None and t1 > t0:
-        out["bus_print"] = json.dumps({f"0x{k:X}": round(v, 6) for k, v in bus_print(id_counts(dec), t1 - t0).items()})
-    if len(ys) < 20:
+    if head.span > 0:
+        prn = bus_print(id_counts(head.decoder), head.span)
+        out["bus_print"] = json.dumps({f"0x{k:X}": round(v, 6) for k, v in prn.items()})
+    keep, last = [], -math.inf
+    for i, t in enumerate(head.t):  # 10 Hz, as the self-check keeps them (fit_mass smooths over 5)
+        if t - last >= 0.1:
+            keep.append(i)
+            last = t
+    if len(keep) < 20:
         return out
-    y = np.vstack(ys)
+    y = head.y[keep]
     veh = profile.vehicle
     wheels = [c for c in ch.NAMES[:4] if profile.has(c)]
     v_wheel = np.nanmean(y[:, [ch.INDEX[c] for c in wheels]], axis=1) * veh.wheel_radius if wheels else None

@@ -29,6 +29,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -704,7 +705,7 @@ def check_log(
     """
     from .io.logs import channel_keys
 
-    dec, al, ts, y, st = _first_seconds(path, profile, seconds, quiet)
+    dec, al, ts, y, st, _ = first_seconds(path, profile, seconds, quiet)
     cov = coverage(dec)
     if getattr(st, "skipped", 0):  # the log source left out the frames of other bus channels
         names = sorted(c for c in getattr(st, "channels", ()) if c not in channel_keys(profile.bus_channel))
@@ -737,11 +738,23 @@ def check_log(
     return rep, cov
 
 
-def _first_seconds(path: str | Path, profile: Profile, seconds: float, quiet: bool) -> tuple:
-    """The first ``seconds`` of bus time of a log, decoded and aligned: (decoder, aligner, sample
-    times, sample values, the reader's stats).  A candump log goes a block at a time where that
-    pays (vdp.io.bulk, the same samples and decoder counts); one it hands back, a short one, and
-    any other format, frame by frame."""
+class Head(NamedTuple):
+    """A log's first seconds, decoded and aligned (:func:`first_seconds`)."""
+
+    decoder: Any  # the FrameDecoder that read them (its counts per id: vdp.core.change.id_counts)
+    aligner: Any
+    t: np.ndarray  # sample times [s]
+    y: np.ndarray  # sample values (one row per sample, channels.INDEX columns)
+    stats: Any  # the reader's
+    span: float  # bus time from the first frame read to the last [s]
+
+
+def first_seconds(path: str | Path, profile: Profile, seconds: float = CHECK_SECONDS, quiet: bool = True) -> Head:
+    """The first ``seconds`` of bus time of a log, decoded and aligned as the profile check reads
+    them (the running service's self-check keeps its samples alike).  A candump log goes a block
+    at a time where that pays (vdp.io.bulk, the same samples and decoder counts); one it hands
+    back, a short one, and any other format, frame by frame.  Every frame reaches the decoder,
+    those of ids it does not know included."""
     from .buffer import Aligner
     from .io import bulk
     from .io.decoder import FrameDecoder
@@ -765,31 +778,32 @@ def _first_seconds(path: str | Path, profile: Profile, seconds: float, quiet: bo
         except bulk.Irregular as why:
             log.debug("%s: %s; checking it frame by frame", path, why)
         else:
-            return dec, al, *sink.arrays(), src.stats
+            return Head(dec, al, *sink.arrays(), src.stats, float(src.stats.bus_time or 0.0))
         finally:
             src.close()
     dec, al = fresh()
     ts: list[float] = []
     rows: list[tuple] = []
-    t0 = None
+    t0 = t1 = None
     with open_log(path, channel=profile.bus_channel, quiet=quiet) as src:
         for msg in src:
             if t0 is None:
                 t0 = msg.timestamp
             if msg.timestamp - t0 > seconds:
                 break
+            t1 = msg.timestamp
             pairs = dec.decode(msg)
             if pairs:
                 for s in al.push(msg.timestamp, pairs):
                     ts.append(s.t)
                     rows.append(s.values)
     y = np.vstack(rows) if rows else np.zeros((0, ch.N))
-    return dec, al, np.asarray(ts), y, src.stats
+    return Head(dec, al, np.asarray(ts), y, src.stats, (t1 - t0) if t0 is not None else 0.0)
 
 
 class _Sink:
     """What the block reader feeds (a pipeline's decoder, aligner, feed and take_block): keeps
-    the aligned samples, as the frame-by-frame loop of :func:`_first_seconds` keeps them."""
+    the aligned samples, as the frame-by-frame loop of :func:`first_seconds` keeps them."""
 
     def __init__(self, decoder, aligner):
         self.decoder, self.aligner = decoder, aligner
