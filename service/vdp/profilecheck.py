@@ -703,9 +703,15 @@ def check_log(
     with the counts and the ids the log does hold (unless ``strict_coverage`` is false).
     ``quiet``: the reader logs no warnings (a replay that reads the log next gives them).
     """
+    return check_head(first_seconds(path, profile, seconds, quiet), profile, strict_coverage, path)
+
+
+def check_head(head: Head, profile: Profile, strict_coverage: bool = True, path: str | Path = "the log") -> tuple:
+    """:func:`check_log` of a log's first seconds already read (:func:`first_seconds`); ``head``
+    is left as it was (its samples serve the drive's measures too: fleet.measures_of)."""
     from .io.logs import channel_keys
 
-    dec, al, ts, y, st, _ = first_seconds(path, profile, seconds, quiet)
+    dec, al, ts, y, st = head.decoder, head.aligner, head.t, head.y.copy(), head.stats
     cov = coverage(dec)
     if getattr(st, "skipped", 0):  # the log source left out the frames of other bus channels
         names = sorted(c for c in getattr(st, "channels", ()) if c not in channel_keys(profile.bus_channel))
