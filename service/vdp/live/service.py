@@ -161,6 +161,9 @@ class Service:
         return "they are lost: enable the raw log to keep every frame"
 
     def _restore(self, stored: dict) -> None:
+        # the six the learners take back; the mass (core.mass) is kept in the store and its history,
+        # but its learner starts from the profile's prior (its own state is not stored)
+        stored = {k: v for k, v in stored.items() if k in NAMES}
         if not stored:
             return
         why = self.estimation.restore({k: v.estimate for k, v in stored.items()})
