@@ -84,9 +84,12 @@ class Logger:
         stop: bool = True,
         scenario: str = "paper",
         duration: float | None = None,
+        mass: bool = False,
     ):
-        """One drive of the given car through a fresh service; returns it (stopped if ``stop``)."""
+        """One drive of the given car through a fresh service; returns it (stopped if ``stop``).
+        ``mass``: the service learns the mass as driven (``[service] mass = true``)."""
         settings = simulate_settings(PROFILE, self.tmp, scenario=scenario, speed=0, noise="none", seed=seed)
+        settings = dataclasses.replace(settings, service=dataclasses.replace(settings.service, mass=mass))
         settings = dataclasses.replace(settings, store=dataclasses.replace(settings.store, commit_interval=0.2))
         svc = Service(settings, profile=self.profile)
         start = 1.7e9 + self.drives * (DRIVE + GAP)
@@ -197,6 +200,23 @@ def test_4_a_load_of_300_kg_is_named_as_a_mass_change(loaded_a):
     assert c["drive"] == drive["id"] and c["bus_t"] - drive["bus_t0"] <= 300.0  # within 5 min of driving
     old = json.loads(c["old"])["values"]
     assert {"l_f", "h", "C_K", "C_alpha", "I_z"} <= set(old)  # the values before, kept
+
+
+def test_4_with_the_mass_learnt_a_load_is_named_and_leaves_the_tyres_alone(tmp_path):
+    """With ``[service] mass = true`` the estimator puts the learnt mass into C_K and C_alpha: a
+    mass step resets l_f, h, I_z and I_x, not C_K and C_alpha (core.change.affected), and the mass
+    published is the loaded car's (its learner starts from the prior at each start of the service)."""
+    lg = Logger(tmp_path)
+    first = lg.drive(seed=1, mass=True)
+    m1 = first.latest.result.parameters["mass"]
+    assert m1.valid and abs(m1.value - lg.profile.vehicle.mass) < 3 * m1.std, m1
+    prof, truth = loaded(lg.profile, lg.truth, 300.0)
+    svc = lg.drive(seed=3, car_profile=prof, params=truth, scenario="stage1", mass=True)
+    (c,) = store_rows(svc.settings.store.path, "changes")
+    assert c["kind"] == "mass" and set(json.loads(c["params"])) == {"mass", "l_f", "h", "I_z", "I_x"}, c
+    assert {"l_f", "h", "I_z", "I_x"} == set(json.loads(c["old"])["values"])  # the values before, kept
+    m2 = svc.latest.result.parameters["mass"]
+    assert abs(m2.value - prof.vehicle.mass) < 3 * m2.std, (m2, prof.vehicle.mass)  # the loaded car's
 
 
 def test_5_tyres_20_percent_softer_are_named_as_a_tyre_change(loaded_a):

@@ -166,25 +166,13 @@ def test_the_estimator_hooks_are_off_by_default_and_on_by_config():
     off = est.parameters()["mass"]
     assert (off.value, off.std, off.status, off.valid) == (VEH.mass, None, NOT_RUN, False)
     assert "mass estimation is off" in off.reason and "--mass" in off.reason
-    assert list(est.parameters())[-1] == "mass" and not est.reset_mass()
+    assert list(est.parameters())[-1] == "mass"
     est = TwoStageEstimator(VEH, PROF.priors, EstimatorConfig(mass=MassConfig(report=True), road=RoadConfig(on=True)))
     for smp in _drive(1750.0, 200.0):
         est.handle(smp.t, smp)
     e = est.parameters()["mass"]
     assert e.valid and e.value == pytest.approx(1750.0, rel=0.02)
     assert not est.batchable()  # the tilt's correction runs sample by sample
-
-
-def test_a_named_mass_step_restarts_the_mass_learner_from_its_prior():
-    from vdp.core.estimator import EstimatorConfig, TwoStageEstimator
-
-    est = TwoStageEstimator(VEH, PROF.priors, EstimatorConfig(mass=MassConfig(report=True, use=True)))
-    for smp in _drive(1750.0, 200.0):
-        est.handle(smp.t, smp)
-    assert est.parameters()["mass"].valid
-    assert est.reset_mass()
-    e = est.parameters()["mass"]
-    assert (e.value, e.status, e.valid) == (VEH.mass, NOT_RUN, False) and "no straight driving" in e.reason
 
 
 def test_the_profile_check_marks_a_learnt_mass_by_the_channels_it_rests_on():

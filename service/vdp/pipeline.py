@@ -284,10 +284,6 @@ class Pipeline:
         """Start from stored estimates instead of the priors."""
         self.estimator.restore(params)
 
-    def reset_mass(self) -> bool:
-        """Start the mass learner again from the profile's prior (a named mass step); False if it is off."""
-        return self.estimator.reset_mass()
-
 
 def _lacks(missing: list[str]) -> str | None:
     """'no yaw-rate gyro (the profile maps no yaw_rate)' for missing channels, or None."""

@@ -333,13 +333,6 @@ class TwoStageEstimator:
             self.trace.clear()
             self._trace_every = self.cfg.trace_every
 
-    def reset_mass(self) -> bool:
-        """Start the mass learner again from its prior (core.mass); False where mass estimation is off."""
-        if self.mass is None:
-            return False
-        self.mass.reset()
-        return True
-
     def finish(self) -> None:
         """The data have ended (a log's last frame): the next snapshot is the whole log's, its batch
         checks solved on every row (stage 2) and block (stage 1) kept.  Without this a replay

@@ -33,7 +33,7 @@ import numpy as np
 
 from .. import channels as ch
 from ..core.change import Measure, bus_print, combine, compare_prints, detect, fit_mass, fit_scale, id_counts
-from ..core.params import MASS, STAGE1, STAGE2
+from ..core.params import STAGE1, STAGE2
 from ..core.result import CONVERGED, UNCERTAIN
 from ..errors import StoreError
 
@@ -331,11 +331,6 @@ class Drives:
                     seed[n] = e
         if seed:
             pipe.restore(seed)
-        m = params.get(MASS)
-        if MASS in change.params and m is not None and pipe.reset_mass():
-            # the learnt mass was the car's before the load: it starts again from the profile's prior
-            old[MASS] = {"value": m.value, "std": m.std, "status": m.status}
-            hit.append(MASS)
         now = pipe.result().parameters
         for n in hit:
             self.start[n] = now[n]  # the tyres are judged from here on against the new values
