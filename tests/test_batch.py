@@ -356,7 +356,7 @@ def test_a_log_rerun_under_another_profile_counts_once(tmp_path, repo_root):
     assert len(list((tmp_path / "out" / "parts" / "superseded").glob("*.parquet"))) == 1  # moved aside, not lost
     assert "left out" not in batch(tmp_path, workers=1).stdout  # said once
     runs = pq.read_table(tmp_path / "out" / "runs.parquet").to_pylist()
-    assert len(runs) == 6 and {r["profile"] for r in runs} == {str(copy)}
+    assert len(runs) == 7 and {r["profile"] for r in runs} == {str(copy)}  # the six and the mass
     veh = pq.read_table(tmp_path / "out" / "vehicles.parquet").to_pylist()
     assert all(v["runs"] == 1 for v in veh)
     # the profile corrected in place (its wheel radius): the log runs again, not "1 already done"
@@ -364,7 +364,7 @@ def test_a_log_rerun_under_another_profile_counts_once(tmp_path, repo_root):
     again = batch(tmp_path, workers=1)
     assert "1 logs: 0 already done, 1 to run (1: its profile changed)" in again.stdout, again.stdout + again.stderr
     rerun = pq.read_table(tmp_path / "out" / "runs.parquet").to_pylist()
-    assert len(rerun) == 6 and rerun[0]["profile_hash"] != runs[0]["profile_hash"]
+    assert len(rerun) == 7 and rerun[0]["profile_hash"] != runs[0]["profile_hash"]
     assert [r["value"] for r in rerun] != [r["value"] for r in runs]  # the new radius's result, not the old one
 
 

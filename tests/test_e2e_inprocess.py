@@ -92,10 +92,7 @@ def test_every_frame_is_estimated_logged_and_replays_to_the_same_estimates(drive
             # numbers to rounding, which a drive's thousands of steps grow to ~1e-9 (per-axle stage 2:
             # I_z 1.2e-9); tests/test_kernels.py holds a drive to DRIVE_RTOL = 1e-7
             assert got["value"] == pytest.approx(e["value"], rel=1e-7), (kind, name)
-            if e["std"] is None:  # the mass, its estimation off: no std in either
-                assert got["std"] is None, (kind, name)
-            else:
-                assert got["std"] == pytest.approx(e["std"], rel=1e-7), (kind, name)
+            assert got["std"] == pytest.approx(e["std"], rel=1e-7), (kind, name)
 
 
 def test_stage_1_converges_live(drive):

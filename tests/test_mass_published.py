@@ -112,16 +112,16 @@ def test_runs_parquet_rows_say_what_the_replay_json_says(drive, tmp_path):
         row = rows["mass"]
         assert (row["status"], row["valid"], row["unit"]) == (doc["status"], doc["valid"], doc["unit"])
         assert row["value"] == pytest.approx(doc["value"], rel=1e-9)
-        if name == "on":
-            assert row["std"] == pytest.approx(doc["std"], rel=1e-9) and row["reason"] == doc.get("reason")
-        else:  # said to be off, with the reason, and no std (NaN in Parquet: not known)
-            assert row["status"] == "not_run" and row["reason"] == doc["reason"] and row["std"] != row["std"]
+        assert row["std"] == pytest.approx(doc["std"], rel=1e-9) and row["reason"] == doc.get("reason")
+        if name == "off":  # said to be off, with the reason; the profile's mass and the prior's std
+            assert row["status"] == "not_run" and "mass estimation is off" in row["reason"]
 
 
 def test_off_the_mass_is_said_to_be_off_in_the_json_and_the_table(drive, capsys):
     doc = drive["replay"]["off"]
     m = doc["parameters"]["mass"]
-    assert (m["status"], m["valid"], m["std"], m["value"]) == ("not_run", False, None, 1600.0)
+    assert (m["status"], m["valid"], m["value"]) == ("not_run", False, 1600.0)
+    assert m["std"] == pytest.approx(0.12 * 1600.0)  # the prior's (core.mass.PRIOR_REL)
     assert "mass estimation is off" in m["reason"] and "--mass" in m["reason"]
     assert vdp_main(["replay", str(drive["log"]), "--profile", str(PROFILE), "--no-progress"]) == 0
     text = capsys.readouterr().out

@@ -164,7 +164,7 @@ def test_the_estimator_hooks_are_off_by_default_and_on_by_config():
     assert est.mass is None and est.tilt is None
     # off, the mass is said to be off (not left out): the profile's, not run, and why
     off = est.parameters()["mass"]
-    assert (off.value, off.std, off.status, off.valid) == (VEH.mass, None, NOT_RUN, False)
+    assert (off.value, off.std, off.status, off.valid) == (VEH.mass, PRIOR_REL * VEH.mass, NOT_RUN, False)
     assert "mass estimation is off" in off.reason and "--mass" in off.reason
     assert list(est.parameters())[-1] == "mass"
     est = TwoStageEstimator(VEH, PROF.priors, EstimatorConfig(mass=MassConfig(report=True), road=RoadConfig(on=True)))

@@ -227,9 +227,11 @@ OFF_REASON = (
 
 def off(m0: float) -> Estimate:
     """The mass where its estimation is off: said (not_run, the reason), never left out silently.
-    The value is the profile's, which every parameter is scaled by; no std: it is not a prior."""
-    return Estimate(NAME, float(m0), None, UNIT, NOT_RUN, False, STAGE, 0, reason=OFF_REASON.format(m=m0),
-                    progress=0.0, extra={"profile_mass": float(m0), "estimated": False})  # fmt: skip
+    Value and std are the prior's, as the learner's own before its first row: the profile's mass,
+    which every parameter is taken with, and PRIOR_REL, what an unseen load may make of it."""
+    return Estimate(NAME, float(m0), PRIOR_REL * float(m0), UNIT, NOT_RUN, False, STAGE, 0,
+                    reason=OFF_REASON.format(m=m0), progress=0.0,
+                    extra={"profile_mass": float(m0), "estimated": False})  # fmt: skip
 
 
 # -- the mass into the six ---------------------------------------------------------------
