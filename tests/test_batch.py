@@ -227,15 +227,17 @@ def test_batch_runs_the_fleet_records_bad_logs_and_resumes(fleet, repo_root):
     (bad,) = by_log["garbage.log"]
     assert bad["status"] == "error" and "garbage.log" in bad["error"]
     cut = by_log["cut.log.gz"]
-    assert len(cut) == 6 and all(r["error"] is None and "ends early" in r["damage"] for r in cut)
+    assert len(cut) == 7 and all(r["error"] is None and "ends early" in r["damage"] for r in cut)
     assert 0 < cut[0]["frames"] < by_log["car2-3.log"][0]["frames"]
     good = by_log["car1-1.log"]
-    assert [r["parameter"] for r in good] == ["l_f", "h", "C_K", "C_alpha", "I_z", "I_x"]
+    assert [r["parameter"] for r in good] == ["l_f", "h", "C_K", "C_alpha", "I_z", "I_x", "mass"]
     assert all(r["error"] is None and r["damage"] is None and r["frames"] > 10000 for r in good)
     assert all(r["duration_s"] > 19 for r in good)
     # a stage-1 drive: stage 2's parameters did not run, and their rows say why
-    assert all(r["reason"] and "no window" in r["reason"] for r in good if r["status"] == "not_run")
-    assert any(r["status"] == "not_run" for r in good)
+    assert all(r["reason"] and "no window" in r["reason"] for r in good[:6] if r["status"] == "not_run")
+    assert any(r["status"] == "not_run" for r in good[:6])
+    # the mass's row: batch does not learn it, and says so
+    assert good[6]["status"] == "not_run" and "mass estimation is off" in good[6]["reason"]
 
     # the same numbers as vdp replay --json on the same log and profile
     out = d / "one.json"
@@ -244,7 +246,9 @@ def test_batch_runs_the_fleet_records_bad_logs_and_resumes(fleet, repo_root):
     doc = json.loads(out.read_text())
     for r in good:
         p = doc["parameters"][r["parameter"]]
-        assert (r["value"], r["std"], r["status"], r["stage"]) == (p["value"], p["std"], p["status"], p["stage"])
+        std = None if r["std"] is None or r["std"] != r["std"] else r["std"]  # NaN in Parquet: not known
+        assert (r["value"], std, r["status"], r["stage"]) == (p["value"], p["std"], p["status"], p["stage"])
+        assert (r["valid"], r["reason"] if p.get("reason") else p.get("reason")) == (p["valid"], p.get("reason"))
     assert good[0]["frames"] == doc["log"]["frames"]
     for r in runs:  # each axle on C_alpha's row only (a stage-1 drive: none here)
         assert (r["C_alpha_front"] is None) or r["parameter"] == "C_alpha"
@@ -269,7 +273,7 @@ def test_batch_runs_the_fleet_records_bad_logs_and_resumes(fleet, repo_root):
     assert sum(parts[k] == after[k] for k in parts) == 4
     runs = pq.read_table(d / "out" / "runs.parquet").to_pylist()
     assert {r["status"] for r in runs if r["log"].endswith("missing.log")} >= {"converged"}
-    assert sum(r["log"].endswith("missing.log") for r in runs) == 6
+    assert sum(r["log"].endswith("missing.log") for r in runs) == 7
     assert veh[("car1", "l_f")]["runs"] == 2  # the earlier vehicles.parquet
     veh = {(v["vehicle"], v["parameter"]): v for v in pq.read_table(d / "out" / "vehicles.parquet").to_pylist()}
     assert veh[("car2", "l_f")]["runs"] == 3  # car2-3, the cut copy, and car1-2's bytes as missing.log
@@ -352,7 +356,7 @@ def test_a_log_rerun_under_another_profile_counts_once(tmp_path, repo_root):
     assert len(list((tmp_path / "out" / "parts" / "superseded").glob("*.parquet"))) == 1  # moved aside, not lost
     assert "left out" not in batch(tmp_path, workers=1).stdout  # said once
     runs = pq.read_table(tmp_path / "out" / "runs.parquet").to_pylist()
-    assert len(runs) == 6 and {r["profile"] for r in runs} == {str(copy)}
+    assert len(runs) == 7 and {r["profile"] for r in runs} == {str(copy)}  # the six and the mass
     veh = pq.read_table(tmp_path / "out" / "vehicles.parquet").to_pylist()
     assert all(v["runs"] == 1 for v in veh)
     # the profile corrected in place (its wheel radius): the log runs again, not "1 already done"
@@ -360,7 +364,7 @@ def test_a_log_rerun_under_another_profile_counts_once(tmp_path, repo_root):
     again = batch(tmp_path, workers=1)
     assert "1 logs: 0 already done, 1 to run (1: its profile changed)" in again.stdout, again.stdout + again.stderr
     rerun = pq.read_table(tmp_path / "out" / "runs.parquet").to_pylist()
-    assert len(rerun) == 6 and rerun[0]["profile_hash"] != runs[0]["profile_hash"]
+    assert len(rerun) == 7 and rerun[0]["profile_hash"] != runs[0]["profile_hash"]
     assert [r["value"] for r in rerun] != [r["value"] for r in runs]  # the new radius's result, not the old one
 
 

@@ -84,7 +84,7 @@ def test_dashboard_and_its_assets_are_served_locally(client):
     for r in refs:
         assert client.get(r).status_code == 200, r
     meta = client.get("/dashboard/meta").json()
-    assert set(meta["parameters"]) == set(NAMES)
+    assert list(meta["parameters"]) == [*NAMES, "mass"]  # a card for the mass too (core.mass)
     assert meta["parameters"]["l_f"]["prior"] == {"value": 1.25, "std": 0.3}
 
 
@@ -150,11 +150,14 @@ def test_the_page_in_a_real_browser(live, tmp_path):
             page.goto(url + "/")
             page.wait_for_function(
                 "() => [...document.querySelectorAll('[data-param] .value')].filter("
-                "e => /\\d/.test(e.textContent)).length === 6",
+                "e => /\\d/.test(e.textContent)).length === 7",
                 timeout=30000,
             )
-            values = {n: page.text_content(f'[data-param="{n}"] .value') for n in NAMES}
+            values = {n: page.text_content(f'[data-param="{n}"] .value') for n in (*NAMES, "mass")}
             assert all(number.match(v) for v in values.values()), values
+            # the mass's card: the profile's 1600 kg, and that it is not estimated (off in this service)
+            assert values["mass"] == "1600" and "not run" in page.text_content('[data-param="mass"] .badge')
+            assert "mass estimation is off" in page.text_content('[data-param="mass"] .progress')
             frames0 = svc.intake.received
             shown0 = page.inner_text("#bus")
             stds0 = {n: page.text_content(f'[data-param="{n}"] .std') for n in NAMES}

@@ -1,5 +1,5 @@
 """Across drives, on the live service over python-can's virtual bus (in-process): issue 28's
-scripted sequence, each step a test on one store and one raw-log folder.
+scripted sequence, each step a test.
 
 1. car A;
 2. a restart (the service stopped and started again, as at an ignition cycle);
@@ -8,12 +8,14 @@ scripted sequence, each step a test on one store and one raw-log folder.
 5. car A with tyres 20 % softer: the tyre change is named;
 6. car B on the same logger: its store is refused with the reason, and A's is kept.
 
-Each drive is simulated (noise-free) as fast as the service estimates it: the `paper` drive
-(112 s, both stages) for car A and its restart, its `stage1` half (54 s) for the load and the
-tyres, 25 s of it for car B; nothing is lost from the raw log.  The simulator drives the loaded car as the profile's car
-with the load's mass and the CG and inertias it moves (``loaded`` below); the service still
-estimates with the profile's mass.  Car B runs under the same profile, but its bus carries
-other ECUs (ids car A's never did) and other parameters.
+Each step is a test of its own: the drives before it are made again by its fixtures (``car_a``,
+``loaded_a``) on a store and a raw-log folder of its own, so any step runs alone or in any
+order.  Each drive is simulated (noise-free) as fast as the service estimates it: the `paper`
+drive (112 s, both stages) for car A and its restart, its `stage1` half (54 s) for the load
+and the tyres, 25 s of it for car B; nothing is lost from the raw log.  The simulator drives
+the loaded car as the profile's car with the load's mass and the CG and inertias it moves
+(``loaded`` below); the service still estimates with the profile's mass.  Car B runs under
+the same profile, but its bus carries other ECUs (ids car A's never did) and other parameters.
 """
 
 from __future__ import annotations
@@ -82,9 +84,12 @@ class Logger:
         stop: bool = True,
         scenario: str = "paper",
         duration: float | None = None,
+        mass: bool = False,
     ):
-        """One drive of the given car through a fresh service; returns it (stopped if ``stop``)."""
+        """One drive of the given car through a fresh service; returns it (stopped if ``stop``).
+        ``mass``: the service learns the mass as driven (``[service] mass = true``)."""
         settings = simulate_settings(PROFILE, self.tmp, scenario=scenario, speed=0, noise="none", seed=seed)
+        settings = dataclasses.replace(settings, service=dataclasses.replace(settings.service, mass=mass))
         settings = dataclasses.replace(settings, store=dataclasses.replace(settings.store, commit_interval=0.2))
         svc = Service(settings, profile=self.profile)
         start = 1.7e9 + self.drives * (DRIVE + GAP)
@@ -123,27 +128,48 @@ def store_rows(db: Path, table: str) -> list[dict]:
         con.close()
 
 
-@pytest.fixture(scope="module")
-def logger(tmp_path_factory):
-    return Logger(tmp_path_factory.mktemp("drives"))
+@pytest.fixture
+def car_a(tmp_path):
+    """A logger (one store, one raw-log folder) after car A's first drive, the paper drive: the
+    service of that drive in ``first``, its estimates in ``a1``."""
+    lg = Logger(tmp_path)
+    lg.first = lg.drive(seed=1)
+    lg.a1 = lg.first.latest.result.parameters
+    return lg
 
 
-def test_1_car_a_learns_and_its_drive_is_kept(logger):
-    svc = logger.drive(seed=1)
+@pytest.fixture
+def loaded_a(car_a):
+    """``car_a`` after a second drive of car A with +300 kg (its stage-1 half): that drive's
+    service in ``loaded_svc``, the loaded car's truth in ``load_truth``."""
+    prof, truth = loaded(car_a.profile, car_a.truth, 300.0)
+    car_a.loaded_svc = car_a.drive(seed=3, car_profile=prof, params=truth, scenario="stage1")
+    car_a.load_truth = truth
+    return car_a
+
+
+def drive_car_b(logger, stop: bool = True):
+    """Car B on the logger: under the same profile, but its bus carries 12 ids car A's never did,
+    and its l_f and I_z differ."""
+    other = dict(logger.truth, l_f=1.05 * logger.truth["l_f"], I_z=1.2 * logger.truth["I_z"])
+    return logger.drive(seed=6, params=other, extra_ids=12, stop=stop, scenario="stage1", duration=25.0)
+
+
+def test_1_car_a_learns_and_its_drive_is_kept(car_a):
+    svc = car_a.first
     est = svc.latest.result.parameters
     for n in ("l_f", "h", "C_K", "C_alpha"):
         assert est[n].valid, (n, est[n])
     drives = store_rows(svc.settings.store.path, "drives")
     assert len(drives) == 1 and drives[0]["state"] == "ended"
     mass = json.loads(drives[0]["mass"])
-    assert abs(mass["value"] - logger.profile.vehicle.mass) < 3 * mass["std"]
+    assert abs(mass["value"] - car_a.profile.vehicle.mass) < 3 * mass["std"]
     assert store_rows(svc.settings.store.path, "changes") == []
-    logger.a1 = est
 
 
-def test_2_3_after_a_restart_car_a_resumes_without_relearning(logger):
-    a1 = logger.a1
-    svc = logger.drive(seed=2, stop=False)
+def test_2_3_after_a_restart_car_a_resumes_without_relearning(car_a):
+    a1 = car_a.a1
+    svc = car_a.drive(seed=2, stop=False)
     try:
         assert svc.restored and svc.restore_error is None
         est = svc.latest.result.parameters
@@ -163,9 +189,8 @@ def test_2_3_after_a_restart_car_a_resumes_without_relearning(logger):
         svc.stop()
 
 
-def test_4_a_load_of_300_kg_is_named_as_a_mass_change(logger):
-    prof, truth = loaded(logger.profile, logger.truth, 300.0)
-    svc = logger.drive(seed=3, car_profile=prof, params=truth, scenario="stage1")
+def test_4_a_load_of_300_kg_is_named_as_a_mass_change(loaded_a):
+    svc = loaded_a.loaded_svc
     db = svc.settings.store.path
     changes = store_rows(db, "changes")
     assert [c["kind"] for c in changes] == ["mass"], changes
@@ -175,10 +200,27 @@ def test_4_a_load_of_300_kg_is_named_as_a_mass_change(logger):
     assert c["drive"] == drive["id"] and c["bus_t"] - drive["bus_t0"] <= 300.0  # within 5 min of driving
     old = json.loads(c["old"])["values"]
     assert {"l_f", "h", "C_K", "C_alpha", "I_z"} <= set(old)  # the values before, kept
-    logger.load_truth = truth
 
 
-def test_5_tyres_20_percent_softer_are_named_as_a_tyre_change(logger):
+def test_4_with_the_mass_learnt_a_load_is_named_and_leaves_the_tyres_alone(tmp_path):
+    """With ``[service] mass = true`` the estimator puts the learnt mass into C_K and C_alpha: a
+    mass step resets l_f, h, I_z and I_x, not C_K and C_alpha (core.change.affected), and the mass
+    published is the loaded car's (its learner starts from the prior at each start of the service)."""
+    lg = Logger(tmp_path)
+    first = lg.drive(seed=1, mass=True)
+    m1 = first.latest.result.parameters["mass"]
+    assert m1.valid and abs(m1.value - lg.profile.vehicle.mass) < 3 * m1.std, m1
+    prof, truth = loaded(lg.profile, lg.truth, 300.0)
+    svc = lg.drive(seed=3, car_profile=prof, params=truth, scenario="stage1", mass=True)
+    (c,) = store_rows(svc.settings.store.path, "changes")
+    assert c["kind"] == "mass" and set(json.loads(c["params"])) == {"mass", "l_f", "h", "I_z", "I_x"}, c
+    assert {"l_f", "h", "I_z", "I_x"} == set(json.loads(c["old"])["values"])  # the values before, kept
+    m2 = svc.latest.result.parameters["mass"]
+    assert abs(m2.value - prof.vehicle.mass) < 3 * m2.std, (m2, prof.vehicle.mass)  # the loaded car's
+
+
+def test_5_tyres_20_percent_softer_are_named_as_a_tyre_change(loaded_a):
+    logger = loaded_a
     # the load is taken out first: a mass step back, named too (it resets C_K, which the next
     # drive learns again); a tyre change at the same time would hide in that reset
     svc = logger.drive(seed=4, scenario="stage1")
@@ -192,11 +234,10 @@ def test_5_tyres_20_percent_softer_are_named_as_a_tyre_change(logger):
     assert set(json.loads(changes[-1]["params"])) == {"C_K", "C_alpha"}
 
 
-def test_6_car_b_is_refused_with_the_reason_and_car_a_store_is_kept(logger):
-    db = logger.tmp / "state.sqlite"
+def test_6_car_b_is_refused_with_the_reason_and_car_a_store_is_kept(car_a):
+    db = car_a.tmp / "state.sqlite"
     before = store_rows(db, "estimates"), store_rows(db, "drives"), store_rows(db, "changes")
-    other = dict(logger.truth, l_f=1.05 * logger.truth["l_f"], I_z=1.2 * logger.truth["I_z"])
-    svc = logger.drive(seed=6, params=other, extra_ids=12, stop=False, scenario="stage1", duration=25.0)
+    svc = drive_car_b(car_a, stop=False)
     try:
         health = svc.health()
         assert svc.writer.state == "refused"
@@ -208,9 +249,11 @@ def test_6_car_b_is_refused_with_the_reason_and_car_a_store_is_kept(logger):
     assert (store_rows(db, "estimates"), store_rows(db, "drives"), store_rows(db, "changes")) == before
 
 
-def test_7_nothing_is_lost_from_the_raw_log(logger):
-    n = sum(sum(1 for _ in open_log(p)) for p in sorted((logger.tmp / "raw").glob("vdp-*.log*")))
-    assert n == logger.sent
+def test_7_nothing_is_lost_from_the_raw_log(loaded_a):
+    # car A, A with +300 kg (a change named), then car B (its store refused): every frame in the raw log
+    drive_car_b(loaded_a)
+    n = sum(sum(1 for _ in open_log(p)) for p in sorted((loaded_a.tmp / "raw").glob("vdp-*.log*")))
+    assert loaded_a.drives == 3 and n == loaded_a.sent
 
 
 def test_an_ignition_cycle_without_a_restart_begins_a_new_drive(tmp_path):
@@ -331,3 +374,29 @@ def test_a_long_stop_with_the_bus_on_ends_a_drive_and_a_short_one_does_not():
     assert stops.feed(t[:1500], v[:1500]) is None  # the 60 s stop at a light
     got = stops.feed(t, v)  # the samples seen already are not counted twice
     assert got is not None and got[0] == pytest.approx(200.0) and got[1] == pytest.approx(350.0)
+
+
+def test_a_logs_own_measures_are_read_as_the_profile_check_reads_it(tmp_path, monkeypatch):
+    """vdp batch's per-log mass, wheel-speed scale and bus print (fleet.drive_measures) come from
+    the profile check's reading of the log's first minutes (profilecheck.first_seconds): the
+    same numbers whether the log is read a block at a time or frame by frame."""
+    from vdp import fleet
+    from vdp.io import bulk
+    from vdp.sim.run import write_log
+
+    profile = load_profile(PROFILE)
+    sim = Simulation(profile, "stage1", 7, "realistic", load=300.0)
+    log = tmp_path / "loaded.log"
+    write_log(sim.frames(), log)
+    got = {}
+    for blocks in (True, False):
+        monkeypatch.setattr(bulk, "pays", lambda path, blocks=blocks: blocks)
+        got[blocks] = fleet.drive_measures(str(log), profile)
+    assert got[True] == got[False]
+    m = got[True]
+    truth = sim.model.params.m  # 1900 kg: the profile says 1600
+    assert abs(m["mass"] - truth) < 3 * m["mass_std"] and m["mass_std"] < 0.03 * truth, m
+    assert abs(m["wheel_scale"] - 1.0) < 3 * m["wheel_scale_std"], m
+    prn = {int(k, 16): v for k, v in json.loads(m["bus_print"]).items()}
+    assert prn and all(0.0 < v < 1.0 for v in prn.values())
+    assert compare_prints(prn, prn) is None

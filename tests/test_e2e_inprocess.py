@@ -83,6 +83,7 @@ def test_every_frame_is_estimated_logged_and_replays_to_the_same_estimates(drive
     assert vdp_main([*args, "--baseline", "ekf"]) == 0  # the live service runs the EKF too
     rep = json.loads(out_json.read_text())
     assert rep["log"]["bad_lines"] == 0 and rep["log"]["frames"] == sent
+    assert list(live["parameters"]) == list(rep["parameters"]) and "mass" in rep["parameters"]
     for kind in ("parameters", "baseline_ekf"):
         for name, e in rep[kind].items():
             got = live[kind][name]

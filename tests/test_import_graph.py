@@ -46,6 +46,7 @@ STAGE = {
     "vdp.series": 6,
     "vdp.export": 6,
     "vdp.fleet": 6,
+    "vdp.across": 6,  # a drive's own measures and the changes across a vehicle's drives (batch, replay --after)
     "vdp.live": 7,
     "vdp.api": 8,
     "vdp.cli": 9,

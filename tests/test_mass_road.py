@@ -161,10 +161,68 @@ def test_the_estimator_hooks_are_off_by_default_and_on_by_config():
     from vdp.core.estimator import EstimatorConfig, TwoStageEstimator
 
     est = TwoStageEstimator(VEH, PROF.priors)
-    assert est.mass is None and est.tilt is None and "mass" not in est.parameters()
+    assert est.mass is None and est.tilt is None
+    # off, the mass is said to be off (not left out): the profile's, not run, and why
+    off = est.parameters()["mass"]
+    assert (off.value, off.std, off.status, off.valid) == (VEH.mass, PRIOR_REL * VEH.mass, NOT_RUN, False)
+    assert "mass estimation is off" in off.reason and "--mass" in off.reason
+    assert list(est.parameters())[-1] == "mass"
     est = TwoStageEstimator(VEH, PROF.priors, EstimatorConfig(mass=MassConfig(report=True), road=RoadConfig(on=True)))
     for smp in _drive(1750.0, 200.0):
         est.handle(smp.t, smp)
     e = est.parameters()["mass"]
     assert e.valid and e.value == pytest.approx(1750.0, rel=0.02)
     assert not est.batchable()  # the tilt's correction runs sample by sample
+
+
+def test_the_profile_check_marks_a_learnt_mass_by_the_channels_it_rests_on():
+    from vdp.profilecheck import DEPENDS, Report, mark_invalid
+
+    learnt = Estimate("mass", 1750.0, 10.0, "kg", CONVERGED, True, 0, 300)
+    off = Estimate("mass", 1600.0, None, "kg", NOT_RUN, False, 0, 0, reason="off")
+    # the profile's own mass is what a learnt one replaces: that finding leaves the learnt mass valid
+    rep = Report()
+    rep.add("mass", "vehicle.mass", "vehicle.mass is 1600 kg, but ...", DEPENDS["mass"])
+    assert mark_invalid({"mass": learnt}, rep)["mass"] == learnt
+    # a wrong a_x scale spoils the balance the mass is learnt from
+    rep.add("accel_x_scale", "accel_x", "accel_x reads 9.8 times too large", DEPENDS["accel_x"])
+    got = mark_invalid({"mass": learnt}, rep)["mass"]
+    assert not got.valid and got.reason == "profile check: accel_x reads 9.8 times too large"
+    # where it is off, it stays said to be off
+    assert mark_invalid({"mass": off}, rep)["mass"] == off
+    # a steering finding is stage 2's: not the mass's
+    rep = Report()
+    rep.add("steering_sign", "steering_angle", "steering reversed", DEPENDS["steering_angle"])
+    assert mark_invalid({"mass": learnt}, rep)["mass"] == learnt
+
+
+def test_a_valid_learnt_mass_answers_the_profile_checks_finding_on_the_profiles_mass():
+    from vdp.profilecheck import DEPENDS, Report, mark_invalid
+
+    rep = Report()
+    rep.add("mass", "vehicle.mass", "vehicle.mass is 1600 kg, but the torques imply 1900 kg", DEPENDS["mass"])
+    scaled_ck = Estimate("C_K", 10.0, 0.1, "1", CONVERGED, True, 1, 100, extra={"mass_used": 1900.0})
+    learnt = Estimate("mass", 1900.0, 10.0, "kg", CONVERGED, True, 0, 300)
+    got = mark_invalid({"C_K": scaled_ck, "mass": learnt}, rep)
+    assert got["C_K"] == scaled_ck and got["mass"] == learnt
+    # not yet valid, or not put into the six: the finding stands
+    for params in ({"C_K": scaled_ck, "mass": replace(learnt, valid=False)},
+                   {"C_K": replace(scaled_ck, extra={}), "mass": learnt}):  # fmt: skip
+        got = mark_invalid(params, rep)
+        assert not got["C_K"].valid and "vehicle.mass is 1600 kg" in got["C_K"].reason
+    # a learnt mass its own channels put in doubt answers nothing
+    rep.add("accel_x_scale", "accel_x", "accel_x reads 9.8 times too large", DEPENDS["accel_x"])
+    got = mark_invalid({"C_K": scaled_ck, "mass": learnt}, rep)
+    assert not got["mass"].valid and "vehicle.mass is 1600 kg" in got["C_K"].reason
+
+
+def test_a_sign_flipped_a_x_gives_an_invalid_mass_not_a_crash():
+    samples = _drive(1600.0, 120.0)
+    flipped = []
+    for smp in samples:
+        y = list(smp.values)
+        y[ch.AX] = -y[ch.AX]
+        flipped.append(Sample(smp.t, tuple(y), smp.fresh, smp.age))
+    e = _learn(flipped).snapshot()
+    assert e.value < 0 and e.status == "invalid" and not e.valid and "no car's" in e.reason
+    assert e.progress is None or e.progress == 0.0

@@ -42,8 +42,13 @@ def test_replay_writes_the_documented_json_and_a_plot(drive, repo_root, capsys):
     res = json.loads(out.read_text())
     for key in ("parameters", "baseline_ekf", "windows", "log"):
         assert key in res
+    # the six and the mass after them (said to be off: core.mass); the EKF baseline is of the six
+    assert list(res["parameters"]) == [*NAMES, "mass"] and list(res["baseline_ekf"]) == list(NAMES)
+    assert (
+        res["parameters"]["mass"]["status"] == "not_run"
+        and "mass estimation is off" in res["parameters"]["mass"]["reason"]
+    )
     for kind in ("parameters", "baseline_ekf"):
-        assert set(res[kind]) == set(NAMES)
         for p in res[kind].values():
             assert {"value", "std", "unit", "valid", "stage"} <= set(p)
     assert res["parameters"]["l_f"]["stage"] == 1 and res["parameters"]["I_z"]["stage"] == 2
@@ -73,7 +78,7 @@ def test_json_never_carries_nan(drive, repo_root):
     res = json.loads(text)
     # the EKF baseline runs only when asked (--baseline ekf); its key is there, empty
     assert "baseline_ekf" in res and res["baseline_ekf"] is None
-    assert set(res["parameters"]) == set(NAMES)
+    assert list(res["parameters"]) == [*NAMES, "mass"]
 
 
 def test_per_axle_reports_each_axle_in_c_alphas_extra(drive, repo_root, capsys):
@@ -374,3 +379,41 @@ def test_a_plain_replay_imports_only_what_it_uses(drive, repo_root, tmp_path):
     out = subprocess.run(run, capture_output=True, text=True, env=env, cwd=tmp_path, check=True)
     assert json.loads(out.stdout.strip().splitlines()[-1]) == []
     assert json.loads((tmp_path / "o.json").read_text())["parameters"]  # it did replay
+
+
+def test_replay_after_earlier_drives_names_the_changes_as_batch_and_serve_do(tmp_path, repo_root, capsys):
+    """`vdp replay LOG --after EARLIER.json ...`: the earlier drives' replays (their JSON carries each
+    drive's own mass, wheel-speed scale and bus print) and this one, in time order, through the
+    rules of vdp serve and vdp batch (vdp.across.changes): +300 kg is named a mass step, another
+    car's bus another car; an earlier document it cannot use is refused before the replay."""
+    from vdp.sim.run import Simulation
+
+    prof = str(repo_root / "profiles" / "paper.toml")
+    drives = {"a": {}, "loaded": {"load": 300.0}, "other": {"extra_ids": 12, "extra_rate": 50.0}}
+    docs = {}
+    for k, (name, kw) in enumerate(drives.items()):
+        log = tmp_path / f"{name}.log"
+        sim = Simulation(prof, "stage1", k + 1, "realistic", duration=40.0, start_time=1.7e9 + 3600.0 * k, **kw)
+        write_log(sim.frames(), log)
+        after = [a for n in docs for a in ("--after", str(tmp_path / f"{n}.json"))]
+        out = tmp_path / f"{name}.json"
+        assert main(["replay", str(log), "--profile", prof, "--json", str(out), "--no-progress", *after]) == 0
+        docs[name] = json.loads(out.read_text())
+        docs[name]["text"] = capsys.readouterr().out
+    first = docs["a"]
+    assert "changes" not in first and "changes:" not in first["text"]  # no --after, no comparison
+    d = first["drive"]
+    assert abs(d["mass"] - 1600.0) < 3 * d["mass_std"] and d["bus_print"] and d["start_time"] == 1.7e9
+    (c,) = docs["loaded"]["changes"]
+    assert c["kind"] == "mass" and 0.12 < c["size"] < 0.26 and c["log"].endswith("loaded.log"), c
+    assert "change at this drive: mass step of +" in docs["loaded"]["text"]
+    kinds = [(x["kind"], x["log"].rsplit("/", 1)[-1]) for x in docs["other"]["changes"]]
+    assert kinds == [("mass", "loaded.log"), ("car", "other.log")], kinds
+    assert "change at this drive: a different car:" in docs["other"]["text"]
+    assert set(docs["other"]["changes"][-1]["params"]) == {"mass", "l_f", "h", "C_K", "C_alpha", "I_z", "I_x"}
+    # an earlier drive that is no replay's JSON, or one without its drive's measures: refused, said why
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({k: v for k, v in first.items() if k not in ("drive", "text")}))
+    for bad, said in ((tmp_path / "none.json", "no such file"), (old, "no 'drive' section")):
+        assert main(["replay", str(tmp_path / "a.log"), "--profile", prof, "--after", str(bad)]) == 2
+        assert said in capsys.readouterr().err

@@ -297,6 +297,33 @@ def test_restart_restores_the_last_committed_estimates(tmp_path):
         again.stop()
 
 
+def test_a_stored_mass_does_not_stop_the_six_from_being_restored(tmp_path):
+    """The store keeps the mass beside the six (core.mass); its learner is not restored.  A stored
+    mass the estimator now publishes otherwise (learnt 1900 kg, estimation off since: the
+    profile's 1600) must not make the restart refuse the six."""
+    from vdp.core.result import CONVERGED, Estimate
+    from vdp.profile import load_profile
+    from vdp.store import profile_fingerprint
+
+    settings = make_settings(tmp_path)
+    profile = load_profile(settings.profile)
+    lf = Estimate("l_f", 1.31, 0.01, "m", CONVERGED, True, 1, 5000)
+    mass = Estimate("mass", 1900.0, 15.0, "kg", CONVERGED, True, 0, 300)
+    st = Store(settings.store.path, profile_fingerprint(profile), profile.vehicle.name)
+    st.save({"l_f": lf, "mass": mass})
+    st.close()
+    svc = Service(settings)
+    svc.start()
+    try:
+        assert svc.restore_error is None and svc.restored is not None
+        assert "mass" not in svc.restored and "l_f" in svc.restored
+        now = svc.estimates()["parameters"]
+        assert now["l_f"]["value"] == pytest.approx(1.31)
+        assert now["mass"]["status"] == "not_run" and now["mass"]["value"] == profile.vehicle.mass
+    finally:
+        svc.stop()
+
+
 def test_a_diverged_filter_and_stale_channels_show_in_health(tmp_path):
     class Diverging(FakePipeline):
         def snapshot(self):

@@ -24,13 +24,14 @@ from pathlib import Path
 from typing import Any
 
 from . import __version__
-from .core.params import NAMES
+from .across import changes, drive_measures, since_changes, usable  # noqa: F401 (batch's, and scripts')
+from .core.params import PUBLISHED
 from .core.result import CONVERGED, INVALID, NOT_IDENTIFIABLE, NOT_RUN, UNCERTAIN
 from .errors import VdpError
 
 log = logging.getLogger(__name__)
 
-PARAMETERS = NAMES
+PARAMETERS = PUBLISHED  # the six and the mass (its row says not_run where its estimation is off)
 Z_FLAG = 3.0  # |z| of a drive against the others' combination that flags it as disagreeing
 # The share of each drive's std that is common to all drives of a car, and so does not average
 # out: the model's error, the profile's constants and the priors are the same in every drive.
@@ -323,151 +324,6 @@ def _num(v: Any) -> float:
     return math.nan if v is None else float(v)
 
 
-# -- a drive's own measures, and the changes between a vehicle's drives -----------------------
-MEASURE_SECONDS = 300.0  # of bus time from a log's start (the profile check reads as much)
-
-
-def drive_measures(path: str, profile: Any, seconds: float = MEASURE_SECONDS) -> dict[str, Any]:
-    """The columns of a log's own mass, wheel-speed scale and bus print, from its first
-    ``seconds`` (decoded and aligned as the profile check does, kept at 10 Hz)."""
-    import json
-
-    import numpy as np
-
-    from . import channels as ch
-    from .buffer import Aligner
-    from .core.change import bus_print, fit_mass, fit_scale, id_counts
-    from .io.decoder import FrameDecoder
-    from .io.logs import open_log
-
-    dec = FrameDecoder(profile)
-    al = Aligner(stale_after=np.full(ch.N, 0.5), tick=0.01, limits=ch.limits(profile.vehicle))
-    ts: list[float] = []
-    ys: list[np.ndarray] = []
-    t0 = t1 = None
-    with open_log(path, channel=profile.bus_channel, quiet=True) as src:
-        for msg in src:
-            if t0 is None:
-                t0 = msg.timestamp
-            if msg.timestamp - t0 > seconds:
-                break
-            t1 = msg.timestamp
-            pairs = dec.decode(msg)
-            if pairs:
-                for smp in al.push(msg.timestamp, pairs):
-                    if not ts or smp.t - ts[-1] >= 0.1:
-                        ts.append(smp.t)
-                        ys.append(np.asarray(smp.values, dtype=float))
-    out: dict[str, Any] = dict.fromkeys(("mass", "mass_std", "wheel_scale", "wheel_scale_std", "bus_print"))
-    if t0 is not None and t1 is not None and t1 > t0:
-        out["bus_print"] = json.dumps({f"0x{k:X}": round(v, 6) for k, v in bus_print(id_counts(dec), t1 - t0).items()})
-    if len(ys) < 20:
-        return out
-    y = np.vstack(ys)
-    veh = profile.vehicle
-    wheels = [c for c in ch.NAMES[:4] if profile.has(c)]
-    v_wheel = np.nanmean(y[:, [ch.INDEX[c] for c in wheels]], axis=1) * veh.wheel_radius if wheels else None
-    v_ref = y[:, ch.SPEED] if profile.has("speed") else None
-    v = v_ref if v_ref is not None else v_wheel
-    if v is not None and all(profile.has(c) for c in ("wheel_torque_front", "wheel_torque_rear", "accel_x")):
-        m = fit_mass(
-            (y[:, ch.T_F] + y[:, ch.T_R]) / veh.wheel_radius, y[:, ch.AX], v, veh.wheel_inertia, veh.wheel_radius
-        )
-        if m is not None:
-            out["mass"], out["mass_std"] = m.value, m.std
-    if v_wheel is not None and v_ref is not None:
-        k = fit_scale(v_wheel, v_ref)
-        if k is not None:
-            out["wheel_scale"], out["wheel_scale_std"] = k.value, k.std
-    return out
-
-
-def changes(rows: Iterable[Mapping[str, Any]]) -> list[dict]:
-    """The changes between each vehicle's drives, in the time order of their logs: the rules of
-    the running service (vdp.core.change.detect, compare_prints) on each log's own estimates
-    and measures.  A drive is tested against the drives since the last change of that kind
-    (their inverse-variance combination); another car's bus is tested against the vehicle's
-    first drive (or the first since another car).  One dict per change: vehicle, log, start_time,
-    kind, what, size, params."""
-    import json
-
-    from .core.change import Measure, combine, compare_prints, detect
-
-    drives: dict[str, dict[str, dict]] = {}
-    for r in rows:
-        if r.get("parameter") is None:
-            continue  # an error row
-        d = drives.setdefault(r["vehicle"], {}).setdefault(r["log"], {"row": r, "params": {}})
-        d["params"][r["parameter"]] = r
-    out: list[dict] = []
-
-    def measure(v, s) -> Measure | None:
-        return Measure(v, s) if v is not None and s is not None and math.isfinite(v) and math.isfinite(s) else None
-
-    for vehicle in sorted(drives):
-        logs = sorted(drives[vehicle].values(), key=lambda d: (d["row"].get("start_time") or math.inf, d["row"]["log"]))
-        since: dict[str, list[dict]] = {"mass": [], "tyres": []}
-        ref_print = None
-        for d in logs:
-            r = d["row"]
-            prn = {int(k, 16): v for k, v in json.loads(r["bus_print"]).items()} if r.get("bus_print") else None
-            now = {
-                "mass": measure(r.get("mass"), r.get("mass_std")),
-                "radius": measure(r.get("wheel_scale"), r.get("wheel_scale_std")),
-            }
-            for n in ("C_K", "C_alpha"):
-                p = d["params"].get(n)
-                now[n] = measure(p.get("value"), p.get("std")) if p is not None and usable(p) else None
-            found = []
-            why = compare_prints(ref_print, prn) if ref_print and prn else None
-            if why is not None:
-                found.append({"kind": "car", "what": f"a different car: {why}", "size": None, "params": list(NAMES)})
-                since = {"mass": [], "tyres": []}
-                ref_print = prn
-            else:
-                ref_print = ref_print or prn
-                ref = {
-                    "mass": combine([x["mass"] for x in since["mass"] if x["mass"] is not None]),
-                    "radius": combine([x["radius"] for x in since["tyres"] if x["radius"] is not None]),
-                }
-                for n in ("C_K", "C_alpha"):
-                    ref[n] = combine([x[n] for x in since["tyres"] if x[n] is not None])
-                for c in detect(ref, now):
-                    found.append(c.as_dict())
-                    if c.kind == "mass":
-                        since = {"mass": [], "tyres": []}  # C_K and C_alpha went with it
-                    else:
-                        since["tyres"] = []
-            since["mass"].append(now)
-            since["tyres"].append(now)
-            for c in found:
-                out.append({"vehicle": vehicle, "log": r["log"], "start_time": r.get("start_time"), **c})
-    return out
-
-
-def since_changes(rows: Iterable[Mapping[str, Any]], found: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
-    """``rows`` without the drives before the last change (of :func:`changes`) that affects their
-    parameter: a vehicle's combination is of the car as it is now, not of the car before new tyres."""
-    cut: dict[tuple[str, str], float] = {}
-    for c in found:
-        t = c.get("start_time")
-        if t is None:
-            continue
-        for p in c.get("params") or ():
-            key = (c["vehicle"], p)
-            cut[key] = max(cut.get(key, -math.inf), t)
-    out = []
-    for r in rows:
-        t0 = cut.get((r.get("vehicle"), r.get("parameter")))
-        t = r.get("start_time")
-        if t0 is None or (t is not None and t >= t0):
-            out.append(r)
-    return out
-
-
-# -- combining a vehicle's drives -------------------------------------------
-
-
 def weighted(values: list[float], stds: list[float]) -> tuple[float, float]:
     """Inverse-variance weighted mean and its std (the drives taken as independent)."""
     w = [1.0 / (s * s) for s in stds]
@@ -484,21 +340,6 @@ def combined(values: list[float], stds: list[float], common: float = COMMON) -> 
     mean, sd = weighted(values, stds)
     best = min(stds)
     return mean, math.sqrt((1.0 - common * common) * sd * sd + (common * best) ** 2)
-
-
-def usable(row: Mapping[str, Any]) -> bool:
-    """A drive's parameter enters the combination only if vdp called it valid (its honest std
-    within the usefulness threshold, no profile the self-check found wrong, ...)."""
-    v, s = row.get("value"), row.get("std")
-    return (
-        bool(row.get("valid"))
-        and row.get("status") in (CONVERGED, UNCERTAIN)  # learnt from the data (an older row may say more)
-        and v is not None
-        and s is not None
-        and math.isfinite(v)
-        and math.isfinite(s)
-        and s > 0
-    )
 
 
 def combine(rows: Iterable[Mapping[str, Any]]) -> tuple[list[dict], dict[tuple[str, str, str], float]]:

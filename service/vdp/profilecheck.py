@@ -29,12 +29,13 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from . import channels as ch
-from .core.params import STAGE2
-from .core.result import Estimate
+from .core.params import MASS, STAGE2
+from .core.result import NOT_RUN, Estimate
 from .errors import ProfileError
 from .profile import PARAMETERS, Profile
 
@@ -109,13 +110,37 @@ class Report:
 
 
 def mark_invalid(params: Mapping[str, Estimate], report: Report) -> dict[str, Estimate]:
-    """The estimates with ``valid = False`` and the ``reason`` on every parameter a finding concerns."""
+    """The estimates with ``valid = False`` and the ``reason`` on every parameter a finding concerns;
+    a learnt mass (core.mass) where a finding concerns the channels it rests on.  A valid learnt mass
+    that the six are scaled with answers the finding on the profile's mass: that one marks nothing."""
     out = dict(params)
-    for name, why in report.invalid.items():
+    m = out.get(MASS)
+    if m is not None and m.status != NOT_RUN:
+        why = next((f.message for f in report.findings if _under_mass(f)), None)
+        if why is not None:
+            out[MASS] = dataclasses.replace(m, valid=False, reason=f"profile check: {why}")
+    findings = report.findings
+    if _mass_learnt(out):
+        findings = [f for f in findings if f.subject != "vehicle.mass"]
+    for name, why in Report(findings).invalid.items():
         e = out.get(name)
         if e is not None:
             out[name] = dataclasses.replace(e, valid=False, reason=why)
     return out
+
+
+def _mass_learnt(params: Mapping[str, Estimate]) -> bool:
+    """A valid learnt mass that the six are scaled with (core.mass.scaled marks them ``mass_used``)."""
+    m = params.get(MASS)
+    used = any("mass_used" in (e.extra or {}) for n, e in params.items() if n != MASS)
+    return m is not None and m.status != NOT_RUN and m.valid and used
+
+
+def _under_mass(f: Finding) -> bool:
+    """A finding on a channel the learnt mass rests on: the torques, a_x and the speeds, which
+    stage 1 rests on too (C_K among its parameters).  Not the profile's mass (the learnt one
+    replaces it) nor a prior (the mass takes none from the geometry)."""
+    return "C_K" in f.params and not f.subject.startswith(("vehicle.", "priors."))
 
 
 def _factor_name(ratio: float) -> str | None:
@@ -678,9 +703,15 @@ def check_log(
     with the counts and the ids the log does hold (unless ``strict_coverage`` is false).
     ``quiet``: the reader logs no warnings (a replay that reads the log next gives them).
     """
+    return check_head(first_seconds(path, profile, seconds, quiet), profile, strict_coverage, path)
+
+
+def check_head(head: Head, profile: Profile, strict_coverage: bool = True, path: str | Path = "the log") -> tuple:
+    """:func:`check_log` of a log's first seconds already read (:func:`first_seconds`); ``head``
+    is left as it was (its samples serve the drive's measures too: fleet.measures_of)."""
     from .io.logs import channel_keys
 
-    dec, al, ts, y, st = _first_seconds(path, profile, seconds, quiet)
+    dec, al, ts, y, st = head.decoder, head.aligner, head.t, head.y.copy(), head.stats
     cov = coverage(dec)
     if getattr(st, "skipped", 0):  # the log source left out the frames of other bus channels
         names = sorted(c for c in getattr(st, "channels", ()) if c not in channel_keys(profile.bus_channel))
@@ -713,11 +744,23 @@ def check_log(
     return rep, cov
 
 
-def _first_seconds(path: str | Path, profile: Profile, seconds: float, quiet: bool) -> tuple:
-    """The first ``seconds`` of bus time of a log, decoded and aligned: (decoder, aligner, sample
-    times, sample values, the reader's stats).  A candump log goes a block at a time where that
-    pays (vdp.io.bulk, the same samples and decoder counts); one it hands back, a short one, and
-    any other format, frame by frame."""
+class Head(NamedTuple):
+    """A log's first seconds, decoded and aligned (:func:`first_seconds`)."""
+
+    decoder: Any  # the FrameDecoder that read them (its counts per id: vdp.core.change.id_counts)
+    aligner: Any
+    t: np.ndarray  # sample times [s]
+    y: np.ndarray  # sample values (one row per sample, channels.INDEX columns)
+    stats: Any  # the reader's
+    span: float  # bus time from the first frame read to the last [s]
+
+
+def first_seconds(path: str | Path, profile: Profile, seconds: float = CHECK_SECONDS, quiet: bool = True) -> Head:
+    """The first ``seconds`` of bus time of a log, decoded and aligned as the profile check reads
+    them (the running service's self-check keeps its samples alike).  A candump log goes a block
+    at a time where that pays (vdp.io.bulk, the same samples and decoder counts); one it hands
+    back, a short one, and any other format, frame by frame.  Every frame reaches the decoder,
+    those of ids it does not know included."""
     from .buffer import Aligner
     from .io import bulk
     from .io.decoder import FrameDecoder
@@ -741,31 +784,32 @@ def _first_seconds(path: str | Path, profile: Profile, seconds: float, quiet: bo
         except bulk.Irregular as why:
             log.debug("%s: %s; checking it frame by frame", path, why)
         else:
-            return dec, al, *sink.arrays(), src.stats
+            return Head(dec, al, *sink.arrays(), src.stats, float(src.stats.bus_time or 0.0))
         finally:
             src.close()
     dec, al = fresh()
     ts: list[float] = []
     rows: list[tuple] = []
-    t0 = None
+    t0 = t1 = None
     with open_log(path, channel=profile.bus_channel, quiet=quiet) as src:
         for msg in src:
             if t0 is None:
                 t0 = msg.timestamp
             if msg.timestamp - t0 > seconds:
                 break
+            t1 = msg.timestamp
             pairs = dec.decode(msg)
             if pairs:
                 for s in al.push(msg.timestamp, pairs):
                     ts.append(s.t)
                     rows.append(s.values)
     y = np.vstack(rows) if rows else np.zeros((0, ch.N))
-    return dec, al, np.asarray(ts), y, src.stats
+    return Head(dec, al, np.asarray(ts), y, src.stats, (t1 - t0) if t0 is not None else 0.0)
 
 
 class _Sink:
     """What the block reader feeds (a pipeline's decoder, aligner, feed and take_block): keeps
-    the aligned samples, as the frame-by-frame loop of :func:`_first_seconds` keeps them."""
+    the aligned samples, as the frame-by-frame loop of :func:`first_seconds` keeps them."""
 
     def __init__(self, decoder, aligner):
         self.decoder, self.aligner = decoder, aligner

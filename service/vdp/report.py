@@ -9,7 +9,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from .core.params import BY_NAME, NAMES
+from .core.params import BY_NAME, MASS, NAMES, PUBLISHED
 from .core.result import Estimate
 from .errors import ConfigError
 from .outfile import replacing, write_text
@@ -33,8 +33,10 @@ def load_truth(path: str | Path) -> dict:
 def compare(params: Mapping[str, Estimate], truth: dict) -> dict:
     """Relative error of each estimate, and whether truth is inside value +- 2 std."""
     out = {}
-    for name in NAMES:
+    for name in PUBLISHED:
         t = truth["parameters"].get(name)
+        if name == MASS and t is None:
+            t = truth.get("mass")  # the loaded car's (vdp simulate --load), beside the six
         e = params.get(name)
         v, sd = (e.value, e.std) if e is not None else (None, None)
         if t is None or v is None:
@@ -137,8 +139,8 @@ def _fmt(v, digits=4):
 
 
 def table(result: RunResult, truth: dict | None = None) -> str:
-    """A fixed-width table of the six parameters (UKF), the EKF baseline where it ran and, if
-    known, the truth."""
+    """A fixed-width table of the six parameters and the mass (UKF), the EKF baseline where it ran
+    and, if known, the truth."""
     params, ekf = result.parameters, result.baseline_ekf or {}
     has_ekf = bool(ekf)  # (a column of dashes when the baseline did not run only raised questions)
     cmp_ = compare(params, truth) if truth is not None else {}
@@ -148,7 +150,8 @@ def table(result: RunResult, truth: dict | None = None) -> str:
     if cmp_:
         head += f" {'truth':>10} {'UKF err':>8}" + (f" {'EKF err':>8}" if has_ekf else "")
     lines = [head, "-" * len(head)]
-    for name in NAMES:
+    names = [n for n in PUBLISHED if n in params]  # (a result made before the mass was published has none)
+    for name in names:
         p = params[name]
         e = ekf.get(name)
         status = p.status + ("!" if p.reason else "")  # a reason follows the table
@@ -162,7 +165,7 @@ def table(result: RunResult, truth: dict | None = None) -> str:
         lines.append(row)
     # why each marked parameter is what it is (a profile-check mismatch, a model mismatch,
     # roll not excited, no roll-rate gyro, a measured l_f ...)
-    lines += [f"! {n}: {params[n].reason}" for n in NAMES if params[n].reason]
+    lines += [f"! {n}: {params[n].reason}" for n in names if params[n].reason]
     lines += axle_lines(params, truth)
     return "\n".join(lines)
 

@@ -96,6 +96,9 @@ class ServiceSettings:
     diverged_hold: float = 60.0  # s /health stays degraded after a filter reset
     # stage 2 estimates the front and the rear cornering stiffness separately (LearnerConfig.per_axle)
     per_axle: bool = True
+    # learn the mass as driven (core.mass): published beside the six and put into C_K, C_alpha and I_z,
+    # as vdp replay --mass does; off, /estimates says the mass is not estimated and the profile's is used
+    mass: bool = False
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse, PlainTextResponse
 from fastapi.staticfiles import StaticFiles
 
+from ..core import mass
 from ..core.params import SPECS
 from ..export import FORMATS, Constants, render
 from ..text import clean
@@ -111,6 +112,15 @@ def meta(svc: Svc) -> dict[str, Any]:
                 "prior": {"value": prof.priors[s.name].value, "std": prof.priors[s.name].std},
             }
             for s in SPECS
+        }
+        | {
+            # the mass as driven (core.mass): a card like the six's; /estimates says whether it is learnt
+            mass.NAME: {
+                "unit": mass.UNIT,
+                "stage": mass.STAGE,
+                "description": "vehicle mass as driven (kerb weight, occupants, load)",
+                "prior": {"value": prof.vehicle.mass, "std": mass.PRIOR_REL * prof.vehicle.mass},
+            }
         },
     }
 

@@ -15,11 +15,11 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Body, Depends, Query
 from fastapi.responses import JSONResponse, Response
 
-from ..core.params import NAMES
+from ..core.params import PUBLISHED
 from . import models
 from .deps import Svc, authorize
 
-Parameter = Literal[NAMES]  # type: ignore[valid-type]
+Parameter = Literal[PUBLISHED]  # type: ignore[valid-type]
 _ERR = {"model": models.Problem}
 
 router = APIRouter()

@@ -74,6 +74,14 @@ def add_parser(sub):
         help="model the road's grade and the IMU's tilt with the body (a body-fixed IMU; issue 28)",
     )
     p.add_argument(
+        "--after",
+        action="append",
+        metavar="JSON",
+        help="an earlier drive of the same car, as `vdp replay --json` wrote it: the changes between the "
+        "drives (a mass step, new tyres, another car on the bus) are named by the rules of vdp serve and "
+        "vdp batch, over all the drives in the time order of their logs (repeatable)",
+    )
+    p.add_argument(
         "--per-frame",
         action="store_true",
         help="read a candump log frame by frame instead of in blocks (slower, same result)",
@@ -174,11 +182,15 @@ def run(args) -> int:
     path = profile_path(args.profile) if args.profile else default_profile()
     profile = load_profile(path)
     outputs = {"--json": args.json_out, "--plot": args.plot, "--series": args.series, "--channels": args.channels}
-    check_apart(outputs, {"the log": args.log, **profile_inputs(profile), "--truth": args.truth})
+    after = list(args.after or ())
+    earlier = [(f"--after {i + 1}", a) for i, a in enumerate(after)]
+    check_apart(outputs, [("the log", args.log), *profile_inputs(profile).items(), ("--truth", args.truth), *earlier])
+    before = [_earlier(a) for a in after]  # an unreadable one is refused before the replay
     # the profile self-check reads the log's first minutes; a log of another car stops here
     # quiet: the replay below reads the same lines and warns of what it skips, once
     try:
-        check, cov = profilecheck.check_log(args.log, profile, quiet=True)
+        head = profilecheck.first_seconds(args.log, profile, quiet=True)
+        check, cov = profilecheck.check_head(head, profile, path=args.log)
     except ProfileError as exc:
         if args.profile:
             raise
@@ -238,12 +250,20 @@ def run(args) -> int:
         baseline_ekf=None if result.baseline_ekf is None else profilecheck.mark_invalid(result.baseline_ekf, check),
     )
 
+    # this drive's own measures (its mass, wheel-speed scale, bus print: what a later --after reads)
+    # from the minutes the check read, and the changes against the earlier drives
+    drive = _measures(head, profile, result)
+    found = _changes(before, args.log, drive, result) if before else None
+
     # the files first: a table piped into head (a closed pipe) must not cost the user them
     wrote: list[str] = []
     if args.json_out:
         doc = report.document(result, truth)
         doc["vehicle"] = _constants(profile)
         doc["profile_check"] = {**check.as_dict(), "coverage": cov.as_dict()}
+        doc["drive"] = drive
+        if found is not None:
+            doc["changes"] = found
         report.write_json(doc, args.json_out)
         wrote.append(f"wrote {args.json_out}")
     t0 = result.log.start_time
@@ -285,6 +305,9 @@ def run(args) -> int:
     kept, total = len(result.windows), result.supervisor.get("windows", 0)
     if total > kept:
         print(f"{total} gating windows in all; the JSON and the plot keep the newest {kept}")
+    if found is not None:
+        for line in _change_lines(found, args.log, len(before)):
+            print(line)
     for line in report.decode_lines(result):
         print(line)
     bad = lg.source.get("bad_lines", 0)
@@ -332,3 +355,58 @@ def _coaching(result) -> list[str]:
                 hint = hint.replace(p.reason, "(reason above)")
             lines.append(f"  {name}: {hint}")
     return lines
+
+
+def _earlier(path: str) -> tuple[str, dict]:
+    """(its log, the document) of an earlier drive's `vdp replay --json`; a ConfigError that says
+    what is wrong with it."""
+    import json
+
+    try:
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"--after {path}: no such file") from None
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"--after {path}: not a vdp replay --json document: {exc}") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("parameters"), dict):
+        raise ConfigError(f"--after {path}: not a vdp replay --json document (no 'parameters')")
+    if not isinstance(doc.get("drive"), dict):
+        raise ConfigError(
+            f"--after {path}: has no 'drive' section (its mass, wheel-speed scale and bus print): it was "
+            "written by an older vdp; replay that log again with --json"
+        )
+    log = (doc.get("log") or {}).get("path") or path
+    return str(log), doc
+
+
+def _measures(head, profile, result) -> dict:
+    """The drive's own measures (vdp.across.measures_of) in the JSON's shape: the bus print as an object."""
+    import json
+
+    from ..across import measures_of
+
+    m = measures_of(head, profile)
+    m["bus_print"] = json.loads(m["bus_print"]) if m.get("bus_print") else None
+    m["start_time"] = result.log.start_time if result.log is not None else None
+    return m
+
+
+def _changes(before: list[tuple[str, dict]], log: str, drive: dict, result) -> list[dict]:
+    """The changes across the earlier drives and this one, in the time order of their logs
+    (vdp.across.changes: the rules vdp batch and vdp serve apply)."""
+    from ..across import changes, document_rows
+    from ..result import jsonable
+
+    rows = [r for lg, doc in before for r in document_rows(doc, lg)]
+    rows += document_rows({"drive": drive, "parameters": jsonable(result.estimates_dict())["parameters"]}, log)
+    return [{k: v for k, v in c.items() if k != "vehicle"} for c in changes(rows)]
+
+
+def _change_lines(found: list[dict], log: str, n: int) -> list[str]:
+    if not found:
+        return [f"changes: none against {n} earlier drive{'s' if n > 1 else ''} (--after)"]
+    out = []
+    for c in found:
+        where = "this drive" if c["log"] == log else c["log"]
+        out.append(f"change at {where}: {c['what']}; resets {', '.join(c['params'])}")
+    return out

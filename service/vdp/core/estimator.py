@@ -24,6 +24,8 @@ from .learn.base import LearnerConfig
 from .learn.stage1 import Stage1
 from .learn.stage2 import Stage2
 from .mass import MassConfig, MassLearner, scaled
+from .mass import off as mass_off
+from .params import MASS
 from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
 from .road import RoadConfig, Tilt
 from .sample import Sample
@@ -428,8 +430,9 @@ class TwoStageEstimator:
             out["l_f"] = replace(e, reason=why)
         if self.cfg.mass.use:  # the learnt mass into the six, its std carried (core.mass.scaled)
             out = scaled(out, self.mass.snapshot(), self.vehicle.mass)
-        if self.cfg.mass.report:
-            out["mass"] = self.mass.snapshot()
+        if kind == "ukf":  # the mass after the six: learnt (core.mass), or said to be off (never left out)
+            # (one learner, not a filter kind's: the EKF baseline's six are scaled by it, not given it again)
+            out[MASS] = self.mass.snapshot() if self.mass is not None else mass_off(self.vehicle.mass)
         return out
 
     def stage(self) -> str:

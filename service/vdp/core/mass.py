@@ -50,11 +50,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .. import channels as ch
+from .params import MASS
 from .result import CONVERGED, INVALID, NOT_RUN, UNCERTAIN, Estimate
 
 log = logging.getLogger(__name__)
 
-NAME = "mass"
+NAME = MASS
 UNIT = "kg"
 ROW = 1.0  # s per row
 PRIOR_REL = 0.12
@@ -188,7 +189,8 @@ class MassLearner:
         m, sd = self.value()
         prior_sd = PRIOR_REL * self.m0
         progress = 0.0
-        if sd < prior_sd:
+        # (a mass of no car's, e.g. negative from a sign-flipped a_x, has no progress: it is invalid below)
+        if 0.0 < sd < prior_sd and USEFUL_REL * m > 0.0 and prior_sd > USEFUL_REL * m:
             progress = min(math.log(prior_sd / sd) / math.log(prior_sd / (USEFUL_REL * m)), 1.0)
         extra = {
             "rows": self.rows,
@@ -215,6 +217,21 @@ class MassLearner:
                       f"valid within {100 * USEFUL_REL:g} % and after {MIN_ROWS} s")  # fmt: skip
         return Estimate(NAME, m, sd, UNIT, status, valid, STAGE, self.rows, reason=reason,
                         progress=round(progress, 3), extra=extra)  # fmt: skip
+
+
+OFF_REASON = (
+    "not estimated: mass estimation is off, so the profile's vehicle.mass ({m:g} kg) is taken as known and a load "
+    "is not seen; turn it on to learn the mass as driven (vdp replay --mass; vdp serve: [service] mass = true)"
+)
+
+
+def off(m0: float) -> Estimate:
+    """The mass where its estimation is off: said (not_run, the reason), never left out silently.
+    Value and std are the prior's, as the learner's own before its first row: the profile's mass,
+    which every parameter is taken with, and PRIOR_REL, what an unseen load may make of it."""
+    return Estimate(NAME, float(m0), PRIOR_REL * float(m0), UNIT, NOT_RUN, False, STAGE, 0,
+                    reason=OFF_REASON.format(m=m0), progress=0.0,
+                    extra={"profile_mass": float(m0), "estimated": False})  # fmt: skip
 
 
 # -- the mass into the six ---------------------------------------------------------------

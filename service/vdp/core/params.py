@@ -41,3 +41,7 @@ BY_NAME: dict[str, ParamSpec] = {s.name: s for s in SPECS}
 NAMES: tuple[str, ...] = tuple(s.name for s in SPECS)
 STAGE1: tuple[str, ...] = ("l_f", "h", "C_K")
 STAGE2: tuple[str, ...] = ("C_alpha", "I_z", "I_x")
+# what a result publishes: the six, and the mass (core.mass) after them, learnt where mass
+# estimation is on and "not_run" with the reason where it is off
+MASS = "mass"
+PUBLISHED: tuple[str, ...] = (*NAMES, MASS)

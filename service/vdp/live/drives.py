@@ -277,7 +277,7 @@ class Drives:
                     ref[name], cur[name] = Measure(a.value, a.std), Measure(b.value, b.std)
         else:
             ref["radius"] = None
-        for change in detect(ref, cur, mass_estimated="mass" in params):
+        for change in detect(ref, cur, mass_estimated=_mass_used(pipe)):
             if change.kind in self.named:
                 continue
             self._apply(pipe, change, params)
@@ -377,6 +377,13 @@ class Drives:
             "wheel_speed_scale": _doc(self.scale),
             "changes": self.changes,
         }
+
+
+def _mass_used(pipe) -> bool:
+    """Whether the estimator puts a learnt mass into C_K and C_alpha (core.mass.scaled): then a
+    mass step leaves them alone (core.change.affected)."""
+    est = getattr(pipe, "estimator", None)
+    return bool(est is not None and est.cfg.mass.use)
 
 
 def _doc(m: Measure | None) -> dict | None:

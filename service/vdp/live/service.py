@@ -27,7 +27,7 @@ from concurrent.futures import Future
 from typing import Any
 
 from .. import channels
-from ..core.params import NAMES
+from ..core.params import NAMES, PUBLISHED
 from ..core.result import INVALID
 from ..errors import VdpError
 from ..result import jsonable
@@ -62,6 +62,7 @@ class Service:
     def __init__(self, settings: Settings, profile=None, opener: Callable | None = None, pipeline=None):
         from ..core.estimator import EstimatorConfig
         from ..core.learner import LearnerConfig
+        from ..core.mass import MassConfig
         from ..pipeline import Pipeline
         from ..profile import load_profile
 
@@ -77,7 +78,8 @@ class Service:
         # bending tyre would stop this worker, whose queue holds ~8 s of a saturated bus.
         self.checks = CheckThread()
         learner = LearnerConfig(per_axle=settings.service.per_axle, compiled=False, check_executor=self.checks)
-        cfg = EstimatorConfig(trace_len=600, learner=learner)
+        on = settings.service.mass
+        cfg = EstimatorConfig(trace_len=600, learner=learner, mass=MassConfig(report=on, use=on))
         pipe = pipeline if pipeline is not None else Pipeline(self.profile, cfg)
         self.estimation = Estimation(
             pipe, self.ingest.queue, settings.service.publish_interval, channel=self.ingest.channel
@@ -159,6 +161,9 @@ class Service:
         return "they are lost: enable the raw log to keep every frame"
 
     def _restore(self, stored: dict) -> None:
+        # the six the learners take back; the mass (core.mass) is kept in the store and its history,
+        # but its learner starts from the profile's prior (its own state is not stored)
+        stored = {k: v for k, v in stored.items() if k in NAMES}
         if not stored:
             return
         why = self.estimation.restore({k: v.estimate for k, v in stored.items()})
@@ -384,8 +389,8 @@ class Service:
         limit: int = 100,
         offset: int = 0,
     ) -> dict:
-        if parameter is not None and parameter not in NAMES:
-            raise VdpError(f"unknown parameter '{parameter}'; known: {', '.join(NAMES)}")
+        if parameter is not None and parameter not in PUBLISHED:
+            raise VdpError(f"unknown parameter '{parameter}'; known: {', '.join(PUBLISHED)}")
         return jsonable(self.writer.history(parameter, since, until, limit, offset))
 
     def drive_history(self, limit: int = 1000) -> dict:

@@ -1,0 +1,135 @@
+"""The mass (core.mass) is published like the six: the same value, std, status, valid and reason in
+`vdp replay --json`, its table, GET /estimates, the dashboard's cards and runs.parquet's rows.  Where
+its estimation is off, each of them says so (not_run, and why), none leaves it out.
+
+One drive: the paper drive (112 s, noise-free) of the car with an undeclared 300 kg (passengers
+and luggage), through the live service with ``[service] mass = true`` as fast as it estimates;
+then `vdp replay` of the raw log the service wrote, with and without ``--mass``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from vdp import fleet
+from vdp.api import create_app
+from vdp.cli import main as vdp_main
+from vdp.core.params import PUBLISHED
+from vdp.live import Service
+from vdp.profile import load_profile
+from vdp.settings import simulate_settings
+from vdp.sim.run import Simulation
+
+ROOT = Path(__file__).resolve().parents[1]
+PROFILE = ROOT / "profiles" / "paper.toml"
+LOAD = 300.0
+KEYS = ("value", "std", "status", "valid", "reason")
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("mass")
+    settings = simulate_settings(PROFILE, tmp, scenario="paper", speed=0, noise="none", seed=1)
+    settings = dataclasses.replace(settings, service=dataclasses.replace(settings.service, mass=True))
+    profile = load_profile(PROFILE)
+    svc = Service(settings, profile=profile)
+    sim = svc.sim._sim = Simulation(profile, "paper", 1, "none", load=LOAD)
+    svc.start()
+    client = TestClient(create_app(settings, svc))
+    try:
+        assert svc.sim.wait(timeout=300) and svc.sim.error is None
+        end = time.monotonic() + 60
+        while svc.intake.received < svc.sim.sent and time.monotonic() < end:
+            time.sleep(0.01)
+        svc.sync()
+        est, meta = client.get("/estimates"), client.get("/dashboard/meta").json()
+        hist = client.get("/estimates/history", params={"parameter": "mass", "limit": 1000})
+    finally:
+        svc.stop()
+    assert est.status_code == 200 and hist.status_code == 200, (est.text, hist.text)
+    log = tmp / "drive.log"
+    with open(log, "wb") as out:
+        for f in sorted(settings.raw_log.dir.glob("vdp-*.log")):
+            out.write(f.read_bytes())
+    docs = {}
+    for name, flags in (("on", ["--mass"]), ("off", [])):
+        out_json = tmp / f"replay-{name}.json"
+        args = ["replay", str(log), "--profile", str(PROFILE), "--json", str(out_json), "--no-progress", *flags]
+        assert vdp_main(args) == 0
+        docs[name] = json.loads(out_json.read_text())
+    return {"live": est.json(), "meta": meta, "history": hist.json(), "replay": docs, "log": log, "sim": sim}
+
+
+def test_live_and_replay_publish_the_same_learnt_mass(drive):
+    live, rep = drive["live"]["parameters"], drive["replay"]["on"]["parameters"]
+    assert list(live) == list(rep) == list(PUBLISHED)  # the mass after the six, in both
+    m = live["mass"]
+    truth = drive["sim"].model.params.m  # the loaded car's (1900 kg), which no one told vdp
+    assert m["status"] != "not_run" and m["unit"] == "kg" and m["value"] == pytest.approx(truth, rel=0.03)
+    for k in ("status", "valid", "reason", "samples"):
+        assert m.get(k) == rep["mass"].get(k), k
+    # the same learner on the same samples (it is pure Python in both): the same numbers to rounding
+    assert m["value"] == pytest.approx(rep["mass"]["value"], rel=1e-9)
+    assert m["std"] == pytest.approx(rep["mass"]["std"], rel=1e-9)
+    # its history is served like the six's
+    assert drive["history"]["items"] and {r["parameter"] for r in drive["history"]["items"]} == {"mass"}
+
+
+def test_the_dashboard_has_a_card_for_the_mass_with_the_profiles_prior(drive):
+    meta = drive["meta"]["parameters"]
+    assert list(meta) == list(PUBLISHED)
+    assert meta["mass"]["unit"] == "kg" and meta["mass"]["prior"]["value"] == 1600.0
+    assert 0 < meta["mass"]["prior"]["std"] < 1600.0
+    # the page fills each card from /estimates' parameters by name: the mass is one of them
+    js = (ROOT / "service" / "vdp" / "api" / "static" / "dashboard.js").read_text()
+    assert "Object.entries(meta.parameters)" in js and "Object.entries(est.parameters" in js
+
+
+def test_runs_parquet_rows_say_what_the_replay_json_says(drive, tmp_path):
+    """fleet.rows_from_result is what `vdp batch` writes to runs.parquet: one row per published
+    parameter, the mass's among them, with the replay's value, std, status, valid and reason."""
+    from vdp.core.estimator import EstimatorConfig
+    from vdp.core.mass import MassConfig
+    from vdp.io.bulk import replay_log
+    from vdp.pipeline import Pipeline
+
+    profile = load_profile(PROFILE)
+    task = fleet.Task(str(drive["log"]), "car", str(PROFILE))
+    for name, on in (("on", True), ("off", False)):
+        cfg = EstimatorConfig(baseline=False, trace_len=0, mass=MassConfig(report=on, use=on))
+        res, _ = replay_log(str(drive["log"]), lambda cfg=cfg: Pipeline(profile, cfg))
+        rows = {r["parameter"]: r for r in fleet.rows_from_result(res, task)}
+        assert list(rows) == list(PUBLISHED)
+        doc = drive["replay"][name]["parameters"]["mass"]
+        row = rows["mass"]
+        assert (row["status"], row["valid"], row["unit"]) == (doc["status"], doc["valid"], doc["unit"])
+        assert row["value"] == pytest.approx(doc["value"], rel=1e-9)
+        assert row["std"] == pytest.approx(doc["std"], rel=1e-9) and row["reason"] == doc.get("reason")
+        if name == "off":  # said to be off, with the reason; the profile's mass and the prior's std
+            assert row["status"] == "not_run" and "mass estimation is off" in row["reason"]
+
+
+def test_off_the_mass_is_said_to_be_off_in_the_json_and_the_table(drive, capsys):
+    doc = drive["replay"]["off"]
+    m = doc["parameters"]["mass"]
+    assert (m["status"], m["valid"], m["value"]) == ("not_run", False, 1600.0)
+    assert m["std"] == pytest.approx(0.12 * 1600.0)  # the prior's (core.mass.PRIOR_REL)
+    assert "mass estimation is off" in m["reason"] and "--mass" in m["reason"]
+    assert vdp_main(["replay", str(drive["log"]), "--profile", str(PROFILE), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    rows = [ln for ln in text.splitlines() if ln.startswith("mass ")]
+    assert len(rows) == 1 and "not_run!" in rows[0]
+    assert any(ln.startswith("! mass: not estimated: mass estimation is off") for ln in text.splitlines())
+    # off, the profile check's finding on the profile's mass (1600 kg against the 1900 driven) still
+    # marks the six; on, the valid learnt mass they are scaled with answers it
+    off, on = doc["parameters"], drive["replay"]["on"]["parameters"]
+    assert not off["C_K"]["valid"] and "vehicle.mass is 1600 kg" in off["C_K"]["reason"]
+    assert on["mass"]["valid"] and "vehicle.mass" not in (on["C_K"].get("reason") or "")
