@@ -194,3 +194,23 @@ def test_stage_1s_model_error_comes_in_with_the_colour_not_at_a_limit(repo_root)
     np.testing.assert_allclose(l1.model_error(), 0.5 * l1.spread)
     l1.shaped = True  # a tyre the data showed to bend: the spread in full
     np.testing.assert_allclose(l1.model_error(), l1.spread)
+
+
+def test_the_load_sensitivity_moves_what_the_fit_ties_to_h():
+    """The tyre's unknown load sensitivity moves h by q h and every parameter by its regression
+    on h: a C_K tied to h takes its share (brush/compact's ordinary drive: C_K +15 % was valid at
+    3.6 % while h's share alone was counted), an untied one none."""
+    from vdp.core import longitudinal
+    from vdp.core.learn.stage1 import load_sensitivity_shift
+
+    L_F, H, C_K = longitudinal.L_F, longitudinal.H, longitudinal.C_K
+    n = longitudinal.N_X
+    x = np.zeros(n)
+    x[L_F], x[H], x[C_K] = 1.3, 0.55, 14.0
+    P = np.diag(np.full(n, 1e-4))
+    P[H, H], P[C_K, C_K] = 0.01**2, 0.5**2
+    P[H, C_K] = P[C_K, H] = -0.9 * 0.01 * 0.5  # correlation -0.9
+    shift = load_sensitivity_shift(P, x, 0.1)
+    assert shift[H] == pytest.approx(0.1 * 0.55)
+    assert shift[C_K] == pytest.approx(0.9 * 0.5 / 0.01 * 0.1 * 0.55)
+    assert shift[L_F] == 0.0  # not tied to h: unmoved

@@ -216,11 +216,16 @@ class Stage1(StageLearner):
 
     def _model_error(self, U, Z, R, t0, P0, fit) -> np.ndarray:
         """The larger spread of two splits of the blocks (SI), with the tyre's unknown load
-        sensitivity added to h's.
+        sensitivity as a consider parameter.
 
         Low against high slip shows what the tyre law misses; slow against fast what grows
         with speed and the law leaves out (drag's pitching moment and lift move load from
         axle to axle with v^2: on the brush cars l_f read 0.9 % long).
+
+        The load sensitivity moves h by about LOAD_SENSITIVITY x h, and every parameter the fit
+        correlates with h moves with it, by its regression on h (P_ih / P_hh, a Schmidt consider
+        term): on a gentle drive C_K and h are tied, and h's share alone left brush/compact's C_K
+        +15 % valid at 3.6 % on the ordinary drive (BENCHMARKS.md, "Is valid right").
         """
         b, k = self.bounds, self.known
         x = b.to_si(fit.t)
@@ -232,9 +237,7 @@ class Stage1(StageLearner):
             spread = self._split(U, Z, R, t0, P0, fit, by <= np.median(by))
             if spread is not None:
                 out = np.maximum(out, spread)
-        h = longitudinal.H
-        out[h] = math.hypot(out[h], tuning.LOAD_SENSITIVITY * x[h])
-        return out
+        return np.hypot(out, load_sensitivity_shift(b.cov_to_si(fit.t, fit.cov), x, tuning.LOAD_SENSITIVITY))
 
     def _split(self, U, Z, R, t0, P0, fit, lo) -> np.ndarray | None:
         """How far the parameters of the blocks in ``lo`` and of the others differ beyond their
@@ -509,6 +512,15 @@ class Stage1(StageLearner):
             log.info("stage 1 %s sat %.1f sigma off its batch optimum; re-seeded there", self.kind, math.sqrt(m2))
             self.filter.set_state(fit.t, fit.cov)
         return fit
+
+
+def load_sensitivity_shift(P: np.ndarray, x: np.ndarray, q: float) -> np.ndarray:
+    """How far each stage-1 parameter moves (SI, 1 sigma) when h moves by ``q`` x h, the tyre's
+    unknown load sensitivity: each by its regression on h in the fit's covariance ``P`` (SI),
+    P_ih / P_hh (a Schmidt consider term); h itself by q h."""
+    h = longitudinal.H
+    pull = P[:, h] / P[h, h] if P[h, h] > 0.0 else np.eye(len(x))[h]
+    return np.abs(pull) * q * x[h]
 
 
 # the channels core.kernels.lon_run reads, in its order, and what lon_block did with a block
