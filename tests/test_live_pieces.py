@@ -290,3 +290,11 @@ def test_the_live_pipeline_never_loads_numba(repo_root):
     compiled, samples, opened, numba = out.stdout.split()
     assert (compiled, int(samples) >= 2000, int(opened) > 0) == ("False", True, True), out.stdout
     assert numba == "False", "numba was imported by the live pipeline"
+
+
+def test_every_listener_of_the_bus_takes_blocks(tmp_path, paper):
+    """BlockNotifier makes a python-can Message of every frame for a listener without ``on_block``: one
+    such listener (it was the link's error hook) doubled the receive thread's CPU on a saturated bus."""
+    ing = Ingest(make_settings(tmp_path), paper)
+    per_frame = [type(x).__name__ for x in ing.link.listeners if not hasattr(x, "on_block")]
+    assert per_frame == []
