@@ -211,3 +211,17 @@ def test_udp_datagrams_read_directly_are_the_frames_python_can_would_make():
     assert all(f[0] == pytest.approx(1700000000.25) for f in block)
     # the dlc that lies, the 12-bit standard id, the channel string cut short, the cut datagram, the garbage
     assert len(refused) == bad == 5
+
+
+def test_the_receive_thread_lingers_longer_only_where_the_buffer_has_room():
+    """After a block the receive thread sleeps while the kernel queues the next: longer (fewer blocks,
+    less CPU) only where the socket's buffer holds 8 times that long of a saturated bus."""
+    from vdp.live.reader import BUS_MAX, FRAME_BYTES, LINGER, LINGER_MAX, linger_for
+
+    assert linger_for(None) == linger_for(0) == LINGER
+    assert linger_for(2 * 212992) == LINGER  # Linux's default rmem_max: ~50 ms of a saturated bus
+    assert linger_for(2 * 4 << 20) == LINGER_MAX  # the 4 MiB the udp stand-in gets
+    for rcvbuf in (1 << 18, 1 << 20, 3 << 20, 1 << 23):
+        linger = linger_for(rcvbuf)
+        assert LINGER <= linger <= LINGER_MAX
+        assert linger == LINGER or linger * 8 <= rcvbuf / FRAME_BYTES / BUS_MAX + 1e-12

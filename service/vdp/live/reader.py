@@ -7,9 +7,9 @@ saturated bus before any raw logging.  :class:`BlockNotifier` keeps the Notifier
 contract (threads, ``exception``, ``on_error``, ``stop``) and changes the inside:
 
 - frames are gathered into blocks: after a read the thread sleeps :data:`LINGER`
-  while the kernel queues the next ones (its receive buffer holds about half a
-  second of a saturated bus), then reads all that came, so listeners are called
-  once a block, not once a frame;
+  (up to :data:`LINGER_MAX` on a socket whose receive buffer holds 8 times that of
+  a saturated bus: :func:`linger_for`) while the kernel queues the next ones, then
+  reads all that came, so listeners are called once a block, not once a frame;
 - on a socket bus (udp_multicast, socketcan) it reads the socket itself,
   ``MSG_DONTWAIT`` until empty, and makes a :data:`Frame` record (a tuple) per
   frame, not a Message: the raw log formats the records directly, and the
@@ -42,12 +42,27 @@ log = logging.getLogger(__name__)
 Frame = tuple
 EXT, RTR, ERR, FD, BRS, ESI, TX = 1, 2, 4, 8, 16, 32, 64
 LINGER = 0.01  # s the receive thread sleeps after a block, while the kernel (or driver) queues the next
+LINGER_MAX = 0.025  # s: the longest, where the socket's receive buffer holds 8 times that of a saturated bus
+FRAME_BYTES = 1024  # bytes of receive buffer a frame takes in the kernel (its skb; ~800 for a CAN or udp frame)
+BUS_MAX = 9000  # frames/s of a saturated 1 Mbit/s classic CAN bus, 8-byte frames (~8,000 with stuffing)
 BLOCK_MAX = 1024  # frames at most in one block
 # linux/can/error.h: an error frame of class CAN_ERR_CRTL with CAN_ERR_CRTL_RX_OVERFLOW in data[1]
 # is the controller saying its receive buffer overflowed (frames lost before the kernel saw them)
 CAN_ERR_CRTL, CAN_ERR_CRTL_RX_OVERFLOW = 0x4, 0x01
 _SO_MEMINFO = getattr(socket, "SO_MEMINFO", 55)
 _SK_MEMINFO_DROPS = 8  # index in the u32 array (Linux >= 4.6)
+
+
+def linger_for(rcvbuf: int | None, floor: float = LINGER) -> float:
+    """The receive thread's sleep after a block, for a socket of ``rcvbuf`` bytes (``SO_RCVBUF``, as
+    Linux reports it): ``floor``, up to :data:`LINGER_MAX` where the buffer holds 8 times as long a
+    saturated bus.  Fewer, larger blocks cost less CPU (each wakes the estimation thread too): with
+    a 4 MiB buffer, 25 ms instead of 10 took receive + raw logging from ~6.4 to ~5.6 % of a core
+    (BENCHMARKS.md); a default 208 KiB buffer (~50 ms of a saturated bus) keeps ``floor``."""
+    if not rcvbuf or rcvbuf <= 0:
+        return floor
+    holds = rcvbuf / FRAME_BYTES / BUS_MAX  # seconds of a saturated bus
+    return min(LINGER_MAX, max(floor, holds / 8))
 
 
 def frame_of(msg: can.Message) -> Frame:
@@ -334,6 +349,11 @@ class BlockNotifier(can.Notifier):
 
         poll = select.poll()
         poll.register(sock.fileno(), select.POLLIN | select.POLLERR | select.POLLHUP)
+        if self.linger > 0:  # (0: no sleep at all, as asked)
+            try:
+                self.linger = linger_for(sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF), self.linger)
+            except OSError:
+                pass
         wait_ms = int(self.timeout * 1000)
 
         def fill(block: list) -> None:
