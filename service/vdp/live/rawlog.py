@@ -52,8 +52,8 @@ log = logging.getLogger(__name__)
 HOLD_MAX = 16_384  # frames pending at most: one more is flushed and checked first (~2 s of a saturated bus)
 RETRY_MIN = 1.0  # s before the first attempt to resume after a write error
 RETRY_MAX = 30.0  # s: the wait doubles after each failed attempt, up to this
-_TAIL = 1 << 16
-HEADS_MAX = 4096  # ids whose line head the raw log keeps made  # bytes read back when salvaging a file cut mid-line
+_TAIL = 1 << 16  # bytes read back when salvaging a file cut mid-line
+HEADS_MAX = 4096  # ids whose line head (channel, id) the raw log keeps made
 
 
 def _fsync_dir(path: Path) -> None:
