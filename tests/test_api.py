@@ -244,3 +244,27 @@ def test_app_factory_builds_its_service_in_the_lifespan(tmp_path, monkeypatch):
         assert made and made[0].running
         assert client.get("/health").status_code == 200
     assert not made[0].running
+
+
+def test_estimates_answered_before_fastapi_are_the_routes_own_answer(running):
+    """GET /estimates skips FastAPI's routing (routes.Snapshot): the same bytes and headers as the route."""
+    import asyncio
+
+    from vdp.api import routes
+
+    svc, client, tx, pipe = running()
+    send(tx, 20)
+    wait_frames(svc, 20)
+    r = client.get("/estimates")
+    own = asyncio.run(routes.estimates(svc))  # the FastAPI route's own answer
+    assert r.status_code == own.status_code == 200
+    assert r.content == own.body
+    assert {k: r.headers[k] for k in ("content-type", "content-length")} == {
+        "content-type": own.headers["content-type"],
+        "content-length": own.headers["content-length"],
+    }
+    client.app.state.service = None  # not there yet: FastAPI's route answers, as before
+    try:
+        assert client.get("/estimates").status_code == 503
+    finally:
+        client.app.state.service = svc

@@ -248,3 +248,53 @@ def test_a_check_still_solving_does_not_hold_the_process_exit(tmp_path):
     )
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and out.stdout == "exiting\n", out.stderr
+
+
+NO_NUMBA_SCRIPT = """
+import sys
+from vdp.core.estimator import EstimatorConfig
+from vdp.live.service import Service
+from vdp.pipeline import Pipeline
+from vdp.profile import load_profile
+from vdp.sim.run import Simulation
+
+profile = load_profile(sys.argv[1])
+cfg = Service.estimator_config(per_axle=False, checks=None)
+pipe = Pipeline(profile, cfg)
+for msg in Simulation(profile, "paper", 1, "realistic").frames():
+    pipe.feed(msg)
+    if pipe.samples >= 2000:  # 40 s: both stages' filters are open by then
+        break
+est = pipe.estimator
+opened = sum(x.filter is not None for x in [*est.s1.values(), *est.s2.values()])
+print(cfg.learner.compiled, pipe.samples, opened, "numba" in sys.modules)
+"""
+
+
+def test_the_live_pipeline_never_loads_numba(repo_root):
+    """The service estimates with numpy's steps; numba's import (its LLVM: ~120 MB of RSS, BENCHMARKS.md
+    "Live logger on a saturated bus") must not come in by asking whether a filter is the compiled one."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": str(repo_root / "service")}
+    out = subprocess.run(
+        [sys.executable, "-c", NO_NUMBA_SCRIPT, str(repo_root / "profiles" / "paper.toml")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    compiled, samples, opened, numba = out.stdout.split()
+    assert (compiled, int(samples) >= 2000, int(opened) > 0) == ("False", True, True), out.stdout
+    assert numba == "False", "numba was imported by the live pipeline"
+
+
+def test_every_listener_of_the_bus_takes_blocks(tmp_path, paper):
+    """BlockNotifier makes a python-can Message of every frame for a listener without ``on_block``: one
+    such listener (it was the link's error hook) doubled the receive thread's CPU on a saturated bus."""
+    ing = Ingest(make_settings(tmp_path), paper)
+    per_frame = [type(x).__name__ for x in ing.link.listeners if not hasattr(x, "on_block")]
+    assert per_frame == []

@@ -167,6 +167,7 @@ def test_full_queue_drops_and_counts_but_receive_goes_on(tmp_path):
         svc.rawlog.flush()  # a frame counts as written once a flush has put it in a file found in place
         assert svc.rawlog.frames == 205  # the raw log has every frame, dropped or not
     finally:
+        gate.set()  # a failed check above must fail the test, not leave stop() waiting on the held frame
         tx.shutdown()
         svc.stop()
 

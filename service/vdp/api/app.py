@@ -92,6 +92,7 @@ def create_app(
     app.state.service = service
     app.add_exception_handler(VdpError, _vdp_error)
     app.add_exception_handler(sqlite3.Error, _sqlite_error)
+    app.add_middleware(routes.Snapshot)  # GET /estimates without FastAPI's routing (inside the gate)
     # outermost: token and size are checked before anything reads the body
     app.add_middleware(Gate, settings=settings, max_requests=max(1, max_requests))
     dashboard.install(app)

@@ -27,6 +27,7 @@ import json
 
 TOKEN_ROUTES = {("POST", "/reset")}  # routes that need [api] reset_token, checked before their body is read
 RESERVED = {("GET", "/health")}  # never refused for being busy
+_READ = (b"content-length", b"authorization", b"transfer-encoding")  # the headers the gate reads
 
 
 class HostGuard:
@@ -92,7 +93,7 @@ class Gate:
             return
         api = self.settings.api
         route = (scope["method"], scope["path"])
-        headers = {k: v for k, v in scope["headers"] if k in (b"content-length", b"authorization")}
+        headers = {k: v for k, v in scope["headers"] if k in _READ}
         if route not in RESERVED and self.in_flight >= self.max_requests:
             await _answer(send, 503, f"busy: {self.in_flight} requests in flight; try again shortly")
             return
@@ -109,6 +110,11 @@ class Gate:
             return
         self.in_flight += 1
         try:
+            if length is None and b"transfer-encoding" not in headers:
+                # no body (HTTP/1.1: neither header, none follows): the dashboard's GETs skip reading one,
+                # whose wait_for costs a task a request
+                await self.app(scope, receive, send)
+                return
             body, why = await _read_body(receive, api.max_body, api.header_timeout)
             if why == "too_large":
                 await _answer(send, 413, _too_large(api.max_body, "more"))

@@ -48,6 +48,27 @@ def _estimates_body(svc) -> bytes:
     return _cached["body"]
 
 
+class Snapshot:
+    """ASGI middleware (inside the gate): ``GET /estimates`` answered with :func:`_estimates_body`, the
+    very bytes and headers the route answers, without FastAPI's routing and dependency solving, which
+    cost far more CPU than handing over the cached body (a client polling at 50 req/s: BENCHMARKS.md,
+    "Live logger on a saturated bus").  Anything else, and a service not there yet, goes on to FastAPI."""
+
+    def __init__(self, app):
+        self.app = app
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] == "http" and scope["path"] == "/estimates" and scope["method"] == "GET":
+            svc = getattr(scope["app"].state, "service", None)
+            if svc is not None:
+                body = _estimates_body(svc)
+                head = [(b"content-length", str(len(body)).encode()), (b"content-type", b"application/json")]
+                await send({"type": "http.response.start", "status": 200, "headers": head})
+                await send({"type": "http.response.body", "body": body})
+                return
+        await self.app(scope, receive, send)
+
+
 @router.get(
     "/estimates/history",
     response_model=models.History,

@@ -53,6 +53,7 @@ HOLD_MAX = 16_384  # frames pending at most: one more is flushed and checked fir
 RETRY_MIN = 1.0  # s before the first attempt to resume after a write error
 RETRY_MAX = 30.0  # s: the wait doubles after each failed attempt, up to this
 _TAIL = 1 << 16  # bytes read back when salvaging a file cut mid-line
+HEADS_MAX = 4096  # ids whose line head (channel, id) the raw log keeps made
 
 
 def _fsync_dir(path: Path) -> None:
@@ -128,6 +129,7 @@ class RawLog(can.Listener):
         drops=None,
     ):
         self.dir = Path(directory)
+        self._heads: dict[int, tuple[str, str]] = {}  # id (bit 31: extended, bit 30: sent) -> line head, tail
         self.channel = channel  # the channel written for frames read from a socket (bus.frame_channel)
         # drops(): {cause: frames lost before vdp read them, so far}; each closed file's line in the
         # index ({prefix}-index.jsonl) says how many were lost while it was the open file
@@ -234,6 +236,15 @@ class RawLog(can.Listener):
                 self._fail(exc, closing=True)
 
     @property
+    def channel(self) -> str:
+        return self._channel
+
+    @channel.setter
+    def channel(self, name: str) -> None:
+        self._channel = name
+        self._heads = {}  # the line heads name the channel
+
+    @property
     def frames(self) -> int:
         """Frames written (the name /status and older callers use)."""
         return self.written
@@ -311,20 +322,24 @@ class RawLog(can.Listener):
         chan = self.channel
         out: list[str] = []
         add = out.append
+        heads, get = self._heads, self._heads.get
         for f in frames:
-            fl = f[2]
-            if fl & ~(EXT | TX) or (f[4] is not None and f[4].channel != chan):
+            ts, aid, fl, data, msg = f
+            if fl & ~(EXT | TX) or (msg is not None and msg.channel != chan):
                 if out:  # anything unusual (remote, error, FD, another channel): python-can's own writer
                     write("".join(out))
                     out.clear()
                 w.on_message_received(message_of(f, chan))
                 continue
-            ts = f[0] if f[0] >= first else first
-            tail = " T\n" if fl & TX else " R\n"
-            if fl & EXT:
-                add(f"({ts:f}) {chan} {f[1]:08X}#{f[3].hex().upper()}{tail}")
-            else:
-                add(f"({ts:f}) {chan} {f[1]:03X}#{f[3].hex().upper()}{tail}")
+            ts = ts if ts >= first else first
+            # the line's parts after the time, made once an id (bounded: a bus of random ids is not cached)
+            key = aid | (0x80000000 if fl & EXT else 0) | (0x40000000 if fl & TX else 0)
+            head = get(key)
+            if head is None:
+                head = (f") {chan} {aid:08X}#" if fl & EXT else f") {chan} {aid:03X}#", " T\n" if fl & TX else " R\n")
+                if len(heads) < HEADS_MAX:
+                    heads[key] = head
+            add(f"({ts:f}{head[0]}{data.hex().upper()}{head[1]}")
         if out:
             write("".join(out))
 

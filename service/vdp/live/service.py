@@ -60,9 +60,6 @@ def profile_check_reasons(check: dict | None) -> list[str]:
 
 class Service:
     def __init__(self, settings: Settings, profile=None, opener: Callable | None = None, pipeline=None):
-        from ..core.estimator import EstimatorConfig
-        from ..core.learner import LearnerConfig
-        from ..core.mass import MassConfig
         from ..pipeline import Pipeline
         from ..profile import load_profile
 
@@ -70,16 +67,10 @@ class Service:
         self.profile = profile if profile is not None else load_profile(settings.profile)
         self.fingerprint = profile_fingerprint(self.profile)
         self.ingest = Ingest(settings, self.profile, opener)
-        # The live trace only backs plots of recent data; history lives in the store.
-        # numpy's filter steps, not the compiled ones (core.kernels): a live bus brings 50 samples/s,
-        # which they keep up with at a few per cent of a core, and numba's LLVM would add ~135 MB
-        # to the service's RSS (docs/decisions/0012, 0002).
         # Stage 2's batch check solves in a background thread: numpy's ~20 s for a full record of a
         # bending tyre would stop this worker, whose queue holds ~8 s of a saturated bus.
         self.checks = CheckThread()
-        learner = LearnerConfig(per_axle=settings.service.per_axle, compiled=False, check_executor=self.checks)
-        on = settings.service.mass
-        cfg = EstimatorConfig(trace_len=600, learner=learner, mass=MassConfig(report=on, use=on))
+        cfg = self.estimator_config(settings.service.per_axle, self.checks, mass=settings.service.mass)
         pipe = pipeline if pipeline is not None else Pipeline(self.profile, cfg)
         self.estimation = Estimation(
             pipe, self.ingest.queue, settings.service.publish_interval, channel=self.ingest.channel
@@ -96,6 +87,21 @@ class Service:
         self._started_wall = time.time()
         self._trimmed = time.monotonic()
         self.running = False
+
+    @staticmethod
+    def estimator_config(per_axle: bool, checks, mass: bool = False):
+        """The live pipeline's estimator settings (``checks``: the executor of stage 2's batch checks;
+        ``mass``: learn the mass and scale the six with it, ``[service] mass``)."""
+        from ..core.estimator import EstimatorConfig
+        from ..core.learner import LearnerConfig
+        from ..core.mass import MassConfig
+
+        # The live trace only backs plots of recent data; history lives in the store.
+        # numpy's filter steps, not the compiled ones (core.kernels): a live bus brings 50 samples/s,
+        # which they keep up with at a few per cent of a core, and numba's LLVM would add ~120 MB
+        # to the service's RSS (docs/decisions/0012, 0002; tests/test_live_pieces.py checks it never loads).
+        learner = LearnerConfig(per_axle=per_axle, compiled=False, check_executor=checks)
+        return EstimatorConfig(trace_len=600, learner=learner, mass=MassConfig(report=mass, use=mass))
 
     # the pieces' parts that callers and tests reach for
     pipeline = property(lambda self: self.estimation.pipeline)

@@ -407,7 +407,8 @@ class Stage1(StageLearner):
 
     def _compiled(self) -> bool:
         """Whether the filter is the compiled UKF (its blocks stepped by core.kernels.lon_block)."""
-        cls = kernel("LongitudinalUKF") if self.filter is not None else None
+        # cfg.compiled first: asking kernel() loads numba (~120 MB of LLVM) even to say no
+        cls = kernel("LongitudinalUKF") if self.cfg.compiled and self.filter is not None else None
         return cls is not None and isinstance(self.filter, cls)
 
     def _block_settings(self) -> np.ndarray:

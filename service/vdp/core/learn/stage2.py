@@ -420,7 +420,8 @@ class Stage2(AxleSplit, StageLearner):
     def runnable(self) -> bool:
         """Whether :meth:`steps` can take samples now: an open compiled window, its axles' split
         freed (while held, each step may free it: :meth:`_free_split`, in Python)."""
-        cls = kernel("LateralUKF") if self.filter is not None else None
+        # cfg.compiled first: asking kernel() loads numba (~120 MB of LLVM) even to say no
+        cls = kernel("LateralUKF") if self.cfg.compiled and self.filter is not None else None
         return (
             cls is not None and isinstance(self.filter, cls) and self._excite is not None
             and self.t_last is not None and not self.split_held
