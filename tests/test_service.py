@@ -157,7 +157,9 @@ def test_full_queue_drops_and_counts_but_receive_goes_on(tmp_path):
     try:
         send(tx, 200)
         until(lambda: svc.intake.received == 200, "all frames received")
-        assert svc.intake.dropped >= 200 - 10 - 1
+        # the queue holds 10 frames, and the worker the block it took before the first feed held it:
+        # a block of up to the queue's 10 under load (CI saw exactly 180), one frame when it raced ahead
+        assert 200 - 2 * 10 <= svc.intake.dropped < 200
         until(lambda: any("dropped" in r for r in svc.health()["reasons"]), "health to report drops")
         gate.set()
         send(tx, 5, t0=2000.0)
