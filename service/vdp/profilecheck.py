@@ -708,7 +708,7 @@ def check_log(
 
 def check_head(head: Head, profile: Profile, strict_coverage: bool = True, path: str | Path = "the log") -> tuple:
     """:func:`check_log` of a log's first seconds already read (:func:`first_seconds`); ``head``
-    is left as it was (its samples serve the drive's measures too: fleet.measures_of)."""
+    is left as it was (its samples serve the drive's measures too: across.measures_of)."""
     from .io.logs import channel_keys
 
     dec, al, ts, y, st = head.decoder, head.aligner, head.t, head.y.copy(), head.stats

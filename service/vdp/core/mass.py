@@ -73,7 +73,7 @@ STAGE = 0  # not a stage of the paper's: every sample, before both
 
 @dataclass(frozen=True)
 class MassConfig:
-    report: bool = False  # publish the mass beside the six parameters (Snapshot.parameters["mass"])
+    report: bool = False  # learn the mass and publish it (off: the mass is published as not_run, mass.off)
     use: bool = False  # put the learnt mass into stage 1's and 2's results (scaled); off: report it only
 
 
