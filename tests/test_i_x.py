@@ -1,7 +1,7 @@
 """I_x's honesty rules (issue 11): its std carries stage 1's h, a roll model that the roll-rate
 innovations reject makes it not valid with a model error, unexcited roll says so, and no
 roll-rate gyro makes it not_run.  Fast, on a Stage2 learner's bookkeeping; the benchmark of
-the same rules on the independent models is in BENCHMARKS.md ("I_x: honest uncertainty")."""
+the same rules on the independent models is in docs/decisions/0015."""
 
 from __future__ import annotations
 

@@ -208,7 +208,7 @@ def test_the_checker_sees_a_violation():
 def test_the_pipeline_imports_neither_filterpy_nor_scipy():
     """A replay's start-up: core/filters.py writes the filter steps out, so filterpy (whose
     EKF module pulls in scipy.stats, ~0.8 s) stays the tests' reference only (BENCHMARKS.md,
-    "Start-up").  A fresh interpreter, since this one's tests import both."""
+    "Replay start-up").  A fresh interpreter, since this one's tests import both."""
     code = "import sys, vdp.pipeline; print(sorted(m for m in ('filterpy', 'scipy') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout

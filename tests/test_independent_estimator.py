@@ -69,7 +69,7 @@ def test_stage_1_runs_and_l_f_is_near(case, tmp_path_factory):
 
 
 # -- issue 11's targets ---------------------------------------------------------------
-TODAY = 'issue 11: a target this drive does not meet yet (BENCHMARKS.md, "Per-axle cornering stiffness")'
+TODAY = 'issue 11: a target this drive does not meet yet (BENCHMARKS.md, "Models vdp did not write")'
 # (case, what) that today's estimator misses on these drives (measured at 8a6a448; checked
 # again at a86f469: bmw_320i's C_alpha -4.4 % and brush/small's rear C_alpha +1.1 % meet their
 # targets and are plain tests now).  With each axle estimated and eq (9) driven by the measured

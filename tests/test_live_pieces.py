@@ -272,8 +272,8 @@ print(cfg.learner.compiled, pipe.samples, opened, "numba" in sys.modules)
 
 
 def test_the_live_pipeline_never_loads_numba(repo_root):
-    """The service estimates with numpy's steps; numba's import (its LLVM: ~120 MB of RSS, BENCHMARKS.md
-    "Live logger on a saturated bus") must not come in by asking whether a filter is the compiled one."""
+    """The service estimates with numpy's steps; numba's import (its LLVM: ~120 MB of RSS, docs/decisions/
+    0020) must not come in by asking whether a filter is the compiled one."""
     import os
     import subprocess
     import sys

@@ -325,8 +325,8 @@ def test_paper_drive_converges_on_the_cars_layout(name, stage, tmp_path_factory)
         est = res.parameters[p]
         if name == "toyota_rav4" and stage == 2 and not est.valid:
             # stage 2 takes the profile's l_f, 1.17 +- 0.08 m (truth 1.20), and carries that 7 % std:
-            # per axle, C_alpha's mean is not pinned to 3 % (-4.5 %, std 6.5 %; BENCHMARKS.md, "Stage 2
-            # on the independent models"); it must then say so, with the truth inside its 2 std
+            # per axle, C_alpha's mean is not pinned to 3 % (-4.5 %, std 6.5 %; BENCHMARKS.md, "Models vdp
+            # did not write"); it must then say so, with the truth inside its 2 std
             assert est.status != "converged" and abs(est.value - truth[p]) <= 2.0 * est.std, (p, est, truth[p])
             continue
         assert est.value == pytest.approx(truth[p], rel=TOLERANCE[p]), (p, est, truth[p])

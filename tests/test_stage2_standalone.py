@@ -2,7 +2,7 @@
 stage 2 from steering, yaw rate, a_y and the wheels' speed, with l_f measured in the profile;
 without a roll-rate gyro I_x is not_run with the reason, and C_alpha and I_z are still
 estimated.  Seeded simulated drives through vdp's own bus (the paper car's layout, channels
-taken away); the 5-seed figures are in BENCHMARKS.md ("Stage 2 standalone").
+taken away); the 5-seed figures: `benchmarks/standalone.py`.
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ def test_without_roll_rate_i_x_is_not_run_and_c_alpha_i_z_are_estimated(repo_roo
     # One C_alpha for both axles: per axle (the default) the mean's std with l_f known to 1 % is
     # 1.96 % on this drive (truth inside 1 std), above C_alpha's convergence threshold (1.5 %), so
     # it stays "uncertain" and the last assertion (I_x not_run does not hold back "done") could
-    # not be made; the per-axle accuracy on this layout is in BENCHMARKS.md ("Stage 2 standalone")
+    # not be made; the per-axle accuracy on this layout is from `benchmarks/standalone.py`
     one = EstimatorConfig(learner=LearnerConfig(per_axle=False))
     pipe, res, truth = drive(prof, seed=4, duration=52.0, cfg=one)
     assert {w.stage for w in res.windows} == {2}

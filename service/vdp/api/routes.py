@@ -51,8 +51,8 @@ def _estimates_body(svc) -> bytes:
 class Snapshot:
     """ASGI middleware (inside the gate): ``GET /estimates`` answered with :func:`_estimates_body`, the
     very bytes and headers the route answers, without FastAPI's routing and dependency solving, which
-    cost far more CPU than handing over the cached body (a client polling at 50 req/s: BENCHMARKS.md,
-    "Live logger on a saturated bus").  Anything else, and a service not there yet, goes on to FastAPI."""
+    cost far more CPU than handing over the cached body (a client polling at 50 req/s:
+    docs/decisions/0020).  Anything else, and a service not there yet, goes on to FastAPI."""
 
     def __init__(self, app):
         self.app = app

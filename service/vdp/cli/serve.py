@@ -159,8 +159,8 @@ def build_server(settings, service):
 
 
 # s a thread holds the GIL before one waiting gets it: CPython's own 5 ms.  1 ms was tried against
-# the API's p99 on a saturated bus and made no difference (11.4 against 11.0 ms, BENCHMARKS.md
-# "Live logger on a saturated bus"): what did was the receive thread's blocks and the snapshot
+# the API's p99 on a saturated bus and made no difference (11.4 against 11.0 ms, docs/decisions/
+# 0020): what did was the receive thread's blocks and the snapshot
 # routes.  VDP_SWITCH_INTERVAL sets another, for measuring.
 SWITCH_INTERVAL = float(os.environ.get("VDP_SWITCH_INTERVAL", "0.005"))
 

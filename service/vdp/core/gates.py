@@ -25,7 +25,7 @@ any, for "4 % of the drive gated out: reverse 1 %, ABS 3 %".
 Pure: one sample's channel values in, a gate code out.  :func:`step` is written for both paths:
 the supervisor calls it per sample on a list, a replay's block pass (core.batched) over the
 block's arrays, compiled by numba where it is installed (:func:`kernel`).  The thresholds are
-far from what a drive without these events reaches (BENCHMARKS.md, "Gates"), so such a drive's
+far from what a drive without these events reaches (BENCHMARKS.md, "Reverse, ABS, kerbs"), so such a drive's
 estimates are the same, to the bit, as without the gates.
 """
 

@@ -225,7 +225,7 @@ class Stage1(StageLearner):
         The load sensitivity moves h by about LOAD_SENSITIVITY x h, and every parameter the fit
         correlates with h moves with it, by its regression on h (P_ih / P_hh, a Schmidt consider
         term): on a gentle drive C_K and h are tied, and h's share alone left brush/compact's C_K
-        +15 % valid at 3.6 % on the ordinary drive (BENCHMARKS.md, "Is valid right").
+        +15 % valid at 3.6 % on the ordinary drive (docs/decisions/0018).
         """
         b, k = self.bounds, self.known
         x = b.to_si(fit.t)
