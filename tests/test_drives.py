@@ -8,9 +8,9 @@ scripted sequence, each step a test.
 5. car A with tyres 20 % softer: the tyre change is named;
 6. car B on the same logger: its store is refused with the reason, and A's is kept.
 
-Each step is a test of its own: the drives before it are made again by its fixtures (``car_a``,
-``loaded_a``) on a store and a raw-log folder of its own, so any step runs alone or in any
-order.  Each drive is simulated (noise-free) as fast as the service estimates it: the `paper`
+Each step is a test of its own: the drives before it are made once a module (``_car_a_once``,
+``_loaded_once``) and each step gets a copy of the store and raw-log folder they left
+(``car_a``, ``loaded_a``), so any step runs alone or in any order.  Each drive is simulated (noise-free) as fast as the service estimates it: the `paper`
 drive (112 s, both stages) for car A and its restart, its `stage1` half (54 s) for the load
 and the tyres, 25 s of it for car B; nothing is lost from the raw log.  The simulator drives
 the loaded car as the profile's car with the load's mass and the CG and inertias it moves
@@ -20,8 +20,10 @@ the same profile, but its bus carries other ECUs (ids car A's never did) and oth
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
+import shutil
 import sqlite3
 import time
 from pathlib import Path
@@ -128,24 +130,46 @@ def store_rows(db: Path, table: str) -> list[dict]:
         con.close()
 
 
-@pytest.fixture
-def car_a(tmp_path):
-    """A logger (one store, one raw-log folder) after car A's first drive, the paper drive: the
-    service of that drive in ``first``, its estimates in ``a1``."""
-    lg = Logger(tmp_path)
+@pytest.fixture(scope="module")
+def _car_a_once(tmp_path_factory):
+    """Car A's first drive, the paper drive, made once for the module (a logger's state after it
+    is the start of most steps): the service of that drive in ``first``, its estimates in ``a1``."""
+    lg = Logger(tmp_path_factory.mktemp("car_a"))
     lg.first = lg.drive(seed=1)
     lg.a1 = lg.first.latest.result.parameters
     return lg
 
 
+@pytest.fixture(scope="module")
+def _loaded_once(_car_a_once, tmp_path_factory):
+    """``_car_a_once`` (a copy) after a second drive of car A with +300 kg (its stage-1 half)."""
+    lg = _copy(_car_a_once, tmp_path_factory.mktemp("loaded_a"))
+    prof, truth = loaded(lg.profile, lg.truth, 300.0)
+    lg.loaded_svc = lg.drive(seed=3, car_profile=prof, params=truth, scenario="stage1")
+    lg.load_truth = truth
+    return lg
+
+
+def _copy(lg: Logger, tmp: Path) -> Logger:
+    """The logger as ``lg`` left it, on a copy of its store and raw-log folder in ``tmp``: a step
+    drives on from there without touching what another step sees."""
+    shutil.copytree(lg.tmp, tmp, dirs_exist_ok=True)
+    out = copy.copy(lg)
+    out.tmp = tmp
+    return out
+
+
 @pytest.fixture
-def loaded_a(car_a):
-    """``car_a`` after a second drive of car A with +300 kg (its stage-1 half): that drive's
-    service in ``loaded_svc``, the loaded car's truth in ``load_truth``."""
-    prof, truth = loaded(car_a.profile, car_a.truth, 300.0)
-    car_a.loaded_svc = car_a.drive(seed=3, car_profile=prof, params=truth, scenario="stage1")
-    car_a.load_truth = truth
-    return car_a
+def car_a(_car_a_once, tmp_path):
+    """A logger (one store, one raw-log folder of this test's own) after car A's first drive."""
+    return _copy(_car_a_once, tmp_path)
+
+
+@pytest.fixture
+def loaded_a(_loaded_once, tmp_path):
+    """``car_a`` after a second drive of car A with +300 kg: that drive's service in
+    ``loaded_svc``, the loaded car's truth in ``load_truth``; a store of this test's own."""
+    return _copy(_loaded_once, tmp_path)
 
 
 def drive_car_b(logger, stop: bool = True):
