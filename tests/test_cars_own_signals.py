@@ -10,13 +10,12 @@ from pathlib import Path
 
 import pytest
 
-from helpers.sim import Frames
 from vdp import channels
 from vdp.core.estimator import EstimatorConfig
+from vdp.io.bulk import replay_log
 from vdp.pipeline import Pipeline
 from vdp.profile import load_profile
-from vdp.replay import replay
-from vdp.sim.run import Simulation
+from vdp.sim.run import Simulation, write_log
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = sorted(p.stem for p in (ROOT / "profiles").glob("*.toml"))
@@ -83,12 +82,14 @@ def test_a_drive_through_its_own_dbc_decodes_every_mapped_channel(name):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", [n for n in SHIPPED if n != "paper"])  # the paper car: everywhere else
-def test_the_paper_drive_through_its_own_dbc_runs_what_it_can(name):
-    """The whole paper drive (112 s) through the car's own DBC: each stage that can run,
-    runs (its parameters took samples); the others are not_run with the capability's reason."""
+def test_the_paper_drive_through_its_own_dbc_runs_what_it_can(name, tmp_path):
+    """The whole paper drive (112 s) through the car's own DBC, logged and replayed as a user
+    does (a block at a time where the log allows): each stage that can run, runs (its
+    parameters took samples); the others are not_run with the capability's reason."""
     prof = car(name)
-    pipe = Pipeline(prof, EstimatorConfig(baseline=False))
-    res = replay(Frames(Simulation(prof, "paper", seed=5, noise="realistic")), pipe)
+    log = tmp_path / "paper.log"
+    write_log(Simulation(prof, "paper", seed=5, noise="realistic").frames(), log, prof.bus_channel or "can0")
+    res, _ = replay_log(log, lambda: Pipeline(prof, EstimatorConfig(baseline=False)), channel=prof.bus_channel)
     assert res.decode["errors"] == {}
     for stage, params in STAGES.items():
         for p in params:
