@@ -255,6 +255,18 @@ def test_a_foreign_host_name_is_refused_by_vdp_serve_on_loopback(served):
     assert status_of(ask(port, b"GET /status HTTP/1.1\r\nHost: 127.0.0.1:%d\r\n\r\n" % port)) == 200
 
 
+def test_a_request_head_beyond_16_kb_is_refused_with_431(served):
+    """httptools' parser (vdp serve's, for its CPU a request) has no head limit of its own: the
+    guard counts the head as it is parsed, as h11's limit did."""
+    from vdp.cli.serve import HEAD_LIMIT, _guarded_protocol
+
+    assert _guarded_protocol(10, 1.0).__mro__[1].__name__ == "HttpToolsProtocol"  # installed with vdp
+    port, _ = served()
+    head = b"GET /status HTTP/1.1\r\nHost: localhost\r\nX-Pad: %s\r\n\r\n"
+    assert status_of(ask(port, head % (b"x" * (HEAD_LIMIT + 100)))) == 431
+    assert status_of(ask(port, head % (b"x" * 1000))) == 200  # a head of a few KB is answered
+
+
 def test_a_huge_reset_body_is_refused_before_it_is_read(served):
     port, svc = served(max_body=4096)
     big = 30 << 20
