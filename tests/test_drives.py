@@ -380,6 +380,13 @@ def test_batch_names_the_changes_between_a_vehicles_drives_in_time_order():
     rows = drive("a.log", 100, 1600, 10.0) + drive("b.log", 200, 1600, 8.0)
     (c,) = changes(rows)
     assert c["kind"] == "tyres" and c["size"] == pytest.approx(-0.2) and c["params"] == ["C_K", "C_alpha"]
+    # a load and new tyres at once: while the mass is the profile's, C_K's step is the load's; with the
+    # mass learnt and put into C_K (vdp batch --mass: runs.parquet's mass_learnt) it is the tyres'
+    rows = drive("a.log", 100, 1600, 10.0) + drive("b.log", 200, 1900, 8.0)
+    (c,) = changes(rows)
+    assert c["kind"] == "mass" and "C_K" in c["params"]
+    (c, t) = changes([dict(r, mass_learnt=True) for r in rows])
+    assert (c["kind"], t["kind"]) == ("mass", "tyres") and "C_K" not in c["params"] and "mass" in c["params"]
 
 
 def test_batch_combines_a_vehicles_drives_since_the_last_change():
