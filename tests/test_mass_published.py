@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 from fastapi.testclient import TestClient
 
 from vdp import fleet
@@ -115,6 +116,26 @@ def test_runs_parquet_rows_say_what_the_replay_json_says(drive, tmp_path):
         else:  # the loaded car's (1900 kg), which no one told vdp; the six with it put in
             assert row["valid"] and row["value"] == pytest.approx(drive["sim"].model.params.m, rel=0.03)
             assert rows["C_K"]["value"] != pytest.approx(drive["replay"]["off"]["parameters"]["C_K"]["value"])
+
+
+def test_vdp_export_makes_the_file_with_the_learnt_mass_and_says_so(drive, tmp_path, capsys):
+    """`vdp export` of `vdp replay --mass`'s JSON: the learnt mass (valid) in the file, and the
+    axle loads C_K and C_alpha per unit load are taken with; without --mass, the profile's."""
+    for name in ("on", "off"):
+        doc = drive["replay"][name]
+        result, out = tmp_path / f"{name}.json", tmp_path / f"{name}.yaml"
+        result.write_text(json.dumps(doc))
+        assert vdp_main(["export", str(result), "--format", "commonroad", "--out", str(out)]) == 0
+        err = capsys.readouterr().err
+        y = yaml.safe_load(out.read_text())
+        m = doc["parameters"]["mass"]
+        if name == "on":
+            assert m["valid"] and y["m"] == m["value"] and "the mass is the one learnt from the data" in err
+            assert y["m"] == pytest.approx(drive["sim"].model.params.m, rel=0.03)  # the loaded car's
+        else:
+            assert y["m"] == 1600.0 and "learnt" not in err
+        c_alpha = doc["parameters"]["C_alpha"]["value"]
+        assert y["tire"]["p_ky1"] == pytest.approx(-c_alpha / (y["m"] * 9.8 / 2))
 
 
 def test_off_the_mass_is_said_to_be_off_in_the_json_and_the_table(drive, capsys):

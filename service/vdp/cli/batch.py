@@ -1,6 +1,6 @@
 """vdp batch: many logs on a Dask cluster, results as Parquet, drives combined per vehicle.
 
-vdp batch LOGS... [--manifest FILE] --out DIR [--workers N | --scheduler ADDRESS]
+vdp batch LOGS... [--manifest FILE] --out DIR [--workers N | --scheduler ADDRESS] [--mass]
 
 Each log is one task.  A finished log is written at once to DIR/parts/, so an
 interrupted batch loses nothing and a rerun skips what is done (a log that
