@@ -450,7 +450,7 @@ def test_a_tasks_warnings_name_its_log(monkeypatch, caplog):
 
     from vdp import fleet
 
-    def replay(path, profile):
+    def replay(path, profile, mass=False):
         logging.getLogger("vdp.profilecheck").warning("vehicle.mass is %d kg", 1600)
         logging.getLogger("vdp.io.logs").warning("%s: %s", path, "damaged in 1 place(s)")  # names it already
         logging.getLogger("vdp.io.decoder").warning("3 bad frames in a row")  # no arguments
