@@ -1,5 +1,6 @@
 """vdp batch: logs on a local Dask cluster into Parquet, drives combined per vehicle."""
 
+import dataclasses
 import gzip
 import json
 import math
@@ -409,6 +410,29 @@ def test_a_result_is_done_only_for_the_same_log_profile_dbc_and_vdp(tmp_path, re
     with dbc.open("a") as f:
         f.write('\nCM_ "a comment added to the DBC";\n')
     assert rerun_reason(rows, t, key()) == "its profile changed"
+    # a result made without the mass learnt is not one with it (vdp batch --mass), and the other way
+    rows = [{**rows[0], **run_key(t.log, key()), "mass_learnt": False}]
+    assert rerun_reason(rows, t, key()) is None
+    assert rerun_reason(rows, dataclasses.replace(t, mass=True), key()) == "--mass now"
+    rows = [{**rows[0], "mass_learnt": True}]
+    assert rerun_reason(rows, t, key()) == "without --mass now"
+    assert rerun_reason(rows, dataclasses.replace(t, mass=True), key()) is None
+    assert t.key == dataclasses.replace(t, mass=True).key  # one part per log: the rerun replaces it
+
+
+def test_batch_mass_makes_each_task_learn_the_mass(tmp_path, repo_root):
+    """`vdp batch --mass`: each log's task learns the mass (fleet.replay_log with --mass's config);
+    without it, as before."""
+    from vdp.cli import build_parser
+    from vdp.cli.batch import tasks
+
+    prof = repo_root / "profiles" / "paper.toml"
+    m = tmp_path / "m.csv"
+    m.write_text(f"log,vehicle,profile\na.log,car,{prof}\n")
+    for flags, on in (([], False), (["--mass"], True)):
+        args = build_parser("batch").parse_args(["batch", "--manifest", str(m), "--out", str(tmp_path), *flags])
+        (t,) = tasks(args)
+        assert t.mass is on
 
 
 def test_an_out_folder_that_takes_no_file_is_refused_before_the_batch(tmp_path, capsys):
@@ -426,7 +450,7 @@ def test_a_tasks_warnings_name_its_log(monkeypatch, caplog):
 
     from vdp import fleet
 
-    def replay(path, profile):
+    def replay(path, profile, mass=False):
         logging.getLogger("vdp.profilecheck").warning("vehicle.mass is %d kg", 1600)
         logging.getLogger("vdp.io.logs").warning("%s: %s", path, "damaged in 1 place(s)")  # names it already
         logging.getLogger("vdp.io.decoder").warning("3 bad frames in a row")  # no arguments

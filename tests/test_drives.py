@@ -33,6 +33,8 @@ from fastapi.testclient import TestClient
 
 from vdp.api import create_app
 from vdp.core.change import Measure, bus_print, compare_prints, detect, fit_mass
+from vdp.core.mass import PRIOR_REL
+from vdp.core.params import NAMES
 from vdp.io.logs import open_log
 from vdp.live import Service
 from vdp.profile import load_profile
@@ -77,6 +79,13 @@ class Logger:
         self.sent = 0
         self.svc: Service | None = None
 
+    def service(self, seed: int = 1, scenario: str = "paper", mass: bool = False) -> Service:
+        """A fresh service on the logger's store and raw-log folder (not started)."""
+        settings = simulate_settings(PROFILE, self.tmp, scenario=scenario, speed=0, noise="none", seed=seed)
+        settings = dataclasses.replace(settings, service=dataclasses.replace(settings.service, mass=mass))
+        settings = dataclasses.replace(settings, store=dataclasses.replace(settings.store, commit_interval=0.2))
+        return Service(settings, profile=self.profile)
+
     def drive(
         self,
         seed: int,
@@ -90,10 +99,7 @@ class Logger:
     ):
         """One drive of the given car through a fresh service; returns it (stopped if ``stop``).
         ``mass``: the service learns the mass as driven (``[service] mass = true``)."""
-        settings = simulate_settings(PROFILE, self.tmp, scenario=scenario, speed=0, noise="none", seed=seed)
-        settings = dataclasses.replace(settings, service=dataclasses.replace(settings.service, mass=mass))
-        settings = dataclasses.replace(settings, store=dataclasses.replace(settings.store, commit_interval=0.2))
-        svc = Service(settings, profile=self.profile)
+        svc = self.service(seed, scenario, mass)
         start = 1.7e9 + self.drives * (DRIVE + GAP)
         svc.sim._sim = Simulation(
             car_profile or self.profile,
@@ -226,19 +232,43 @@ def test_4_a_load_of_300_kg_is_named_as_a_mass_change(loaded_a):
     assert {"l_f", "h", "C_K", "C_alpha", "I_z"} <= set(old)  # the values before, kept
 
 
-def test_4_with_the_mass_learnt_a_load_is_named_and_leaves_the_tyres_alone(tmp_path):
-    """With ``[service] mass = true`` the estimator puts the learnt mass into C_K and C_alpha: a
-    mass step resets l_f, h, I_z and I_x, not C_K and C_alpha (core.change.affected), and the mass
-    published is the loaded car's (its learner starts from the prior at each start of the service)."""
+def test_4_with_the_mass_learnt_a_restart_resumes_it_and_a_load_is_named_and_leaves_the_tyres_alone(tmp_path):
+    """With ``[service] mass = true`` the estimator puts the learnt mass into C_K and C_alpha.  A
+    restart resumes the mass learner where it was (its own state in the store, as the six's), and
+    the six as published with it; another car on the bus starts from the prior mass.  A mass step
+    resets the mass, l_f, h, I_z and I_x, not C_K and C_alpha (core.change.affected), and the mass
+    published is the loaded car's."""
     lg = Logger(tmp_path)
     first = lg.drive(seed=1, mass=True)
-    m1 = first.latest.result.parameters["mass"]
-    assert m1.valid and abs(m1.value - lg.profile.vehicle.mass) < 3 * m1.std, m1
+    a1 = first.latest.result.parameters
+    m1, m0 = a1["mass"], lg.profile.vehicle.mass
+    assert m1.valid and abs(m1.value - m0) < 3 * m1.std, m1
+    # a restart, as `vdp serve` restores at its start (no frame fed yet): the mass as learnt, not the prior
+    svc = lg.service(mass=True)
+    try:
+        svc._restore(svc.writer.open())
+        assert svc.restore_error is None and {"mass", "ukf/1"} <= set(svc.resumed), svc.resumed
+        now = svc.pipeline.result().parameters
+        m = now["mass"]
+        assert (m.value, m.std, m.valid, m.status, m.samples) == (m1.value, m1.std, m1.valid, m1.status, m1.samples)
+        assert m.std < 0.1 * PRIOR_REL * m0 and m.extra["rows_excited"] == m1.extra["rows_excited"]
+        for n in NAMES:  # the six as published with that mass: none scaled twice, no std widened or narrowed
+            assert now[n].value == pytest.approx(a1[n].value, rel=1e-9), n
+            assert now[n].std == pytest.approx(a1[n].std, rel=1e-9), n
+        # another car on the bus (its print judged): it starts from the priors, the mass's among them
+        svc.drives._another_car(svc.pipeline, "a test's other car")
+        m = svc.pipeline.result().parameters["mass"]
+        assert (m.value, m.std, m.status) == (m0, PRIOR_REL * m0, "not_run"), m
+    finally:
+        svc.writer.close()
     prof, truth = loaded(lg.profile, lg.truth, 300.0)
     svc = lg.drive(seed=3, car_profile=prof, params=truth, scenario="stage1", mass=True)
+    assert "mass" in svc.resumed  # car A's mass carried in, until the load is named
     (c,) = store_rows(svc.settings.store.path, "changes")
     assert c["kind"] == "mass" and set(json.loads(c["params"])) == {"mass", "l_f", "h", "I_z", "I_x"}, c
-    assert {"l_f", "h", "I_z", "I_x"} == set(json.loads(c["old"])["values"])  # the values before, kept
+    old = json.loads(c["old"])["values"]
+    assert {"mass", "l_f", "h", "I_z", "I_x"} == set(old)  # the values before, kept
+    assert old["mass"]["value"] == pytest.approx(m1.value, rel=0.01)  # car A's, resumed
     m2 = svc.latest.result.parameters["mass"]
     assert abs(m2.value - prof.vehicle.mass) < 3 * m2.std, (m2, prof.vehicle.mass)  # the loaded car's
 
@@ -374,6 +404,13 @@ def test_batch_names_the_changes_between_a_vehicles_drives_in_time_order():
     rows = drive("a.log", 100, 1600, 10.0) + drive("b.log", 200, 1600, 8.0)
     (c,) = changes(rows)
     assert c["kind"] == "tyres" and c["size"] == pytest.approx(-0.2) and c["params"] == ["C_K", "C_alpha"]
+    # a load and new tyres at once: while the mass is the profile's, C_K's step is the load's; with the
+    # mass learnt and put into C_K (vdp batch --mass: runs.parquet's mass_learnt) it is the tyres'
+    rows = drive("a.log", 100, 1600, 10.0) + drive("b.log", 200, 1900, 8.0)
+    (c,) = changes(rows)
+    assert c["kind"] == "mass" and "C_K" in c["params"]
+    (c, t) = changes([dict(r, mass_learnt=True) for r in rows])
+    assert (c["kind"], t["kind"]) == ("mass", "tyres") and "C_K" not in c["params"] and "mass" in c["params"]
 
 
 def test_batch_combines_a_vehicles_drives_since_the_last_change():

@@ -329,6 +329,48 @@ def test_a_measured_l_f_is_handed_on_where_stage_1_did_not_run(tmp_path, capsys)
     assert "l_f is the profile's measured 1.17 m" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("mass", ["learnt", "not_valid", "off", "absent"])
+def test_the_exports_take_the_learnt_mass_where_it_is_valid_and_say_which(mass):
+    """A result whose mass was learnt and is valid (vdp replay --mass): each format is made with it
+    (the mass, the axle loads, C_alpha per unit load); otherwise with the profile's, and each says
+    which."""
+    from vdp.export import Constants, render
+
+    params = {
+        "l_f": {"value": 1.1, "std": 0.003, "unit": "m", "status": "converged", "valid": True},
+        "C_K": {"value": 15.0, "std": 0.5, "unit": "1", "status": "converged", "valid": True},
+        "C_alpha": {"value": 9.0e4, "std": 2e3, "unit": "N/rad", "status": "converged", "valid": True},
+    }
+    learnt = {"value": 1900.0, "std": 5.0, "unit": "kg", "status": "converged", "valid": True}
+    params["mass"] = {
+        "learnt": learnt,
+        "not_valid": {**learnt, "std": 90.0, "status": "uncertain", "valid": False},
+        "off": {"value": 1600.0, "std": 192.0, "unit": "kg", "status": "not_run", "valid": False, "reason": "off"},
+    }.get(mass)
+    if params["mass"] is None:  # a result of a vdp before the mass was published
+        del params["mass"]
+    const = Constants("car", 1600.0, 2.5, 0.3, 2.0, 1.5)
+    m = 1900.0 if mass == "learnt" else 1600.0
+    source = "learnt" if mass == "learnt" else "profile"
+    y = yaml.safe_load(text := render("commonroad", params, const))
+    assert y["m"] == m and y["tire"]["p_ky1"] == pytest.approx(-9.0e4 / (m * 9.8 / 2))
+    said = {"learnt": "(learnt from the data (+- 5 kg, converged; the profile's [vehicle] mass is 1600))",
+            "not_valid": "the learnt mass is not valid (uncertain)", "off": "the mass was not learnt",
+            "absent": "the result has no mass"}[mass]  # fmt: skip
+    assert said in text.split("\nm: ")[0].splitlines()[-1], text
+    c = json.loads(render("carla", params, const))
+    f_z = m * 9.8 * (2.5 - 1.1) / 2.5 / 2  # the front wheel's static load, of the mass used
+    assert c["mass"] == m and c["wheels"][0]["long_stiff_value"] == pytest.approx(15.0 * f_z / 9.8)
+    assert c["vdp"]["mass"]["source"] == source and c["vdp"]["mass"]["value"] == m
+    for fmt in ("json", "toml"):
+        text = render(fmt, params, const)
+        doc = json.loads(text) if fmt == "json" else tomllib.loads(text)
+        assert doc["vehicle"]["mass"] == m and doc["vehicle"]["mass_source"] == source
+        got = doc["parameters"]["mass"]  # the mass beside the six, as the result has it
+        assert got["status"] == params.get("mass", {}).get("status", "not_run") and got["unit"] == "kg"
+    assert f"# vehicle.mass: {'learnt' if mass == 'learnt' else 'the profile'}" in text
+
+
 def _hand_edited(tmp_path, params=None, **vehicle):
     """A result JSON as a user may have edited it (json.dumps writes NaN and Infinity as Python reads them)."""
     p = {

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 from fastapi.testclient import TestClient
 
 from vdp import fleet
@@ -94,27 +95,47 @@ def test_the_dashboard_has_a_card_for_the_mass_with_the_profiles_prior(drive):
 
 
 def test_runs_parquet_rows_say_what_the_replay_json_says(drive, tmp_path):
-    """fleet.rows_from_result is what `vdp batch` writes to runs.parquet: one row per published
-    parameter, the mass's among them, with the replay's value, std, status, valid and reason."""
-    from vdp.core.estimator import EstimatorConfig
-    from vdp.core.mass import MassConfig
-    from vdp.io.bulk import replay_log
-    from vdp.pipeline import Pipeline
-
-    profile = load_profile(PROFILE)
-    task = fleet.Task(str(drive["log"]), "car", str(PROFILE))
+    """fleet.run_task is what a `vdp batch` worker runs into runs.parquet: one row per published
+    parameter, the mass's among them, with the replay's value, std, status, valid and reason;
+    with ``vdp batch --mass`` (Task.mass) those of ``vdp replay --mass``: the mass learnt, and
+    put into the six."""
     for name, on in (("on", True), ("off", False)):
-        cfg = EstimatorConfig(baseline=False, trace_len=0, mass=MassConfig(report=on, use=on))
-        res, _ = replay_log(str(drive["log"]), lambda cfg=cfg: Pipeline(profile, cfg))
-        rows = {r["parameter"]: r for r in fleet.rows_from_result(res, task)}
-        assert list(rows) == list(PUBLISHED)
-        doc = drive["replay"][name]["parameters"]["mass"]
-        row = rows["mass"]
-        assert (row["status"], row["valid"], row["unit"]) == (doc["status"], doc["valid"], doc["unit"])
-        assert row["value"] == pytest.approx(doc["value"], rel=1e-9)
-        assert row["std"] == pytest.approx(doc["std"], rel=1e-9) and row["reason"] == doc.get("reason")
+        task = fleet.Task(str(drive["log"]), "car", str(PROFILE), mass=on)
+        rows = {r["parameter"]: r for r in fleet.run_task(task)}
+        assert list(rows) == list(PUBLISHED) and all(r["mass_learnt"] is on for r in rows.values())
+        params = drive["replay"][name]["parameters"]
+        for n, row in rows.items():
+            doc = params[n]
+            assert (row["status"], row["valid"], row["unit"]) == (doc["status"], doc["valid"], doc["unit"]), n
+            assert row["value"] == pytest.approx(doc["value"], rel=1e-9), n
+            assert row["std"] == pytest.approx(doc["std"], rel=1e-9), n
+        row, doc = rows["mass"], params["mass"]
+        assert row["reason"] == doc.get("reason")
         if name == "off":  # said to be off, with the reason; the profile's mass and the prior's std
             assert row["status"] == "not_run" and "mass estimation is off" in row["reason"]
+        else:  # the loaded car's (1900 kg), which no one told vdp; the six with it put in
+            assert row["valid"] and row["value"] == pytest.approx(drive["sim"].model.params.m, rel=0.03)
+            assert rows["C_K"]["value"] != pytest.approx(drive["replay"]["off"]["parameters"]["C_K"]["value"])
+
+
+def test_vdp_export_makes_the_file_with_the_learnt_mass_and_says_so(drive, tmp_path, capsys):
+    """`vdp export` of `vdp replay --mass`'s JSON: the learnt mass (valid) in the file, and the
+    axle loads C_K and C_alpha per unit load are taken with; without --mass, the profile's."""
+    for name in ("on", "off"):
+        doc = drive["replay"][name]
+        result, out = tmp_path / f"{name}.json", tmp_path / f"{name}.yaml"
+        result.write_text(json.dumps(doc))
+        assert vdp_main(["export", str(result), "--format", "commonroad", "--out", str(out)]) == 0
+        err = capsys.readouterr().err
+        y = yaml.safe_load(out.read_text())
+        m = doc["parameters"]["mass"]
+        if name == "on":
+            assert m["valid"] and y["m"] == m["value"] and "the mass is the one learnt from the data" in err
+            assert y["m"] == pytest.approx(drive["sim"].model.params.m, rel=0.03)  # the loaded car's
+        else:
+            assert y["m"] == 1600.0 and "learnt" not in err
+        c_alpha = doc["parameters"]["C_alpha"]["value"]
+        assert y["tire"]["p_ky1"] == pytest.approx(-c_alpha / (y["m"] * 9.8 / 2))
 
 
 def test_off_the_mass_is_said_to_be_off_in_the_json_and_the_table(drive, capsys):

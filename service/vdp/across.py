@@ -118,9 +118,14 @@ def changes(rows: Iterable[Mapping[str, Any]]) -> list[dict]:
                 }
                 for n in ("C_K", "C_alpha"):
                     ref[n] = combine([x[n] for x in since["tyres"] if x[n] is not None])
-                for c in detect(ref, now):
+                # a drive whose mass was learnt (vdp batch --mass) has it put into C_K and C_alpha:
+                # a mass step leaves them alone, as in the running service (core.change.affected)
+                learnt = bool(r.get("mass_learnt"))
+                for c in detect(ref, now, mass_estimated=learnt):
                     found.append(c.as_dict())
-                    if c.kind == "mass":
+                    if c.kind == "mass" and learnt:
+                        since["mass"] = []
+                    elif c.kind == "mass":
                         since = {"mass": [], "tyres": []}  # C_K and C_alpha went with it
                     else:
                         since["tyres"] = []
@@ -176,7 +181,10 @@ def document_rows(doc: Mapping[str, Any], log: str, vehicle: str = "") -> list[d
     prn = d.get("bus_print")
     common = {k: d.get(k) for k in ("start_time", "mass", "mass_std", "wheel_scale", "wheel_scale_std")}
     common.update(vehicle=vehicle, log=log, bus_print=json.dumps(prn) if prn else None)
+    params = doc.get("parameters") or {}
+    # a replay with --mass: the six carry the mass they were scaled with (core.mass.scaled's mass_used)
+    common["mass_learnt"] = any("mass_used" in ((p or {}).get("extra") or {}) for p in params.values())
     return [
         dict(common, parameter=n, value=p.get("value"), std=p.get("std"), status=p.get("status"), valid=p.get("valid"))
-        for n, p in (doc.get("parameters") or {}).items()
+        for n, p in params.items()
     ]

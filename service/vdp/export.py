@@ -5,16 +5,21 @@ Pure text out of (parameters, vehicle constants): the CLI (``vdp export``) and t
 ``not_identifiable`` or ``invalid`` is the prior, mostly the prior, or garbage, so it is
 left out of the simulator formats (and named in ``skipped``); plain JSON and TOML carry
 every one with its status and std.
+
+The mass every format writes, and computes the axle loads and C_alpha per unit load with, is
+the learnt one where the result has it learnt and valid (``vdp replay --mass``, ``[service]
+mass = true``: the six were put on it, core.mass.scaled), else the profile's ``[vehicle] mass``;
+each format says which (:func:`mass_of`).
 """
 
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
-from .core.params import BY_NAME, NAMES
-from .core.result import INVALID, NOT_IDENTIFIABLE, NOT_RUN, finite
+from .core.params import BY_NAME, MASS, NAMES, PUBLISHED
+from .core.result import CONVERGED, INVALID, NOT_IDENTIFIABLE, NOT_RUN, UNCERTAIN, finite
 from .errors import ConfigError
 from .text import clean, one_line, toml_str
 
@@ -82,6 +87,38 @@ def usable(params: dict, const: Constants | None = None) -> tuple[dict[str, dict
     return keep, skipped
 
 
+MASS_DESCRIPTION = "vehicle mass as driven (kerb weight, occupants, load)"
+
+
+def mass_of(params: dict, const: Constants) -> tuple[Constants, dict]:
+    """(the constants with the mass the file is made with, what says which): the result's learnt
+    mass where it is valid (learnt from the data, its std within its usefulness threshold), else
+    the profile's, with the reason the learnt one is not taken."""
+    p = params.get(MASS)
+    if isinstance(p, dict) and p.get("valid") and p.get("status") in (CONVERGED, UNCERTAIN):
+        v, sd = p.get("value"), p.get("std")
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0:
+            said = {"source": "learnt", "value": float(v), "std": finite(sd), "status": p["status"]}
+            return replace(const, mass=float(v)), {**said, "profile_mass": const.mass}
+    if not isinstance(p, dict):
+        why = "the result has no mass (made before vdp learnt it)"
+    elif p.get("status", NOT_RUN) == NOT_RUN:
+        why = "the mass was not learnt (vdp replay --mass, [service] mass = true learn it)"
+    else:
+        why = f"the learnt mass is not valid ({p.get('status')}): see its reason in the result"
+    return const, {"source": "profile", "value": const.mass, "reason": why}
+
+
+def _mass_line(said: dict) -> str:
+    """A comment's words on the mass: learnt (its std and status) or the profile's, and why."""
+    if said["source"] == "learnt":
+        sd = f"+- {said['std']:.4g} kg" if said.get("std") is not None else "std unknown"
+        return (
+            f"learnt from the data ({sd}, {said['status']}; the profile's [vehicle] mass is {said['profile_mass']:g})"
+        )
+    return f"the profile's [vehicle] mass, a known constant: {said['reason']}"
+
+
 # the constants a simulator file is computed from: each a positive number (a zero wheelbase
 # divided by zero, a NaN mass was written as "m: nan", which YAML reads as a string)
 POSITIVE = ("mass", "wheelbase", "wheel_radius", "wheel_inertia", "track", "g")
@@ -110,7 +147,7 @@ def check(params: dict, const: Constants) -> None:
     for k in ("l_f", "l_f_std"):
         if getattr(const, k) is not None:
             _number(f"vehicle.{k}", getattr(const, k), positive=True)
-    for name in NAMES:
+    for name in PUBLISHED:
         p = params.get(name)
         if p is None:
             continue
@@ -132,7 +169,8 @@ def render(fmt: str, params: dict, const: Constants, source: str = "") -> str:
     not one (NaN, inf, text, a zero wheelbase) is a ConfigError naming its field."""
     check_format(fmt)
     check(params, const)
-    return {"commonroad": _commonroad, "carla": _carla, "json": _json, "toml": _toml}[fmt](params, const, source)
+    const, said = mass_of(params, const)
+    return {"commonroad": _commonroad, "carla": _carla, "json": _json, "toml": _toml}[fmt](params, const, source, said)
 
 
 def _num(v: float) -> str:
@@ -161,7 +199,7 @@ def not_valid(params: dict) -> list[str]:
     return [n for n, p in keep.items() if not p.get("valid", False)]
 
 
-def _commonroad(params: dict, const: Constants, source: str) -> str:
+def _commonroad(params: dict, const: Constants, source: str, said: dict) -> str:
     """The layout of the commonroad-vehicle-models parameter YAML (parameters_vehicleN.yaml):
     the same keys and units, only those vdp knows; load it over a base set."""
     keep, skipped = usable(params, const)
@@ -173,7 +211,7 @@ def _commonroad(params: dict, const: Constants, source: str) -> str:
     ]
     if skipped:
         lines.append(f"# left out (not estimated from the data): {', '.join(skipped)}")
-    lines += ["", "# vehicle mass [kg] (known constant)", f"m: {_num(const.mass)}"]
+    lines += ["", f"# vehicle mass [kg]  ({one_line(_mass_line(said))})", f"m: {_num(const.mass)}"]
     if "l_f" in keep:
         l_f = keep["l_f"]["value"]
         lines += [
@@ -236,7 +274,7 @@ def _commonroad(params: dict, const: Constants, source: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _carla(params: dict, const: Constants, source: str) -> str:
+def _carla(params: dict, const: Constants, source: str, said: dict) -> str:
     """CARLA 0.9's VehiclePhysicsControl / WheelPhysicsControl field names and units (radius in
     cm), wheels front-left, front-right, rear-left, rear-right.  PhysX has no inertia fields:
     I_z and I_x go in the ``vdp`` block only."""
@@ -274,23 +312,25 @@ def _carla(params: dict, const: Constants, source: str) -> str:
         "note": "CARLA 0.9 (PhysX) fields; set them on carla.VehiclePhysicsControl / WheelPhysicsControl. "
         "center_of_mass is relative to the wheelbase midpoint on the ground; PhysX's load curve scales "
         "lat_stiff_value at the rest load, check it against your CARLA version.",
+        "mass": said,
         "parameters": _plain(params)["parameters"],
         "skipped": skipped,
     }
     return json.dumps(out, indent=2, allow_nan=False) + "\n"
 
 
-def _plain(params: dict, const: Constants | None = None, source: str = "") -> dict:
+def _plain(params: dict, const: Constants | None = None, source: str = "", said: dict | None = None) -> dict:
     out: dict = {"parameters": {}}
-    for name in NAMES:
+    for name in PUBLISHED:
         p = params.get(name) or {}
+        spec = BY_NAME.get(name)
         out["parameters"][name] = {
             "value": finite(p.get("value")),
             "std": finite(p.get("std")),
-            "unit": p.get("unit", BY_NAME[name].unit),
+            "unit": p.get("unit", spec.unit if spec else "kg"),
             "status": p.get("status", NOT_RUN),
             "valid": bool(p.get("valid", False)),
-            "description": BY_NAME[name].description,
+            "description": spec.description if spec else MASS_DESCRIPTION,
         }
         if p.get("reason"):  # why it is not valid, or not learnt
             out["parameters"][name]["reason"] = p["reason"]
@@ -300,13 +340,15 @@ def _plain(params: dict, const: Constants | None = None, source: str = "") -> di
                 out["parameters"][name][k] = finite(x[k])
     if const is not None:
         out["vehicle"] = {**asdict(const), "name": clean(const.name)}
+        if said is not None:  # which mass vehicle.mass is: learnt, or the profile's
+            out["vehicle"]["mass_source"] = said["source"]
     if source:
         out["source"] = clean(source)
     return out
 
 
-def _json(params: dict, const: Constants, source: str) -> str:
-    return json.dumps(_plain(params, const, source), indent=2, allow_nan=False) + "\n"
+def _json(params: dict, const: Constants, source: str, said: dict) -> str:
+    return json.dumps(_plain(params, const, source, said), indent=2, allow_nan=False) + "\n"
 
 
 def _toml_value(v) -> str:
@@ -317,10 +359,11 @@ def _toml_value(v) -> str:
     return toml_str(v)  # a quote or a newline in a name escaped, not the file broken
 
 
-def _toml(params: dict, const: Constants, source: str) -> str:
+def _toml(params: dict, const: Constants, source: str, said: dict) -> str:
     """Plain TOML; an unknown number is left out (TOML has no null)."""
-    d = _plain(params, const, source)
-    lines = [f"# vdp estimates of {one_line(const.name)}" + (f" from {one_line(source)}" if source else ""), ""]
+    d = _plain(params, const, source, said)
+    lines = [f"# vdp estimates of {one_line(const.name)}" + (f" from {one_line(source)}" if source else "")]
+    lines += [f"# vehicle.mass: {one_line(_mass_line(said))}", ""]
     lines.append("[vehicle]")
     lines += [f"{k} = {_toml_value(v)}" for k, v in d["vehicle"].items() if v is not None]
     for name, p in d["parameters"].items():

@@ -94,6 +94,9 @@ RUN_COLUMNS = {
     # creep) and the sentence that splits it by gate; null for a result made before the gates
     "gated": float,
     "gated_by": str,
+    # whether the run learnt the mass (vdp batch --mass: its row the learnt mass, and C_K, C_alpha, I_z
+    # and I_x with it put in, as vdp replay --mass); null for a result made before the switch
+    "mass_learnt": bool,
 }
 AXLE_COLUMNS = ("C_alpha_front", "C_alpha_front_std", "C_alpha_rear", "C_alpha_rear_std")
 
@@ -103,6 +106,7 @@ class Task:
     log: str
     vehicle: str
     profile: str
+    mass: bool = False  # learn the mass (vdp batch --mass); a result made the other way is run again
 
     @property
     def key(self) -> str:
@@ -176,17 +180,18 @@ def _profile(path: str) -> tuple[Any, str | None]:
     return got
 
 
-def replay_log(path: str, profile_path: str) -> Any:
+def replay_log(path: str, profile_path: str, mass: bool = False) -> Any:
     """The RunResult of ``vdp replay PATH --profile PROFILE --no-ekf`` (the UKF's
-    numbers do not depend on the EKF baseline running beside it)."""
+    numbers do not depend on the EKF baseline running beside it); ``mass``: with ``--mass``."""
     from .core.estimator import EstimatorConfig
+    from .core.mass import MassConfig
     from .io.bulk import replay_log as replay_file
     from .pipeline import Pipeline
 
     profile, _ = _profile(profile_path)
     # no EKF baseline (the UKF's numbers do not depend on it) and no trace: a plot's
     # history grows with the log (310 MB peak at 4 h against 200 MB at 1 h), and batch draws no plots
-    cfg = EstimatorConfig(baseline=False, trace_len=0)
+    cfg = EstimatorConfig(baseline=False, trace_len=0, mass=MassConfig(report=mass, use=mass))
     result, _ = replay_file(path, lambda: Pipeline(profile, cfg), channel=profile.bus_channel)
     return result
 
@@ -234,7 +239,7 @@ def _run(task: Task) -> list[dict]:
     key = run_key(task.log, None)
     t0, c0 = time.monotonic(), time.thread_time()
     try:
-        res = replay_log(task.log, task.profile)
+        res = replay_log(task.log, task.profile, task.mass)
     except VdpError as exc:
         return [error_row(task, str(exc), key)]
     except Exception as exc:  # a bug, not the log: keep the rest of the fleet going, say where
@@ -260,6 +265,7 @@ def _run(task: Task) -> list[dict]:
 def error_row(task: Task, error: str, key: dict[str, Any] | None) -> dict:
     row: dict[str, Any] = dict.fromkeys(RUN_COLUMNS)
     row.update(log=task.log, vehicle=task.vehicle, profile=task.profile, status="error", error=error, valid=False)
+    row.update(mass_learnt=task.mass)
     row.update(key or {})
     return row
 
@@ -307,6 +313,7 @@ def rows_from_result(res: Any, task: Task, key: dict[str, Any] | None = None) ->
             bad_lines=int(src.get("bad_lines") or 0),
             damage=(src.get("damage") or {}).get("summary") or None,
             wall_s=float(lg.wall_s if lg is not None else 0.0),
+            mass_learnt=task.mass,
         )
         g = (getattr(res, "supervisor", None) or {}).get("gated") or {}
         if g.get("of"):

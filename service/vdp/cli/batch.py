@@ -1,6 +1,6 @@
 """vdp batch: many logs on a Dask cluster, results as Parquet, drives combined per vehicle.
 
-vdp batch LOGS... [--manifest FILE] --out DIR [--workers N | --scheduler ADDRESS]
+vdp batch LOGS... [--manifest FILE] --out DIR [--workers N | --scheduler ADDRESS] [--mass]
 
 Each log is one task.  A finished log is written at once to DIR/parts/, so an
 interrupted batch loses nothing and a rerun skips what is done (a log that
@@ -58,6 +58,12 @@ def add_parser(sub):
     )
     g.add_argument("--scheduler", metavar="ADDRESS", help="run on an existing Dask cluster, e.g. tcp://10.0.0.5:8786")
     p.add_argument("--redo", action="store_true", help="run every log again, even those already done")
+    p.add_argument(
+        "--mass",
+        action="store_true",
+        help="learn each drive's mass and use it in the six, as vdp replay --mass (the mass row then holds "
+        "the learnt mass; logs run without it are run again)",
+    )
     p.add_argument(
         "--plot",
         metavar="FILE",
@@ -200,7 +206,7 @@ def tasks(args, unmatched: list[str] | None = None) -> list:
             if prof not in names:
                 names[prof] = load_profile(prof).vehicle.name  # bad profile: one clear error up front
             vehicle = names[prof]
-        t = Task(str(Path(logp).resolve()), vehicle, prof)
+        t = Task(str(Path(logp).resolve()), vehicle, prof, mass=bool(getattr(args, "mass", False)))
         if t.key not in seen:
             seen.add(t.key)
             out.append(t)
@@ -294,6 +300,8 @@ def rerun_reason(rows: list[dict], task, profile_key: str | None) -> str | None:
         return "another vdp version"
     if profile_key is None or first.get("profile_hash") != profile_key:
         return "its profile changed"
+    if bool(first.get("mass_learnt")) != task.mass:
+        return "--mass now" if task.mass else "without --mass now"
     # size and mtime first: a log that changed is told without reading it
     stamp = (first.get("log_size"), first.get("log_mtime_ns"))
     if stamp != file_stamp(task.log) or first["log_hash"] != content_hash(task.log):

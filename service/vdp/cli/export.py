@@ -65,7 +65,7 @@ def constants(data: dict, profile: str | None):
 
 
 def run(args) -> int:
-    from ..export import check_format, not_valid, render, usable
+    from ..export import check_format, mass_of, not_valid, render, usable
 
     # everything that can be refused is refused before any work
     check_format(args.format)
@@ -86,6 +86,13 @@ def run(args) -> int:
     else:
         write_text(args.out, text)
     keep, skipped = usable(data["parameters"], const)
+    _, said = mass_of(data["parameters"], const)
+    if said["source"] == "learnt":  # (the file's mass, axle loads and stiffness per load are of it)
+        print(
+            f"vdp export: the mass is the one learnt from the data, {said['value']:.0f} kg "
+            f"(the profile's [vehicle] mass is {said['profile_mass']:g} kg)",
+            file=sys.stderr,
+        )
     if keep.get("l_f", {}).get("status") == "measured" and args.format in ("commonroad", "carla"):
         print(f"vdp export: l_f is the profile's measured {const.l_f:g} m (stage 1 did not run)", file=sys.stderr)
     if skipped and args.format in ("commonroad", "carla"):

@@ -23,7 +23,8 @@ from .compiled import kernel
 from .learn.base import LearnerConfig
 from .learn.stage1 import Stage1
 from .learn.stage2 import Stage2
-from .mass import MassConfig, MassLearner, scaled
+from .mass import STAGE as MASS_STAGE
+from .mass import MassConfig, MassLearner, scaled, unscaled
 from .mass import off as mass_off
 from .params import MASS
 from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
@@ -315,7 +316,7 @@ class TwoStageEstimator:
         return self.speed.v, std, self.speed.bias
 
     def reset(self, stage: int | None = None) -> None:
-        """Clear one stage (1 or 2) or both (None)."""
+        """Clear one stage (1 or 2), the mass (core.mass.STAGE: a mass step named between drives), or all (None)."""
         if stage in (None, 1):
             for l in self.s1.values():
                 l.reset()
@@ -324,9 +325,9 @@ class TwoStageEstimator:
             for l in self.s2.values():
                 l.reset()
         self._stage = None
+        if stage in (None, MASS_STAGE) and self.mass is not None:
+            self.mass.reset()
         if stage is None:
-            if self.mass is not None:
-                self.mass.reset()
             if self.tilt is not None:
                 self.tilt.reset()
             self.supervisor.reset()
@@ -446,7 +447,12 @@ class TwoStageEstimator:
         return "done" if settled else "stage2"
 
     def restore(self, params: Mapping[str, Estimate]) -> None:
-        """Start from stored estimates (value, std, samples) instead of the priors."""
+        """Start from stored estimates (value, std, samples) instead of the priors.  ``params`` are
+        as :meth:`parameters` publishes them: with the learnt mass put in (cfg.mass.use), they are
+        taken out of it first (core.mass.unscaled, with the mass as the learner has it now: resumed
+        first at a restart, :meth:`resume`), as the filters run with the profile's mass."""
+        if self.cfg.mass.use and self.mass is not None:
+            params = unscaled(dict(params), self.mass.snapshot(), self.vehicle.mass)
         for kind in self.s1:
             for learner in (self.s1[kind], self.s2[kind]):
                 snap = learner.snapshot()
@@ -468,8 +474,12 @@ class TwoStageEstimator:
     def learnt(self) -> dict:
         """Each learner's own state in the published parameters: value, the filter's covariance
         (without the honest std's floor and mismatch terms) and samples, for a restart to carry on
-        exactly where it was (:meth:`resume`).  Keyed "kind/stage"; learners that saw no data left out."""
+        exactly where it was (:meth:`resume`).  Keyed "kind/stage"; learners that saw no data left out.
+        The mass learner's own state under "mass" (core.mass.MassLearner.state) wherever it runs:
+        its presence says the six were published with it."""
         out = {}
+        if self.mass is not None:
+            out[MASS] = self.mass.state()
         for kind in self.s1:
             for learner in (self.s1[kind], self.s2[kind]):
                 if learner.samples:
@@ -489,8 +499,16 @@ class TwoStageEstimator:
         restart neither tightens the std (the diagonal alone would) nor widens it (the honest std
         put back into the filter would, at every restart).  Where it does not (a stored value that
         was the batch check's, a std widened by a mismatch the restarted learner has not seen yet),
-        the learner keeps :meth:`restore`'s.  Returns the learners resumed."""
+        the learner keeps :meth:`restore`'s.  Returns the learners resumed.
+
+        The mass first (``learnt["mass"]``, where it gives back the stored ``params["mass"]``;
+        otherwise it starts from the prior): the six were published with it, so :meth:`restore`
+        is done again with it before the learners' own states are compared."""
         done = []
+        if self.mass is not None and learnt.get(MASS) and self._resume_mass(learnt[MASS], params.get(MASS)):
+            done.append(MASS)
+            if self.cfg.mass.use:  # restore()'s values, taken out of the mass they were published with
+                self.restore({k: v for k, v in params.items() if k != MASS})
         for kind in self.s1:
             for learner in (self.s1[kind], self.s2[kind]):
                 st = learnt.get(f"{kind}/{learner.stage}")
@@ -503,6 +521,8 @@ class TwoStageEstimator:
                 learner.set_params(st["value"], cov, 0)  # 0: the covariance holds no floor to take out
                 learner.samples = max(keep[2], int(st["samples"]))
                 snap = learner.snapshot()
+                if self.cfg.mass.use:  # compared as published: with the mass put in
+                    snap = scaled(snap, self.mass.snapshot(), self.vehicle.mass)
                 same = all(
                     params.get(n) is not None
                     and _close(snap[n].value, params[n].value)
@@ -519,6 +539,18 @@ class TwoStageEstimator:
         if self.l_f_known():
             self.handover_t = self.t if self.t is not None else 0.0
         return done
+
+    def _resume_mass(self, st: Mapping, stored: Estimate | None) -> bool:
+        """The mass learner from its own state, kept where it gives back the stored mass estimate."""
+        if stored is None or not self.mass.load(st):
+            return False
+        e = self.mass.snapshot()
+        if _close(e.value, stored.value) and _close(e.std, stored.std):
+            return True
+        log.warning("the stored mass learner does not give back the stored mass (%s kg); it starts from the prior",
+                    stored.value)  # fmt: skip
+        self.mass.reset()
+        return False
 
     def _trace_row(self, t: float, stage) -> tuple:
         """(t, stage, per kind: ((value, std) per parameter)) straight from the filters."""

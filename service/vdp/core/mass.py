@@ -38,7 +38,13 @@ std added in quadrature; I_x keeps its value and takes the mass's relative chang
 into its std.  A load that moves the CG shows in l_f, h and I_z as the loaded car's values:
 stage 1 and 2 see the car as driven.
 
-Pure: ``handle(t, sample)``, ``snapshot()``, ``reset()``.
+Across restarts (``vdp serve``): :meth:`MassLearner.state` is kept in the store with the six
+learners' own state (TwoStageEstimator.learnt) and :meth:`MassLearner.load` takes it back, so a
+restart carries on from the mass learnt, its std and its residual statistics, not the prior.
+A restore takes published values back into the filters through :func:`unscaled`, the inverse
+of :func:`scaled`.
+
+Pure: ``handle(t, sample)``, ``snapshot()``, ``reset()``, ``state()``, ``load(state)``.
 """
 
 from __future__ import annotations
@@ -100,6 +106,45 @@ class MassLearner:
         self._rho = 0.0  # their lag-1 correlation (EWMA)
         self._last_e: float | None = None
         self._var = 1.0
+
+    # -- across restarts ----------------------------------------------------------
+    def state(self) -> dict:
+        """What :meth:`load` takes back: the filter, its counts and its residuals' statistics (a row
+        still open is not kept: at most ROW seconds, and a restart begins with a gap anyway)."""
+        return {
+            "m0": self.m0,
+            "x": [float(v) for v in self.x],
+            "P": np.asarray(self.P, dtype=float).tolist(),
+            "rows": self.rows,
+            "excited": self.excited,
+            "skipped": dict(self.skipped),
+            "chi": self._chi,
+            "rho": self._rho,
+            "last_e": self._last_e,
+            "var": self._var,
+        }
+
+    def load(self, st) -> bool:
+        """Carry on from :meth:`state` (a restart).  False, and the learner left as it was, for a
+        state learnt with another profile mass (the prior it started from) or one damaged."""
+        try:
+            x, P = np.asarray(st["x"], dtype=float), np.asarray(st["P"], dtype=float)
+            m0, rows, excited = float(st["m0"]), int(st["rows"]), int(st["excited"])
+            chi, rho, var = float(st["chi"]), float(st["rho"]), float(st["var"])
+            last_e = None if st.get("last_e") is None else float(st["last_e"])
+            skipped = {str(k): int(v) for k, v in (st.get("skipped") or {}).items()}
+        except (KeyError, TypeError, ValueError, AttributeError):
+            return False
+        if not math.isclose(m0, self.m0, rel_tol=1e-12) or x.shape != (3,) or P.shape != (3, 3):
+            return False
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P)) and all(map(math.isfinite, (chi, rho, var)))):
+            return False
+        if rows < 0 or not 0 <= excited <= rows or P[0, 0] <= 0.0:
+            return False
+        self.x, self.P, self.rows, self.excited, self.skipped = x, P, rows, excited, skipped
+        self._chi, self._rho, self._var, self._last_e = chi, rho, var, last_e
+        self._row = None
+        return True
 
     # -- samples ---------------------------------------------------------------
     def handle(self, t: float, s) -> None:
@@ -267,4 +312,30 @@ def scaled(params: dict, mass: Estimate, m_used: float) -> dict:
             why = f"the mass is known to +-{100 * rel_m:.1f} % only ({'learnt' if mass.valid else 'the prior'})"
         out[name] = replace(e, value=value, std=std, valid=valid, reason=why,
                             extra={**e.extra, "mass_used": round(m, 1), "mass_ratio": round(ratio, 4)})  # fmt: skip
+    return out
+
+
+def unscaled(params: dict, mass: Estimate, m_used: float) -> dict:
+    """The inverse of :func:`scaled`: the six as their learners hold them, from the six published
+    with ``mass`` (a restore takes published values back into the filters, which run with the
+    profile's mass).  A relative std narrower than the mass's share (values published without the
+    mass: a store written with mass estimation off) keeps its own: the mass's is added again when
+    published, never taken out twice."""
+    m, sd = (mass.value, mass.std) if mass.valid else (m_used, PRIOR_REL * m_used)
+    if m is None or sd is None or not m > 0:
+        return params
+    ratio, rel_m = m / m_used, sd / m
+    out = dict(params)
+    for name, e in params.items():
+        if e.value is None or e.std is None or e.status == NOT_RUN or not e.value:
+            continue
+        if name in SCALE:
+            value, share = e.value / ratio ** SCALE[name], rel_m * rel_m
+        elif name == "I_x":
+            value, share = e.value, rel_m * rel_m + (ratio - 1.0) ** 2
+        else:
+            continue
+        rel = e.std / abs(e.value)
+        own = math.sqrt(rel * rel - share) if rel * rel > share else rel
+        out[name] = replace(e, value=value, std=own * abs(value))
     return out

@@ -33,7 +33,8 @@ import numpy as np
 
 from .. import channels as ch
 from ..core.change import Measure, bus_print, combine, compare_prints, detect, fit_mass, fit_scale, id_counts
-from ..core.params import STAGE1, STAGE2
+from ..core.mass import STAGE as MASS_STAGE
+from ..core.params import MASS, STAGE1, STAGE2
 from ..core.result import CONVERGED, UNCERTAIN
 from ..errors import StoreError
 
@@ -313,9 +314,12 @@ class Drives:
         return mass, scale
 
     def _apply(self, pipe, change, params) -> None:
-        """Reset the parameters ``change`` affects to their priors; keep it and the values before."""
+        """Reset the parameters ``change`` affects to their priors; keep it and the values before.
+        The mass (a mass step, where it is learnt) goes back to its learner's prior: a learner
+        resumed from the drives before would otherwise take the new load's rows as outliers."""
         priors = self.profile.priors
-        hit = [n for n in change.params if n in params and n in priors]
+        learns = getattr(getattr(pipe, "estimator", None), "mass", None) is not None  # (off: the profile's, kept)
+        hit = [n for n in change.params if n in params and (n in priors or (n == MASS and learns))]
         old = {n: {"value": params[n].value, "std": params[n].std, "status": params[n].status} for n in hit}
         seed = {}
         for names in (STAGE1, STAGE2):
@@ -330,7 +334,9 @@ class Drives:
                 elif e.value is not None and e.std is not None:
                     seed[n] = e
         if seed:
-            pipe.restore(seed)
+            pipe.restore(seed)  # (published values: taken out of the mass they were published with, then)
+        if MASS in hit:
+            pipe.reset(MASS_STAGE)
         now = pipe.result().parameters
         for n in hit:
             self.start[n] = now[n]  # the tyres are judged from here on against the new values

@@ -27,7 +27,7 @@ from concurrent.futures import Future
 from typing import Any
 
 from .. import channels
-from ..core.params import NAMES, PUBLISHED
+from ..core.params import MASS, NAMES, PUBLISHED
 from ..core.result import INVALID
 from ..errors import VdpError
 from ..result import jsonable
@@ -81,6 +81,7 @@ class Service:
         self._looking: Future | None = None  # the drive look queued on the worker
         self.restored: dict | None = None
         self.restore_error: str | None = None
+        self.resumed: list[str] = []  # the learners whose own state a restart took back ("mass" among them)
         self._keeper: threading.Thread | None = None
         self._stop = threading.Event()
         self._started = time.monotonic()
@@ -167,8 +168,9 @@ class Service:
         return "they are lost: enable the raw log to keep every frame"
 
     def _restore(self, stored: dict) -> None:
-        # the six the learners take back; the mass (core.mass) is kept in the store and its history,
-        # but its learner starts from the profile's prior (its own state is not stored)
+        # the six the learners take back; the mass (core.mass) only through its learner's own state
+        # (the store's "learnt"), resumed where it gives back the stored mass, else from the prior
+        mass = {k: v.estimate for k, v in stored.items() if k == MASS}
         stored = {k: v for k, v in stored.items() if k in NAMES}
         if not stored:
             return
@@ -180,7 +182,8 @@ class Service:
         self.restored = stored
         learnt = self.writer.store.learnt() if self.writer.store is not None else None
         if learnt:  # the learners' own covariances: a restart neither tightens nor widens the stds
-            resumed = self.estimation.resume(learnt, {k: v.estimate for k, v in stored.items()})
+            resumed = self.estimation.resume(learnt, {**{k: v.estimate for k, v in stored.items()}, **mass})
+            self.resumed = resumed
             log.info("resumed the learners' own state: %s", ", ".join(resumed) or "none (kept the stored stds)")
         when = max(v.t for v in stored.values())
         log.info(
