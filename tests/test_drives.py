@@ -10,9 +10,10 @@ scripted sequence, each step a test.
 
 Each step is a test of its own: the drives before it are made once a module (``_car_a_once``,
 ``_loaded_once``) and each step gets a copy of the store and raw-log folder they left
-(``car_a``, ``loaded_a``), so any step runs alone or in any order.  Each drive is simulated (noise-free) as fast as the service estimates it: the `paper`
-drive (112 s, both stages) for car A and its restart, its `stage1` half (54 s) for the load
-and the tyres, 25 s of it for car B; nothing is lost from the raw log.  The simulator drives
+(``car_a``, ``loaded_a``), so any step runs alone or in any order.  Each drive is simulated
+(noise-free) as fast as the service estimates it: the `paper` drive (112 s, both stages) for
+car A and its restart, its `stage1` half (54 s) for the load and the tyres, 25 s of it for
+car B; nothing is lost from the raw log.  The simulator drives
 the loaded car as the profile's car with the load's mass and the CG and inertias it moves
 (``loaded`` below); the service still estimates with the profile's mass.  Car B runs under
 the same profile, but its bus carries other ECUs (ids car A's never did) and other parameters.
