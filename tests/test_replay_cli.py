@@ -360,7 +360,9 @@ def test_a_log_that_does_not_fit_the_default_profile_says_it_was_only_the_defaul
 def test_a_plain_replay_imports_only_what_it_uses(drive, repo_root, tmp_path):
     """`vdp replay LOG` loads no web, storage, dataframe or plotting library and not the
     simulator: only the chosen subcommand's module is imported, and each output's library
-    only when that output is asked for (start-up is most of a short log's replay)."""
+    only when that output is asked for (start-up is most of a short log's replay).  A log
+    shorter than cli.replay.COMPILED_FROM (this one: 20 s) runs numpy's filter steps and never
+    loads numba (~1 s of CPU); from there on, the compiled ones."""
     import os
     import subprocess
     import sys
@@ -371,14 +373,25 @@ def test_a_plain_replay_imports_only_what_it_uses(drive, repo_root, tmp_path):
         "from vdp.cli import main\n"
         f"main(['replay', {str(log)!r}, '--no-progress', '--json', {str(tmp_path / 'o.json')!r}])\n"
         "heavy = ('fastapi', 'uvicorn', 'starlette', 'pyarrow', 'dask', 'pandas', 'matplotlib', 'vdp.sim',\n"
-        "         'vdp.api', 'vdp.live', 'vdp.fleet', 'vdp.cli.simulate', 'vdp.cli.serve', 'vdp.cli.batch')\n"
+        "         'vdp.api', 'vdp.live', 'vdp.fleet', 'vdp.cli.simulate', 'vdp.cli.serve', 'vdp.cli.batch',\n"
+        "         'numba', 'llvmlite')\n"
         "print(json.dumps([m for m in heavy if m in sys.modules]))\n"
     )
     env = {**os.environ, "PYTHONPATH": str(repo_root / "service")}
     run = [sys.executable, "-c", code]
     out = subprocess.run(run, capture_output=True, text=True, env=env, cwd=tmp_path, check=True)
     assert json.loads(out.stdout.strip().splitlines()[-1]) == []
-    assert json.loads((tmp_path / "o.json").read_text())["parameters"]  # it did replay
+    numpy_steps = json.loads((tmp_path / "o.json").read_text())["parameters"]
+    assert numpy_steps  # it did replay
+    # a log past the threshold (here: any) loads the compiled steps, with the same estimates to ~1e-10
+    out = subprocess.run(run, capture_output=True, text=True, env={**env, "VDP_COMPILED_FROM": "0"}, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == ["numba", "llvmlite"]
+    compiled = json.loads((tmp_path / "o.json").read_text())["parameters"]
+    for name, e in numpy_steps.items():
+        assert compiled[name]["status"] == e["status"] and compiled[name]["valid"] == e["valid"], name
+        assert compiled[name]["value"] == pytest.approx(e["value"], rel=1e-8), name
+        assert compiled[name]["std"] == pytest.approx(e["std"], rel=1e-8), name
 
 
 def test_replay_after_earlier_drives_names_the_changes_as_batch_and_serve_do(tmp_path, repo_root, capsys):
