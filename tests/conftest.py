@@ -16,3 +16,14 @@ os.environ.setdefault("VDP_CACHE_DIR", tempfile.mkdtemp(prefix="vdp-test-cache-"
 @pytest.fixture(scope="session")
 def repo_root() -> Path:
     return ROOT
+
+
+def pytest_collection_modifyitems(config, items):
+    """The files with the most slow tests first, each file's tests kept together and in order:
+    under ``--dist loadfile`` a worker takes whole files in this order, so a long file started
+    last would run alone at the end while the other worker idles."""
+    order: dict = {}
+    for k, item in enumerate(items):
+        n, first = order.get(item.path, (0, k))
+        order[item.path] = (n + (item.get_closest_marker("slow") is not None), first)
+    items.sort(key=lambda item: (-order[item.path][0], order[item.path][1]))

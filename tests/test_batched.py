@@ -22,7 +22,10 @@ from vdp.pipeline import Pipeline
 from vdp.profile import load_profile
 from vdp.sim.run import simulate, write_log
 
-pytestmark = pytest.mark.skipif(kernel("prepass") is None, reason="numba is not installed: no compiled pass")
+pytestmark = [
+    pytest.mark.skipif(kernel("prepass") is None, reason="numba is not installed: no compiled pass"),
+    pytest.mark.slow,
+]
 
 
 @pytest.fixture(scope="module")

@@ -47,7 +47,7 @@ PROFILE = ROOT / "profiles" / "paper.toml"
 DRIVE = 112.0  # s: the paper drive
 GAP = 3600.0  # s of bus time between drives (a parked hour)
 
-pytestmark = pytest.mark.timeout(600)
+pytestmark = [pytest.mark.timeout(600), pytest.mark.slow]
 
 
 def loaded(profile, truth: dict, load: float, x: float = 0.45, z: float = 0.55) -> tuple[object, dict]:

@@ -173,6 +173,7 @@ def drives(repo_root, tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_the_gate_counts_match_the_events(drives):
     (res, truth), (plain, _) = drives[True], drives[False]
     g, g0 = res.supervisor["gated"]["by_gate"], plain.supervisor["gated"]["by_gate"]
@@ -198,6 +199,7 @@ def test_the_gate_counts_match_the_events(drives):
     assert set(g0) <= {"standstill", "creep"}
 
 
+@pytest.mark.slow
 def test_the_estimates_agree_with_the_drive_without_the_events(drives):
     (res, _), (plain, _) = drives[True], drives[False]
     for name in ("l_f", "h", "C_K", "C_alpha", "I_z"):
@@ -206,6 +208,7 @@ def test_the_estimates_agree_with_the_drive_without_the_events(drives):
         assert abs(a.value - b.value) <= 2.0 * sd, (name, a.value, b.value, sd)  # within 2 sigma of the difference
 
 
+@pytest.mark.slow
 def test_the_fleet_rows_carry_the_gated_share(drives):
     from vdp.core.params import PUBLISHED
     from vdp.fleet import Task, rows_from_result
