@@ -361,7 +361,7 @@ def test_a_plain_replay_imports_only_what_it_uses(drive, repo_root, tmp_path):
     """`vdp replay LOG` loads no web, storage, dataframe or plotting library and not the
     simulator: only the chosen subcommand's module is imported, and each output's library
     only when that output is asked for (start-up is most of a short log's replay).  A log
-    shorter than cli.replay.COMPILED_FROM (this one: 20 s) runs numpy's filter steps and never
+    shorter than vdp.replay.COMPILED_FROM (this one: 20 s) runs numpy's filter steps and never
     loads numba (~1 s of CPU); from there on, the compiled ones."""
     import os
     import subprocess

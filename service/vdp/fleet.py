@@ -184,14 +184,21 @@ def replay_log(path: str, profile_path: str, mass: bool = False) -> Any:
     """The RunResult of ``vdp replay PATH --profile PROFILE --no-ekf`` (the UKF's
     numbers do not depend on the EKF baseline running beside it); ``mass``: with ``--mass``."""
     from .core.estimator import EstimatorConfig
+    from .core.learner import LearnerConfig
     from .core.mass import MassConfig
     from .io.bulk import replay_log as replay_file
     from .pipeline import Pipeline
+    from .replay import compiled_pays
 
     profile, _ = _profile(profile_path)
     # no EKF baseline (the UKF's numbers do not depend on it) and no trace: a plot's
     # history grows with the log (310 MB peak at 4 h against 200 MB at 1 h), and batch draws no plots
-    cfg = EstimatorConfig(baseline=False, trace_len=0, mass=MassConfig(report=mass, use=mass))
+    cfg = EstimatorConfig(
+        learner=LearnerConfig(compiled=compiled_pays(path)),  # as vdp replay: the same numbers
+        baseline=False,
+        trace_len=0,
+        mass=MassConfig(report=mass, use=mass),
+    )
     result, _ = replay_file(path, lambda: Pipeline(profile, cfg), channel=profile.bus_channel)
     return result
 

@@ -6,7 +6,6 @@ vdp replay drive.log --profile profiles/paper.toml --json out.json --plot out.pn
 from __future__ import annotations
 
 import dataclasses
-import os
 import sys
 import time
 from pathlib import Path
@@ -90,15 +89,6 @@ def add_parser(sub):
     return p
 
 
-# Bytes of log from which the compiled filter steps pay for loading numba (~1 s of CPU: its import and
-# its first cached function); a shorter log's replay runs numpy's steps, as the live service does, and
-# never loads numba.  Whole `vdp replay` processes of the paper drive's first N lines, numpy / compiled,
-# s of CPU (two rounds, 2026-11-28): 20,000 lines (0.92 MB) 1.3 / 1.9-2.1; 40,000 (1.84 MB) 2.1-2.6 /
-# 2.3-2.7; the whole drive (3.1 MB) 4.3-4.8 / 2.7-3.1.  The two differ by ~1e-10 of a value (the
-# steps' sums in another order; tests/test_kernels.py).  VDP_COMPILED_FROM sets another, for measuring.
-COMPILED_FROM = int(os.environ.get("VDP_COMPILED_FROM", str(3 << 19)))
-
-
 def compile_note(warm: bool = False) -> None:
     """Say so when this checkout's compiled filter steps are not cached yet: the first replay
     compiles them (~20 s of CPU, once), which would otherwise look like a hang.  ``warm``:
@@ -176,6 +166,7 @@ def run(args) -> int:
     from ..io.bulk import replay_log
     from ..pipeline import Pipeline
     from ..profile import load_profile
+    from ..replay import compiled_pays
     from ..series import SUFFIXES, ChannelTap, SeriesRecorder, write_table
 
     if args.no_ekf and args.baseline == "ekf":
@@ -216,11 +207,7 @@ def run(args) -> int:
     truth = report.load_truth(args.truth) if args.truth else None
     # the estimates' history is kept only for the plot: without one, memory stays flat on long logs
     # (at most PLOT_ROWS rows, thinned as the log goes on: ~1.5 KB each, and a plot has ~600 px per panel)
-    try:
-        size = Path(args.log).stat().st_size
-    except OSError:
-        size = 0  # replay_log says what is wrong with it
-    compiled = size >= COMPILED_FROM
+    compiled = compiled_pays(args.log)  # a short log never loads numba (vdp.replay.COMPILED_FROM)
     cfg = EstimatorConfig(
         learner=LearnerConfig(per_axle=not args.one_c, compiled=compiled),
         baseline=args.baseline == "ekf",
@@ -231,6 +218,10 @@ def run(args) -> int:
     )
     if compiled:
         compile_note()
+    try:
+        size = Path(args.log).stat().st_size
+    except OSError:
+        size = 0  # replay_log says what is wrong with it
     progress = Progress(size, enabled=not args.no_progress)
     made: dict = {}
 
