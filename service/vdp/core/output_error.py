@@ -154,8 +154,8 @@ class Fit:
     swing: float = 0.0  # m: the roll-sideslip length s (a_y += s phi'')
     swing_std: float = math.inf  # m
     shape: tuple[float, float] | None = None  # the tyre's (b, c) where the data freed it, else None (linear)
-    # the same windows fitted with the tyre's shape free, where the linear law left no structure to
-    # tell the two laws apart (Check._fit): the other answer the data allow (compare covers it)
+    # the same windows fitted with the tyre's shape free, where the linear law was kept (Check._fit):
+    # the other answer the data allow (compare covers it)
     bent: Fit | None = None
 
     @property
@@ -702,8 +702,8 @@ def compare(name: str, value: float, std: float, fit: Fit, z_max: float) -> tupl
 
 
 def _cover_bend(name: str, value: float, std: float, why: str | None, fit: Fit) -> tuple[float, float, str | None]:
-    """Where the drive cannot tell a linear tyre from one that bends (Fit.bent: the linear law left
-    too little structure to free the shape), the std covers the bent fit's value and std too:
+    """Where the drive did not show that the tyre bends (Fit.bent: the linear law was kept), the
+    std covers the fit with the shape free too:
     max(std, hypot(|value - bent value|, bent std)).
 
     A brush tyre's secant falls from zero slip, F_y / (C alpha) = 1 - |F_y| / (3 mu F_z) (no linear
@@ -720,7 +720,7 @@ def _cover_bend(name: str, value: float, std: float, why: str | None, fit: Fit) 
     if not (math.isfinite(cover) and cover > std):
         return value, std, why
     note = (
-        f"the tyre law is not settled: this drive's slip angles are too small to tell a linear tyre from one "
+        f"the tyre law is not settled: this drive does not tell a linear tyre from one "
         f"whose force bends with the slip angle, and with the bend the fit reads {c:.4g} "
         f"({100 * (c / value - 1):+.1f} %, std {100 * c_std / c:.1f} %): the std covers both"
     )
@@ -888,18 +888,21 @@ class Check:
             fit = solve(prob, prior_t, prior_P, starts)
             used = max(int(np.count_nonzero(prob.w[:, 1])), 1)
             left = structured(prob, fit.p) if fit is not None else 0.0
+            bent = None
             if left > STRUCTURE_MIN * used:
                 # the tyre's shape, kept where it explains most of what the linear law leaves
                 bent_prob = prob.shaping(True)
                 bent = solve(bent_prob, prior_t, prior_P, [fit.p])
                 if bent is not None and structured(bent_prob, bent.p) < SHAPE_GAIN * left:
-                    prob, fit = bent_prob, bent
+                    prob, fit, bent = bent_prob, bent, None
             elif fit is not None:
-                # too little structure to choose a law (a gentle drive): the fit with the shape free is
-                # the answer if the tyre bends, and the data cannot say it does not (compare covers it)
                 bent = solve(prob.shaping(True), prior_t, prior_P, [fit.p])
-                if bent is not None:
-                    fit = dataclasses.replace(fit, bent=bent)
+            if fit is not None and bent is not None:
+                # the linear law kept: the data did not show the tyre bends, nor that it does not (too
+                # little structure, or structure the shape does not explain: brush/saloon's ordinary
+                # drive, where the shape took 1-9 % of it and moved C_alpha +4 %); the fit with the
+                # shape free is the answer if it bends, and compare covers it
+                fit = dataclasses.replace(fit, bent=bent)
             if fit is not None and (mismatched(fit) or departs(fit)):  # two more solves, only where the model errs
                 fit = dataclasses.replace(fit, spread=spread(prob, fit, prior_t, prior_P))
         except (np.linalg.LinAlgError, FloatingPointError, ValueError):
