@@ -704,7 +704,9 @@ def compare(name: str, value: float, std: float, fit: Fit, z_max: float) -> tupl
 def _cover_bend(name: str, value: float, std: float, why: str | None, fit: Fit) -> tuple[float, float, str | None]:
     """Where the drive did not show that the tyre bends (Fit.bent: the linear law was kept), the
     std covers the fit with the shape free too:
-    max(std, hypot(|value - bent value|, bent std)).
+    max(std, hypot(|value - bent value|, bent std)).  The reason says so where the two values differ
+    by more than the bent fit's std (on a linear tyre they agree: the std widens, silently, as a
+    consider term's does).
 
     A brush tyre's secant falls from zero slip, F_y / (C alpha) = 1 - |F_y| / (3 mu F_z) (no linear
     range): on a gentle drive (a_y 1-1.5 m/s^2) the linear law reads C_alpha 4-6 % low, with
@@ -719,6 +721,8 @@ def _cover_bend(name: str, value: float, std: float, why: str | None, fit: Fit) 
     cover = math.hypot(abs(value - c), c_std)
     if not (math.isfinite(cover) and cover > std):
         return value, std, why
+    if abs(value - c) <= c_std:  # the bent fit agrees with the value: its wider std is all, no finding
+        return value, cover, why
     note = (
         f"the tyre law is not settled: this drive does not tell a linear tyre from one "
         f"whose force bends with the slip angle, and with the bend the fit reads {c:.4g} "
