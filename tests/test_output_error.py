@@ -368,11 +368,12 @@ def test_a_linear_tyre_keeps_the_linear_law_and_no_swing():
     np.testing.assert_allclose(f.theta / TRUTH, 1.0, atol=0.03)
     value = f.c_alpha  # a filter that agrees, with a std that covers the bent fit too, is left alone
     assert oe.compare("C_alpha", value, 0.03 * value, f, oe.Z_MAX) == (value, 0.03 * value, None)
-    # a tighter one widens to the fit with the shape free, which the drive cannot rule out: a little here,
-    # and with no finding (a linear tyre: the bent fit lands on it within its std, only that std is wider)
-    assert f.bent is not None and abs(f.bent.c_alpha - value) < f.bent.c_alpha * f.bent.rel_std("C_alpha")
+    # a tighter one widens at most a little, with no finding: on a linear tyre the fit with a falling secant
+    # lands on the linear law within its std, or finds it rising (noise: no cover)
+    b = f.bent
+    assert b is None or abs(b.c_alpha - value) < b.c_alpha * b.rel_std("C_alpha")
     v, wide, why = oe.compare("C_alpha", value, 0.01 * value, f, oe.Z_MAX)
-    assert v == value and 0.01 * value < wide < 0.03 * value and why is None
+    assert v == value and 0.01 * value <= wide < 0.03 * value and why is None
 
 
 def test_a_gentle_drive_on_a_bending_tyre_is_not_reported_tight_and_wrong():
