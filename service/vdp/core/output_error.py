@@ -714,12 +714,13 @@ def spread(prob: Problem, fit: Fit, prior_t, prior_P) -> np.ndarray | None:
 
 def compare(name: str, value: float, std: float, fit: Fit, z_max: float) -> tuple[float, float, str | None]:
     """The filter's (value, std) of C_alpha, I_z or an axle's C_alpha against the fit's:
-    (value, std, reason or None): :func:`_against` the fit, then :func:`_cover_bend`."""
-    value, std, why = _against(name, value, std, fit, z_max)
-    return _cover_bend(name, value, std, why, fit)
+    (value, std, reason or None): :func:`against` the fit, then :func:`cover_bend` (a learner applies
+    the two apart: the status between them, Stage2.cover)."""
+    value, std, why = against(name, value, std, fit, z_max)
+    return cover_bend(name, value, std, why, fit)
 
 
-def _cover_bend(name: str, value: float, std: float, why: str | None, fit: Fit) -> tuple[float, float, str | None]:
+def cover_bend(name: str, value: float, std: float, why: str | None, fit: Fit) -> tuple[float, float, str | None]:
     """Where the drive did not show that the tyre bends (Fit.bent: the linear law was kept), the
     std covers the fit with the shape free too:
     max(std, hypot(|value - bent value|, bent std)).  The reason says so where the two values differ
@@ -749,7 +750,7 @@ def _cover_bend(name: str, value: float, std: float, why: str | None, fit: Fit) 
     return value, cover, f"{why}; {note}" if why else note
 
 
-def _against(name: str, value: float, std: float, fit: Fit, z_max: float) -> tuple[float, float, str | None]:
+def against(name: str, value: float, std: float, fit: Fit, z_max: float) -> tuple[float, float, str | None]:
     """The filter's (value, std) against the fit's: (value, std, reason or None).
 
     - They disagree when their relative difference exceeds ``z_max`` times the two relative
