@@ -190,6 +190,10 @@ class StageLearner:
                     reason = own
                 elif value != filtered:  # a value that is not the filter's says where it came from first
                     reason = f"{own}; {reason}"
+            if status not in (NOT_RUN, INVALID):  # after the status, as the floor: the model class's, not the data's
+                std, note = self.cover(name, value, std)
+                if note is not None:
+                    reason = note if reason is None else f"{reason}; {note}"
             if status != NOT_RUN:  # a prior alone keeps its own std
                 std = honest_std(spec, value, std)
             valid = useful(spec, status, value, std) and not isinstance(own, Hard)
@@ -249,6 +253,12 @@ class StageLearner:
         """One parameter's (value, std, reason it is not valid or None) after what the stage knows
         of it beyond the filter's covariance; by default both as they are."""
         return value, std, None
+
+    def cover(self, name: str, value: float, std: float) -> tuple[float, str | None]:
+        """(std, finding or None): the std widened for another model class the data cannot rule out
+        (stage 2: a tyre whose secant falls).  Applied after the status, as the floor is: the status
+        says what the data have taught; this and the floor, what the model class may be off by."""
+        return std, None
 
     def values(self) -> tuple:
         """((value, std), ...) of the parameters: the trace's cheap view of snapshot()."""

@@ -185,7 +185,7 @@ class Stage2(AxleSplit, StageLearner):
             fit = self.batch_fit()
             if fit is None:
                 return value, std, None
-            return output_error.compare(name, value, std, fit, output_error.Z_MAX)
+            return output_error.against(name, value, std, fit, output_error.Z_MAX)  # the bend: cover()
         if name != "I_x" or self.known is None or not (math.isfinite(value) and math.isfinite(std)):
             return value, std, None
         h_rel = (self.h_std or 0.0) / self.known.h if self.known.h > 0 else 0.0
@@ -208,6 +208,16 @@ class Stage2(AxleSplit, StageLearner):
                 f"(its prior: {100 * self._ix_prior_rel():.0f} %); quick steering reversals at speed excite the roll"
             )
         return value, std, why
+
+    def cover(self, name: str, value: float, std: float) -> tuple[float, str | None]:
+        """C_alpha's and I_z's std covers the batch check's fit with a falling secant where the linear
+        tyre was kept (output_error.cover_bend, docs/decisions/0019)."""
+        if name in output_error.CHECKED and self.known is not None and self.cfg.batch_check:
+            fit = self.batch_fit()
+            if fit is not None:
+                _, std, note = output_error.cover_bend(name, value, std, None, fit)
+                return std, note
+        return std, None
 
     def settle(self) -> None:
         """Let a background check end, and solve a stale one now: the next snapshot is then the
