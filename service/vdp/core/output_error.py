@@ -836,6 +836,12 @@ class Check:
         # every row, so a replay's result does not depend on how often it was asked for before
         self.complete = False
 
+    @property
+    def behind(self) -> bool:
+        """Rows have come since the last solve (a settled snapshot solves on every one: stale()
+        lets an open window's fit lag by up to a quarter of its rows)."""
+        return self.record.added > self._at
+
     def stale(self, window_open: bool) -> bool:
         """Whether to solve again: new rows, and no fit yet, the window closed, or new rows
         REFIT_ROWS and a quarter of those kept (a solve costs about in proportion to the

@@ -220,18 +220,21 @@ class Stage2(AxleSplit, StageLearner):
         return std, None
 
     def settle(self) -> None:
-        """Let a background check end, and solve a stale one now: the next snapshot is then the
-        same whenever it is taken (LearnerConfig.check_executor)."""
+        """Let a background check end, and solve now on every row kept: the next snapshot is then
+        the same whenever it is taken (LearnerConfig.check_executor), and the same as a replay's of
+        the same frames, whose check solves on every row at the log's end (the bend's cover,
+        Stage2.cover, reads the fit whether or not the filter agrees with it)."""
         self.check.wait()
         if self.known is not None and self.cfg.batch_check:
-            self.batch_fit(now=True)
+            self.batch_fit(now=True, every=True)
 
-    def batch_fit(self, now: bool = False) -> output_error.Fit | None:
+    def batch_fit(self, now: bool = False, every: bool = False) -> output_error.Fit | None:
         """The output-error fit of the windows kept (core.output_error), solved again when stale:
         per axle, from the filter's values, with the profile's priors (the mean's, and the
-        axles' half-difference AXLE_SPLIT of it, as _prior).  ``now``: not in the background."""
+        axles' half-difference AXLE_SPLIT of it, as _prior).  ``now``: not in the background;
+        ``every``: solved again on any new row."""
         c = self.check
-        if not c.stale(self.filter is not None):
+        if not (c.stale(self.filter is not None) or (every and c.behind)):
             return c.fit
         p, theta = self.priors, self.params()[0]
         rel = np.array([p["C_alpha"].std / p["C_alpha"].value, p["I_z"].std / p["I_z"].value])
