@@ -9,7 +9,9 @@ then `vdp replay` of the raw log the service wrote, with and without ``--mass``.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import json
 import time
 from pathlib import Path
@@ -64,8 +66,10 @@ def drive(tmp_path_factory):
     for name, flags in (("on", ["--mass"]), ("off", [])):
         out_json = tmp / f"replay-{name}.json"
         args = ["replay", str(log), "--profile", str(PROFILE), "--json", str(out_json), "--no-progress", *flags]
-        assert vdp_main(args) == 0
+        with contextlib.redirect_stdout(io.StringIO()) as text:
+            assert vdp_main(args) == 0
         docs[name] = json.loads(out_json.read_text())
+        docs[name + "_text"] = text.getvalue()
     return {"live": est.json(), "meta": meta, "history": hist.json(), "replay": docs, "log": log, "sim": sim}
 
 
@@ -154,3 +158,17 @@ def test_off_the_mass_is_said_to_be_off_in_the_json_and_the_table(drive, capsys)
     off, on = doc["parameters"], drive["replay"]["on"]["parameters"]
     assert not off["C_K"]["valid"] and "vehicle.mass is 1600 kg" in off["C_K"]["reason"]
     assert on["mass"]["valid"] and "vehicle.mass" not in (on["C_K"].get("reason") or "")
+
+
+def test_the_table_says_the_learnt_mass_answers_the_profile_mass_and_scales_the_axles(drive):
+    """`vdp replay --mass` of a loaded car: the check's line on the profile's mass says the learnt
+    mass may answer it, a line after the table says it did, and the per-axle C_alpha line is at the
+    learnt mass as C_alpha is (their mean is it).  Off, the line marks the parameters plainly."""
+    on, off = drive["replay"]["on_text"], drive["replay"]["off_text"]
+    first = [ln for ln in on.splitlines() if ln.startswith("profile check: vehicle.mass is")]
+    assert len(first) == 1 and "(not valid unless the mass learnt as driven is:" in first[0]
+    assert "answers the finding on vehicle.mass" in on and "answers the finding" not in off
+    assert any(ln.startswith("profile check: vehicle.mass is") and "(not valid: " in ln for ln in off.splitlines())
+    c = drive["replay"]["on"]["parameters"]["C_alpha"]
+    x = c["extra"]
+    assert 0.5 * (x["C_alpha_front"] + x["C_alpha_rear"]) == pytest.approx(c["value"], rel=1e-9)

@@ -157,6 +157,23 @@ def test_scaled_puts_the_learnt_mass_into_the_six_and_carries_its_std():
     assert out["l_f"].valid
 
 
+def test_scaled_scales_c_alphas_axles_as_their_mean():
+    """The per-axle numbers beside C_alpha (learn.axles) take the mass as C_alpha does: their mean
+    stays the published value, and each std carries the mass's (a new user saw the axles at the
+    profile's mass beside a mean at the learnt one)."""
+    axles = {"C_alpha_front": 57000.0, "C_alpha_front_std": 570.0, "C_alpha_rear": 55674.0,
+             "C_alpha_rear_std": 1113.0, "C_alpha_front_minus_rear_std": 400.0}  # fmt: skip
+    c = replace(_est("C_alpha", 56337.0, 0.01), extra=axles)
+    mass = Estimate("mass", 1900.0, 19.0, "kg", UNCERTAIN, True, 0, 100)
+    out = scaled({"C_alpha": c}, mass, 1600.0)["C_alpha"]
+    x, f = out.extra, 1900.0 / 1600.0
+    assert 0.5 * (x["C_alpha_front"] + x["C_alpha_rear"]) == pytest.approx(out.value, rel=1e-12)
+    assert x["C_alpha_front"] == pytest.approx(57000.0 * f) and x["C_alpha_rear"] == pytest.approx(55674.0 * f)
+    assert x["C_alpha_front_std"] / x["C_alpha_front"] == pytest.approx(math.hypot(0.01, 0.01))
+    assert x["C_alpha_rear_std"] / x["C_alpha_rear"] == pytest.approx(math.hypot(1113.0 / 55674.0, 0.01))
+    assert x["C_alpha_front_minus_rear_std"] == pytest.approx(400.0 * f)
+
+
 def test_unscaled_takes_the_six_back_out_of_the_mass_they_were_published_with():
     """A restore takes published values back into the filters, which run with the profile's mass:
     core.mass.unscaled is scaled's inverse, for a learnt mass and for the prior alike."""

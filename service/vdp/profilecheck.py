@@ -930,15 +930,34 @@ def coverage(dec, source: str = "log") -> Coverage:
     )
 
 
-def lines(rep: Report) -> list[str]:
-    """What the CLI prints: one warning line per finding."""
-    return lines_of(rep.findings)
+def lines(rep: Report, mass_on: bool = False) -> list[str]:
+    """What the CLI prints: one warning line per finding.  ``mass_on``: the mass is learnt as driven
+    (core.mass), so the finding on the profile's mass marks the six only if that is not learnt."""
+    return lines_of(rep.findings, mass_on)
 
 
-def lines_of(findings: list[Finding]) -> list[str]:
-    return [
-        f"profile check: {f.message}" + (f" (not valid: {', '.join(f.params)})" if f.params else "") for f in findings
-    ]
+def lines_of(findings: list[Finding], mass_on: bool = False) -> list[str]:
+    out = []
+    for f in findings:
+        line = f"profile check: {f.message}"
+        if f.params and mass_on and f.subject == "vehicle.mass":
+            line += f" (not valid unless the mass learnt as driven is: {', '.join(f.params)})"
+        elif f.params:
+            line += f" (not valid: {', '.join(f.params)})"
+        out.append(line)
+    return out
+
+
+def mass_answer(params: Mapping[str, Estimate], rep: Report) -> str | None:
+    """The line that says a valid learnt mass answered the finding on the profile's mass (None
+    where there is no such finding or the mass was not learnt valid)."""
+    if not _mass_learnt(params) or not any(f.subject == "vehicle.mass" for f in rep.findings):
+        return None
+    m = params[MASS]
+    return (
+        f"profile check: the mass learnt as driven, {m.value:.0f} ± {m.std:.0f} kg, answers the finding on "
+        f"vehicle.mass: the parameters are scaled with it and keep their own verdicts"
+    )
 
 
 START_AFTER = 10.0  # s of bus time before a running service's first check

@@ -202,7 +202,7 @@ def run(args) -> int:
         ) from None
     if cov.missing:  # fewer than half seen stopped check_log; a few missing still cost their channels
         print(f"profile check: {args.log}: {cov.message()}")
-    for line in profilecheck.lines(check):
+    for line in profilecheck.lines(check, mass_on=args.mass):
         print(line)
     truth = report.load_truth(args.truth) if args.truth else None
     # the estimates' history is kept only for the plot: without one, memory stays flat on long logs
@@ -303,6 +303,9 @@ def run(args) -> int:
     for line in report.gate_lines(result):
         print(line)
     print(report.table(result, truth))
+    answer = profilecheck.mass_answer(result.parameters, check)
+    if answer is not None:
+        print(answer)
     for line in _coaching(result):
         print(line)
     kept, total = len(result.windows), result.supervisor.get("windows", 0)

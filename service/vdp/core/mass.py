@@ -310,8 +310,27 @@ def scaled(params: dict, mass: Estimate, m_used: float) -> dict:
         why = e.reason
         if e.valid and not valid:
             why = f"the mass is known to +-{100 * rel_m:.1f} % only ({'learnt' if mass.valid else 'the prior'})"
-        out[name] = replace(e, value=value, std=std, valid=valid, reason=why,
-                            extra={**e.extra, "mass_used": round(m, 1), "mass_ratio": round(ratio, 4)})  # fmt: skip
+        extra = {**e.extra, "mass_used": round(m, 1), "mass_ratio": round(ratio, 4)}
+        if name == "C_alpha":
+            extra.update(_axles(e.extra, ratio, rel_m))
+        out[name] = replace(e, value=value, std=std, valid=valid, reason=why, extra=extra)
+    return out
+
+
+def _axles(extra: dict, ratio: float, rel_m: float) -> dict:
+    """C_alpha's per-axle numbers (learn.axles) scaled as C_alpha is, so their mean stays the
+    published value; the front-minus-rear std scales with them (the mass is common to both)."""
+    out = {}
+    for axle in ("C_alpha_front", "C_alpha_rear"):
+        v, sd = extra.get(axle), extra.get(axle + "_std")
+        if v is None:
+            continue
+        out[axle] = v * ratio
+        if sd is not None and v:
+            out[axle + "_std"] = math.hypot(sd / abs(v), rel_m) * abs(v * ratio)
+    d = extra.get("C_alpha_front_minus_rear_std")
+    if d is not None:
+        out["C_alpha_front_minus_rear_std"] = d * ratio
     return out
 
 
