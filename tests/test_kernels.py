@@ -269,7 +269,9 @@ def test_stage1_keeps_its_blocks_oldest_first_and_the_newest_only():
     assert len(ring) == len(ref) == 50
 
 
-def test_a_replay_says_when_it_compiles_the_steps_first(monkeypatch, capsys, tmp_path):
+def test_a_replay_says_when_it_compiles_the_steps_first_and_once(monkeypatch, capsys, caplog, tmp_path):
+    """A fresh install's first replay compiles before it starts, and says so once, on stdout, with
+    the one figure (core.jit.FIRST_COMPILE): a new user saw two messages with two figures."""
     from vdp.cli.replay import compile_note
     from vdp.core import jit, warm
 
@@ -278,9 +280,15 @@ def test_a_replay_says_when_it_compiles_the_steps_first(monkeypatch, capsys, tmp
     assert jit.cached()  # warm() left them on disk: nothing to say
     compile_note()
     assert capsys.readouterr().out == ""
-    monkeypatch.setattr(jit, "cached", lambda: False)  # a fresh checkout
-    compile_note()
-    assert "compiling the estimator's filter steps once" in capsys.readouterr().out
+    done = []
+    monkeypatch.setattr(jit, "cached", lambda: bool(done))  # a fresh checkout, until warm() has run
+    monkeypatch.setattr(warm, "warm", lambda: done.append(1))
+    with caplog.at_level("WARNING"):
+        compile_note()
+        warm.ensure()  # what the first compiled step calls: the cache is complete now, nothing more said
+    out = capsys.readouterr().out
+    assert out.count("compiling the estimator's steps once") == 1 and jit.FIRST_COMPILE in out
+    assert done == [1] and not [r for r in caplog.records if "compiling" in r.getMessage()]
 
 
 def _oe_record(seed: int = 3):

@@ -514,7 +514,8 @@ def run(args) -> int:
 
         from .replay import compile_note
 
-        compile_note(warm=args.scheduler is None)  # local workers then load them from the cache
+        if args.scheduler is None:  # local workers then load them from the cache (a cluster's compile their own)
+            compile_note(warm=True)
 
         cl, cluster = client(args)
         try:

@@ -90,23 +90,22 @@ def add_parser(sub):
 
 
 def compile_note(warm: bool = False) -> None:
-    """Say so when this checkout's compiled filter steps are not cached yet: the first replay
-    compiles them (~20 s of CPU, once), which would otherwise look like a hang.  ``warm``:
-    compile them here and now (vdp batch, before its workers would each compile them)."""
+    """Compile this checkout's filter steps now if they are not cached yet, and say so on stdout
+    (core.jit.FIRST_COMPILE, once), which would otherwise look like a hang.  ``warm``: the bulk
+    reader's parse too (vdp batch, before its workers would each compile it)."""
     try:
         from ..core import jit
     except ImportError:  # no numba: the numpy steps run, nothing to compile
         return
     if jit.cached():
         return
-    print("compiling the estimator's filter steps once (about 20 s of CPU; later runs load them from the cache)")
-    sys.stdout.flush()
+    from ..core import warm as core_warm
+
+    core_warm.ensure(say=lambda note: print(note, flush=True))
     if warm:
-        from ..core import warm as core_warm
         from ..io import scan
 
-        core_warm.warm()
-        scan.warm()  # the bulk reader's parse (a second or two)
+        scan.warm()  # (a second or two)
 
 
 def default_profile() -> Path:

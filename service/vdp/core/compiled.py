@@ -39,3 +39,17 @@ def kernel(name: str):
     if _MODULES:
         raise AttributeError(f"no compiled function {name!r}")
     return None
+
+
+def sig_in(sigmas, x):
+    """A filter's sigma points as the compiled runs take them: no points yet (a filter just built,
+    before its first predict) as a (0, n) array, not None, so that each run compiles for one
+    signature, not two (the Optional's twin cost ~20 s of each install's first compile)."""
+    import numpy as np
+
+    return np.empty((0, len(x))) if sigmas is None else sigmas
+
+
+def sig_out(sigmas):
+    """The inverse of :func:`sig_in`: a run that drew no points hands back what it was given."""
+    return None if len(sigmas) == 0 else sigmas

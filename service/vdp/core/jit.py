@@ -29,6 +29,10 @@ log = logging.getLogger(__name__)
 HERE = Path(__file__).resolve().parent
 # every file whose functions numba compiles or whose constants it freezes into compiled code
 SOURCES = ("lateral.py", "longitudinal.py", "batched.py", "prepass.py", "kernels/*.py")
+# what the first compile after an install costs (core.warm.warm in a fresh cache, this checkout,
+# an idle 2-core machine, 2026-11-28: 67 s wall, 66.5 s CPU; it was 146-160 s before each compiled
+# run took one signature, core.compiled.sig_in)
+FIRST_COMPILE = "about 70 s of CPU"
 MARK = "warm.done"  # written by core.warm once every signature the learners use is compiled
 
 
@@ -103,7 +107,7 @@ def _mark_text() -> str:
 
 def cached() -> bool:
     """Whether every compiled signature the estimator uses is on disk (core.warm has run for
-    these sources): False means the next estimate compiles them (about 45 s of CPU, once)."""
+    these sources): False means the next estimate compiles them (FIRST_COMPILE, once)."""
     try:
         return (cache_dir() / MARK).read_text() == _mark_text()
     except OSError:

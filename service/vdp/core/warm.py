@@ -25,18 +25,23 @@ log = logging.getLogger(__name__)
 _lock = threading.Lock()
 
 
-def ensure() -> None:
-    """Compile (or load) everything now if the cache is not complete, and say so: the first run
-    after an install spends about 45 s of CPU here, once."""
+def ensure(say=None) -> None:
+    """Compile (or load) everything now if the cache is not complete, and say so, once: through
+    ``say`` (the CLI's print) or else the logger.  The first run after an install spends
+    jit.FIRST_COMPILE here."""
     if jit.cached():
         return
     with _lock:
         if jit.cached():
             return
-        log.warning(
-            "compiling the estimator's steps once for this install (about 45 s of CPU); later runs load them from %s",
-            jit.cache_dir(),
+        note = (
+            f"compiling the estimator's steps once for this install ({jit.FIRST_COMPILE}); "
+            f"later runs load them from {jit.cache_dir()}"
         )
+        if say is None:
+            log.warning("%s", note)
+        else:
+            say(note)
         warm()
 
 
@@ -53,40 +58,40 @@ def warm() -> None:
     f.update(np.array([0.1, 0.0, 1.5]), np.array([True, False, True]), u[-1])
     j, w = f._grid(3, 4)
     Y = np.ones((3, 12))
-    for sig in (f._sigmas, None):  # (None: a filter just built, before its first predict)
-        kernels.lat_run(
-            np.arange(3) * 0.02,
-            Y,
-            np.zeros((3, 5)),
-            np.zeros(3, dtype=bool),
-            0,
-            3,
-            np.arange(11),
-            f._f.x,
-            f._f.P,
-            sig,
-            f._lam_n,
-            f._Wm,
-            f._Wc,
-            f.Q_rate,
-            f.R,
-            f.scale,
-            f._kind,
-            f._lo,
-            f._span,
-            f._known,
-            f._c,
-            j,
-            w,
-            4,
-            np.zeros(7),
-            np.array([0.05, 2.0, 50.0, 1e-6, 25.0, 1.0]),
-            np.zeros((3, 5)),
-            np.ones(10),
-            np.zeros((4, 10)),
-            np.zeros((4, 50)),
-            np.zeros((3, 8)),
-        )
+    sig = f._sigmas  # a filter just built passes (0, n) points, the same type (core.compiled.sig_in)
+    kernels.lat_run(
+        np.arange(3) * 0.02,
+        Y,
+        np.zeros((3, 5)),
+        np.zeros(3, dtype=bool),
+        0,
+        3,
+        np.arange(11),
+        f._f.x,
+        f._f.P,
+        sig,
+        f._lam_n,
+        f._Wm,
+        f._Wc,
+        f.Q_rate,
+        f.R,
+        f.scale,
+        f._kind,
+        f._lo,
+        f._span,
+        f._known,
+        f._c,
+        j,
+        w,
+        4,
+        np.zeros(7),
+        np.array([0.05, 2.0, 50.0, 1e-6, 25.0, 1.0]),
+        np.zeros((3, 5)),
+        np.ones(10),
+        np.zeros((4, 10)),
+        np.zeros((4, 50)),
+        np.zeros((3, 8)),
+    )
     lon = longitudinal.Known(m=1500.0, L=2.7, r=0.3, J=1.0)
     b1 = Bounds(longitudinal.N_X, log=(longitudinal.H, longitudinal.C_K), logit={longitudinal.L_F: (0.0, 2.7)})
     x1 = b1.from_si(np.array([1.3, 0.55, 10.0, 0.0, 0.0, 0.0, 0.0]))
@@ -99,11 +104,11 @@ def warm() -> None:
     prm = np.array([0.5, 1.0, 0.2, 0.1, 2.0, 1.0])
     kernels.lon_block(g._f.x, g._f.P, g._lam_n, g._Wm, g._Wc, g.Q_rate, g.scale, g._kind, g._lo, g._span, g._known, ts,
               np.tile(u1, (5, 1)), np.tile([50.2, 50.1], (5, 1)), 0.1, np.eye(2), prm)  # fmt: skip
-    for sig in (g._sigmas, None):  # (as lat_run)
-        kernels.lon_run(ts, np.ones((5, 12)), np.ones((5, 5)), np.zeros(5, dtype=bool), 0, 5, np.arange(7), g._f.x,
-            g._f.P, sig, g._lam_n, g._Wm, g._Wc, g.Q_rate, g.scale, g._kind, g._lo, g._span, g._known, np.eye(2), prm,
-            np.zeros(7), np.array([0.05, 5.0, 50.0, 20.0, 200.0, 3000.0]), np.zeros((5, 10)), np.empty((2, 7)),
-            np.empty((2, 2)), np.empty((2, 2, 2)))  # fmt: skip
+    sig = g._sigmas
+    kernels.lon_run(ts, np.ones((5, 12)), np.ones((5, 5)), np.zeros(5, dtype=bool), 0, 5, np.arange(7), g._f.x,
+        g._f.P, sig, g._lam_n, g._Wm, g._Wc, g.Q_rate, g.scale, g._kind, g._lo, g._span, g._known, np.eye(2), prm,
+        np.zeros(7), np.array([0.05, 5.0, 50.0, 20.0, 200.0, 3000.0]), np.zeros((5, 10)), np.empty((2, 7)),
+        np.empty((2, 2)), np.empty((2, 2, 2)))  # fmt: skip
     U = np.tile(u1, (50, 1))
     kernels.lon_solve(b1, lon, U, np.tile([50.2, 50.1], (50, 1)), np.tile(np.eye(2) * 1e-4, (50, 1, 1)), x1,
               np.eye(longitudinal.N_X), [x1], iters=2)  # fmt: skip

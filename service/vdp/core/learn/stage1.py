@@ -12,7 +12,7 @@ import numpy as np
 from ... import channels as ch
 from .. import batch, longitudinal
 from ..bounds import Bounds
-from ..compiled import kernel
+from ..compiled import kernel, sig_in, sig_out
 from ..params import BY_NAME, STAGE1
 from . import tuning
 from .base import StageLearner
@@ -440,11 +440,12 @@ class Stage1(StageLearner):
         )
         m = (b - a) // block + 1
         out_u, out_z, out_r = np.empty((m, longitudinal.N_U)), np.empty((m, 2)), np.empty((m, 2, 2))
-        r, f._f.x, f._f.P, f._sigmas, y, S, nb = kernel("lon_run")(
-            T, Y, D, G, a, b, _BLOCK_CHANNELS, f._f.x, f._f.P, f._sigmas, f._lam_n, f._Wm, f._Wc, f.Q_rate, f.scale,
-            f._kind, f._lo, f._span, f._known, self._R0(), self._block_settings(), ls, settings, acc, out_u, out_z,
-            out_r,
+        r, f._f.x, f._f.P, sig, y, S, nb = kernel("lon_run")(
+            T, Y, D, G, a, b, _BLOCK_CHANNELS, f._f.x, f._f.P, sig_in(f._sigmas, f._f.x), f._lam_n, f._Wm, f._Wc,
+            f.Q_rate, f.scale, f._kind, f._lo, f._span, f._known, self._R0(), self._block_settings(), ls, settings,
+            acc, out_u, out_z, out_r,
         )  # fmt: skip
+        f._sigmas = sig_out(sig)
         if nb:
             f._f.y, f._f.S = y, S
             for q in range(nb):

@@ -14,7 +14,7 @@ import numpy as np
 from ... import channels as ch
 from .. import lateral, output_error
 from ..bounds import Bounds
-from ..compiled import kernel
+from ..compiled import kernel, sig_in, sig_out
 from ..params import STAGE2
 from ..result import NOT_IDENTIFIABLE, NOT_RUN, Estimate
 from . import tuning
@@ -468,10 +468,10 @@ class Stage2(AxleSplit, StageLearner):
                              float(self.known.roll_by_ay)])  # fmt: skip
         rec = np.empty(((b - a) // every + 1, 8))
         r, fs.x, fs.P, sig, y, S, nr = kern(
-            T, Y, D, G, a, b, _STEP_CHANNELS, fs.x, fs.P, f._sigmas, f._lam_n, f._Wm, f._Wc, f.Q_rate, f.R, f.scale,
-            f._kind, f._lo, f._span, f._known, f._c, j, w, nsub, ls, settings, us, exa, cons, ring, rec,
+            T, Y, D, G, a, b, _STEP_CHANNELS, fs.x, fs.P, sig_in(f._sigmas, fs.x), f._lam_n, f._Wm, f._Wc, f.Q_rate,
+            f.R, f.scale, f._kind, f._lo, f._span, f._known, f._c, j, w, nsub, ls, settings, us, exa, cons, ring, rec,
         )  # fmt: skip
-        f._sigmas = sig
+        f._sigmas = sig_out(sig)
         if nr:
             fs.y, fs.S = y, S
             add = self.check.record.add
