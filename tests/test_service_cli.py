@@ -44,3 +44,14 @@ def test_a_busy_port_is_refused_before_anything_starts(tmp_path, capsys):
     assert code == 2
     assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
     assert not (tmp_path / "db.sqlite").exists() and not (tmp_path / "raw").exists()
+
+
+def test_python_m_vdp_is_the_vdp_command():
+    """`python -m vdp` where the venv's scripts are not on PATH: the same CLI, its exit code kept."""
+    import subprocess
+    import sys
+
+    ok = subprocess.run([sys.executable, "-m", "vdp", "--version"], capture_output=True, text=True, timeout=60)
+    assert ok.returncode == 0 and ok.stdout.startswith("vdp "), ok
+    bad = subprocess.run([sys.executable, "-m", "vdp", "no-such-command"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "no-such-command" in bad.stderr
