@@ -298,3 +298,29 @@ def test_every_listener_of_the_bus_takes_blocks(tmp_path, paper):
     ing = Ingest(make_settings(tmp_path), paper)
     per_frame = [type(x).__name__ for x in ing.link.listeners if not hasattr(x, "on_block")]
     assert per_frame == []
+
+
+def test_a_silence_of_the_bus_runs_the_gap_hook_before_the_first_frame_after_it():
+    """The drive look must see a drive before the next one's frames come, whenever the keeper
+    thread runs (a simulated pair of drives an hour apart passed in a second, before its first
+    look, and became one drive): the worker runs the hook at the silence itself, in a block of
+    frame records (the gap inside one block, or between two) and frame by frame alike."""
+    seen: list = []
+    frames: queue.Queue = queue.Queue()
+    est = Estimation(FakePipeline(), frames, publish_interval=0.05)
+    est.gap_hook, est.gap_s = (lambda p: seen.append(p.frames)), 60.0
+
+    def rec(t: float):
+        return (t, 0x123, 0, bytes(8), None)
+
+    est.start()
+    try:
+        frames.put([rec(1000.0 + 0.01 * k) for k in range(10)] + [rec(4600.0 + 0.01 * k) for k in range(5)])
+        frames.put([rec(4600.1), rec(4600.2)])  # no silence: no look
+        frames.put([rec(9000.0)])  # a silence between two blocks
+        frames.put(can.Message(timestamp=9001.0, arbitration_id=0x123, data=bytes(8)))
+        frames.put(can.Message(timestamp=20000.0, arbitration_id=0x123, data=bytes(8)))  # one by one
+        assert est.call(lambda p: p.frames) == 20
+    finally:
+        est.stop()
+    assert seen == [10, 17, 19]  # each look saw every frame before its silence, none after

@@ -82,6 +82,12 @@ class Estimation:
         self._resets_seen: dict = {}
         self._diverged: dict[str, tuple[float, str]] = {}  # filter kind -> (monotonic time, what)
         self._keep: frozenset | bool | None = False  # decoded ids, found at the first block
+        # run on the pipeline before the first frame after a silence of the bus longer than
+        # ``gap_s`` of bus time (the service's drive look: a silence ends a drive, and the look must
+        # see the drive before it while the self-check still holds it, whenever the keeper runs)
+        self.gap_hook: Callable[[Any], None] | None = None
+        self.gap_s = math.inf
+        self._last_t: float | None = None
 
     # -- life cycle ------------------------------------------------------------------------------
     def restore(self, estimates: Mapping) -> str | None:
@@ -179,7 +185,18 @@ class Estimation:
                     self.publish()
                 next_pub = now + interval
 
+    def _after_gap(self, t: float) -> None:
+        """Run the gap hook if ``t`` (bus time of the next frame) follows a silence longer than gap_s."""
+        last, self._last_t = self._last_t, t
+        if last is not None and t - last > self.gap_s and self.gap_hook is not None:
+            try:
+                self.gap_hook(self.pipeline)
+            except Exception:
+                log.exception("the look at a silence of the bus failed; carrying on")
+
     def _feed_one(self, msg) -> None:
+        if self.gap_hook is not None:
+            self._after_gap(msg.timestamp)
         try:
             # candump logs keep microseconds: rounding here makes the live estimate
             # and a replay of the raw log see the very same numbers.
@@ -198,6 +215,15 @@ class Estimation:
         """A block of frame records: the frames of ids the decoder decodes become Messages and are fed
         (one at a time: an error costs one frame); the others are only counted by id, as a replay
         that leaves them out counts them (Pipeline.pass_over), never made into Messages."""
+        if self.gap_hook is not None and block:
+            last = block[0][0] if self._last_t is None else self._last_t
+            if block[-1][0] - last > self.gap_s:  # (a block spans ~0.1 s of a bus: rarely true)
+                cut = next((i for i, f in enumerate(block) if f[0] - (block[i - 1][0] if i else last) > self.gap_s), 0)
+                if cut:
+                    self._feed_block(block[:cut])
+                    block = block[cut:]
+            self._after_gap(block[0][0])
+            self._last_t = block[-1][0]
         pipe, chan = self.pipeline, self.channel
         keep = self._decoded_ids()
         if keep is None:  # a pipeline without a decoder to ask (tests' stand-ins): every frame is fed

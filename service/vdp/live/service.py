@@ -78,6 +78,7 @@ class Service:
         self.writer = StoreWriter(settings.store, self.fingerprint, self.profile.vehicle.name)
         # drives, and the changes between them (a mass step, new tyres, another car on the bus)
         self.drives = Drives(self.profile, self.writer)
+        self.estimation.gap_hook, self.estimation.gap_s = self._drives_check, self.drives.gap
         self._looking: Future | None = None  # the drive look queued on the worker
         self.restored: dict | None = None
         self.restore_error: str | None = None
