@@ -121,6 +121,33 @@ def test_tilt_takes_the_bodys_roll_out_of_a_y_once():
     assert s.values[ch.AY] == pytest.approx(f_y, rel=1e-4)
 
 
+def test_tilt_learns_the_bodys_roll_from_the_roll_rate_gyro():
+    # a body that rolls 20 % less per unit a_y than eq 9's m h says (a sprung mass about a roll axis):
+    # the roll-rate gyro (with a bias and noise) teaches beta, and a_y comes out as the road's f_y
+    car = replace(VEH, roll_stiffness=100000.0, roll_damping=7000.0)  # a saloon's (the paper car hardly rolls)
+    tilt = Tilt(car, 0.637, RoadConfig(on=True))
+    gain = 0.8 * tilt.roll_gain  # rad per m/s^2 of f_y
+    tau = tilt.roll_tau
+    rng = np.random.default_rng(3)
+    phi, t, s, err = 0.0, 0.0, None, []
+    while t < 120.0:
+        f_y = 3.0 * math.sin(2.0 * math.pi * t / 9.0) if t > 20.0 else 0.0  # straight, then weaving
+        dphi = (gain * f_y - phi) / tau
+        phi += dphi * DT
+        y = [math.nan] * ch.N
+        y[ch.AX], y[ch.SPEED], y[ch.YAW] = 0.0, 15.0, f_y / 15.0
+        y[ch.AY] = f_y + G * math.sin(phi) + rng.normal(0.0, 0.05)
+        y[ch.ROLL] = dphi + 0.0005 + rng.normal(0.0, 0.002)
+        s = tilt.correct(Sample(t, tuple(y), (True,) * ch.N, (0.0,) * ch.N))
+        if t > 100.0:
+            err.append(s.values[ch.AY] - f_y)
+        t += DT
+    beta = gain / (1.0 + G * gain)  # phi per unit of the a_y the IMU reads
+    assert G * abs(tilt.beta_prior - beta) > 0.015  # eq 9's prior: 1.5 % of a_y off
+    assert G * abs(tilt.beta - beta) < 0.002 and tilt.state()["roll_rows"] > 20  # learnt: 0.2 %
+    assert abs(float(np.mean(err))) < 0.01 and float(np.std(err)) < 0.06  # the roll out of a_y, to noise
+
+
 def test_the_grade_filter_gates_a_row_the_model_cannot_explain():
     samples = _drive(1600.0, 120.0)
     bad = []

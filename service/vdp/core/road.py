@@ -18,9 +18,11 @@ a row (``GATE`` sigma) is counted as ``grade_gated`` (a GNSS glitch, a kerb, a g
 to follow) and taken by no one.
 
 :meth:`Tilt.correct` then gives each sample the accelerations in the road's axes:
-``a_x / (1 + kappa)`` and ``a_y - g phi_hat`` with ``phi_hat`` the body's roll by the
-profile's own roll model (eq 9 quasi-static, ``m h a_y / (k_phi - m g h)``, lagged by
-``c_phi / k_phi``): the double count of eq (9) is taken out before the learners see a_y.
+``a_x / (1 + kappa)`` and ``a_y - g phi_hat`` with ``phi_hat = beta a_y``, a_y lagged by
+``c_phi / k_phi``, and ``beta`` the body's roll per unit of the a_y the IMU reads, learnt from the
+roll-rate gyro (its integral over a row against the lagged a_y's change, with the gyro's bias;
+eq 9's quasi-static ``m h / (k_phi - m g h)`` is only its prior: a body rolls by its sprung mass
+about its roll axis): the double count of eq (9) is taken out before the learners see a_y.
 The grade itself stays in a_x (stage 1 needs it for eq 3); the speed filter
 (:mod:`vdp.core.speed`) takes it out as its accelerometer offset, which then has to walk as
 fast as a grade changes (:data:`GRADE_BIAS_WALK`).
@@ -48,6 +50,19 @@ KAPPA_PRIOR = (0.0, 0.05)  # the pitch gain: 0 for a road-aligned IMU, 0.034 at 
 MIN_SPEED = 3.0  # m/s: below this the GNSS slope and the grade mean little
 LEVEL_BAND = 0.1  # m/s^2 (1 % of grade) from the grade term's slow mean: a level road, for the pitch gain
 LEVEL_RATE = ROW / 60.0  # the slow mean's weight per row (a minute)
+# The body's roll per unit of the a_y a body-fixed IMU reads, beta = phi / a_y, is learnt from the
+# roll-rate gyro: over each row its integral (the roll's change) against the change of the lagged
+# a_y, with the gyro's bias, by least squares (a Kalman filter of constant states).  Eq (9)'s
+# m h / (k_phi - m g h) is only the prior: the body rolls by its sprung mass about the roll axis
+# (brush/saloon: g phi = 0.075 f_y against eq 9's 0.094), and 2 % of a_y is enough to move
+# stage 2's C_alpha 15 % (docs/decisions/0022).
+ROLL_ROW_NOISE = 2.0e-4  # rad: a row's roll change beyond beta x the lagged a_y's (dynamics, gyro noise)
+BETA_REL_STD = 0.5  # the prior's relative std: a car's roll gain is known to within a factor of two
+GYRO_BIAS_STD = 0.01  # rad/s: the roll-rate gyro's bias, prior
+# m/s^2: a row whose lagged a_y moves less teaches beta less than the accelerometer's noise in the lag
+# spoils it (0.05 m/s^2 white, lagged 0.07 s: 0.013; on the straights beta fell 0.0088 -> 0.0022, read
+# from noise, and the corners' rows were then gated out as beyond it)
+MIN_ROLL_STEP = 0.5
 
 
 @dataclass(frozen=True)
@@ -107,6 +122,8 @@ class Tilt:
         mh = v.mass * h
         self.roll_gain = mh / max(v.roll_stiffness - mh * v.g, 1e-9 * v.roll_stiffness)
         self.roll_tau = v.roll_damping / v.roll_stiffness if v.roll_stiffness > 0 else 0.0
+        # eq 9's phi / a_y as the IMU reads it (a_y = f_y + g phi): the prior of the learnt beta
+        self.beta_prior = self.roll_gain / (1.0 + self.g * self.roll_gain)
         self.reset()
 
     def reset(self) -> None:
@@ -120,6 +137,12 @@ class Tilt:
         self.phi = 0.0
         self.t: float | None = None
         self.last: dict | None = None  # the last row: what the mass learner takes
+        # the roll's filter (body_imu): beta and the roll-rate gyro's bias (see ROLL_ROW_NOISE)
+        self.beta, self.gyro_bias = self.beta_prior, 0.0
+        self.Pr = [[(BETA_REL_STD * self.beta_prior) ** 2, 0.0], [0.0, GYRO_BIAS_STD**2]]
+        self.lag = 0.0  # a_y lagged by c_phi / k_phi
+        self.roll_row: list[float] | None = None  # [t0, lag at t0, integral of the roll rate, last roll rate]
+        self.roll_rows = self.roll_gated = 0
 
     # -- per sample -------------------------------------------------------------
     def correct(self, s):
@@ -131,13 +154,15 @@ class Tilt:
         if math.isfinite(ax):
             out[ch.AX] = ax / (1.0 + self.kappa)
         if self.cfg.body_imu and math.isfinite(ay):
-            # a_y = f_y + g phi and phi = gain f_y (lagged): f_y = a_y / (1 + g gain)
-            f_y = ay / (1.0 + self.g * self.roll_gain)
-            target = self.roll_gain * f_y
+            # a_y = f_y + g phi and phi = beta a_y (lagged), beta learnt from the roll-rate gyro (_roll)
             dt = 0.0 if self.t is None else min(max(s.t - self.t, 0.0), 0.2)
             k = 1.0 if self.roll_tau <= 0 else 1.0 - math.exp(-dt / self.roll_tau) if dt > 0 else 0.0
-            self.phi += k * (target - self.phi)
+            self.lag += k * (ay - self.lag)
+            self._roll(s, y[ch.ROLL], dt)
+            self.phi = self.beta * self.lag
             out[ch.AY] = ay - self.g * self.phi
+        elif self.cfg.body_imu:
+            self.roll_row = None
         self.t = s.t
         return s._replace(values=tuple(out))
 
@@ -213,6 +238,38 @@ class Tilt:
         self.level = self.G if self.level is None else self.level + LEVEL_RATE * (self.G - self.level)
         self.last = {"t": r.t0 + ROW, "a_x": a, "dv_dt": dvdt, "G": self.G}
 
+    def _roll(self, s, p: float, dt: float) -> None:
+        """The roll-rate gyro's integral over a row against the change of the lagged a_y:
+        integral(p) = beta (lag(t1) - lag(t0)) + bias (t1 - t0), one row at a time (H = [d lag, t1 - t0])."""
+        rr = self.roll_row
+        if not math.isfinite(p) or s.gap:
+            self.roll_row = None
+            return
+        if rr is None:
+            self.roll_row = [s.t, self.lag, 0.0, p]
+            return
+        rr[2] += 0.5 * (p + rr[3]) * dt
+        rr[3] = p
+        if s.t - rr[0] < ROW:
+            return
+        H0, H1, z = self.lag - rr[1], s.t - rr[0], rr[2]
+        self.roll_row = [s.t, self.lag, 0.0, p]
+        if abs(H0) < MIN_ROLL_STEP:
+            return
+        P = self.Pr
+        ph0 = P[0][0] * H0 + P[0][1] * H1
+        ph1 = P[1][0] * H0 + P[1][1] * H1
+        S = H0 * ph0 + H1 * ph1 + ROLL_ROW_NOISE**2
+        inn = z - (self.beta * H0 + self.gyro_bias * H1)
+        self.roll_rows += 1
+        if inn * inn > GATE * GATE * S:
+            self.roll_gated += 1
+            return
+        k0, k1 = ph0 / S, ph1 / S
+        self.beta += k0 * inn
+        self.gyro_bias += k1 * inn
+        self.Pr = [[P[0][0] - k0 * ph0, P[0][1] - k0 * ph1], [P[1][0] - k1 * ph0, P[1][1] - k1 * ph1]]
+
     def speed_walk(self, base: float) -> float:
         """The speed filter's a_x offset walk now [m/s^2 per sqrt(s)]: ``base`` on a level road, up
         to ``speed_walk`` while the grade moves (a walk that fast on a level road costs stage 1 its
@@ -232,6 +289,17 @@ class Tilt:
             "rows": self.rows,
             "level_rows": self.level_rows,
             "grade_gated": self.gated,
+            **(
+                {
+                    "roll_per_a_y": round(self.beta, 6),
+                    "roll_per_a_y_std": round(math.sqrt(max(self.Pr[0][0], 0.0)), 6),
+                    "roll_per_a_y_prior": round(self.beta_prior, 6),
+                    "roll_rows": self.roll_rows,
+                    "roll_gated": self.roll_gated,
+                }
+                if self.cfg.body_imu
+                else {}
+            ),
             "reason": None
             if not self.gated
             else f"{self.gated} of {self.rows} rows of {ROW:g} s gated out: "
