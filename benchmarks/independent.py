@@ -1,7 +1,7 @@
 """Accuracy of the estimator on vehicle models vdp did not write, beside vdp's own simulator.
 
     python benchmarks/independent.py --seeds 5 --jobs 2 [--cases brush/small,mb/bmw_320i] [--json runs.json]
-        [--one-c] [--no-batch-check]
+        [--one-c] [--no-batch-check] [--kc]
 
 Cases: ``brush/saloon``, ``brush/small`` (vdp.sim.independent.brush, first principles),
 ``mb/bmw_320i``, ``mb/vw_vanagon`` (CommonRoad's multi-body car, the ``bench`` extra),
@@ -114,8 +114,9 @@ def _scaled(priors: dict, scale: float) -> dict:
     return {k: Prior(p.value * scale, p.std) for k, p in priors.items()}
 
 
-def _simulation(case: str, scenario: str, seed: int, noise: str, cache: Path, prior_scale: float):
-    """(frames iterator, truth dict, profile) of one run; the profile is all the estimator gets."""
+def _simulation(case: str, scenario: str, seed: int, noise: str, cache: Path, prior_scale: float, kc: bool = False):
+    """(frames iterator, truth dict, profile) of one run; the profile is all the estimator gets
+    (``kc``: with the car's K&C steer figures declared, where its model has any; core.steer)."""
     from vdp.profile import Prior, load_profile
 
     name, car = case.split("/")
@@ -138,8 +139,11 @@ def _simulation(case: str, scenario: str, seed: int, noise: str, cache: Path, pr
         from vdp.sim.independent.common import IndependentSimulation, Trace
 
         tr = Trace.load(trace_path(cache, case, scenario))
-        sim = IndependentSimulation(get_model(name, car), None, scenario, seed, noise, trace=tr)
+        model = get_model(name, car)
+        sim = IndependentSimulation(model, None, scenario, seed, noise, trace=tr)
         profile, truth = sim.profile, sim.truth
+        if kc and model.kc():
+            profile = dataclasses.replace(profile, vehicle=dataclasses.replace(profile.vehicle, **model.kc()))
     if prior_scale != 1.0:
         profile = dataclasses.replace(profile, priors=_scaled(profile.priors, prior_scale))
     return sim, truth, profile
@@ -166,6 +170,7 @@ def truth_value(name: str, truth: dict) -> float | None:
 def run_one(job) -> dict:
     case, scenario, seed, noise, cache, prior_scale, per_axle, *rest = job
     batch_check = rest[0] if rest else True
+    kc = rest[1] if len(rest) > 1 else False
     import logging
 
     from vdp.core.estimator import EstimatorConfig
@@ -177,7 +182,7 @@ def run_one(job) -> dict:
     from vdp.sim.run import write_log
 
     logging.getLogger("vdp").setLevel(logging.ERROR)
-    sim, truth, profile = _simulation(case, scenario, seed, noise, cache, prior_scale)
+    sim, truth, profile = _simulation(case, scenario, seed, noise, cache, prior_scale, kc)
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "drive.log"
         write_log(sim.frames(), log, sim.bus_channel)
@@ -418,6 +423,11 @@ def main() -> int:
         action="store_true",
         help="stage 2's stds without its output-error batch check (LearnerConfig.batch_check off)",
     )
+    ap.add_argument(
+        "--kc",
+        action="store_true",
+        help="the profile declares the car's K&C steer where its model has any (brush/compact; core.steer)",
+    )
     ap.add_argument("-v", "--verbose", action="store_true", help="one line per run")
     a = ap.parse_args()
     a.per_axle = not a.one_c
@@ -434,9 +444,9 @@ def main() -> int:
                 print(f"recorded {case} {a.scenario} in {wall:.0f} s", file=sys.stderr)
         jobs = []
         for c in cases:
-            jobs.append((c, a.scenario, 0, "none", a.cache, a.prior_scale, a.per_axle, not a.no_batch_check))
+            jobs.append((c, a.scenario, 0, "none", a.cache, a.prior_scale, a.per_axle, not a.no_batch_check, a.kc))
             jobs += [
-                (c, a.scenario, s, "realistic", a.cache, a.prior_scale, a.per_axle, not a.no_batch_check)
+                (c, a.scenario, s, "realistic", a.cache, a.prior_scale, a.per_axle, not a.no_batch_check, a.kc)
                 for s in range(a.first_seed, a.first_seed + a.seeds)
             ]
         runs = list(ex.map(run_one, jobs))

@@ -149,8 +149,12 @@ def profile_fingerprint(profile) -> str:
                     m.pop("fine", None)  # a key added later: unset, it leaves older fingerprints as they were
         return d
 
+    veh = asdict(profile.vehicle)
+    for k in ("compliance_steer", "roll_steer_f", "roll_steer_r"):
+        if not veh.get(k):
+            veh.pop(k, None)  # keys added later: unset, they leave older fingerprints as they were
     doc = {
-        "vehicle": asdict(profile.vehicle),
+        "vehicle": veh,
         "priors": {k: asdict(v) for k, v in sorted(profile.priors.items())},
         "channels": {k: chan(v) for k, v in sorted(profile.channels.items())},
     }

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .. import channels as ch
-from . import batched
+from . import batched, steer
 from .compiled import kernel
 from .learn.base import LearnerConfig
 from .learn.stage1 import Stage1
@@ -128,11 +128,16 @@ class TwoStageEstimator:
         m = self.cfg.mass  # issue 28 (core.mass, core.road)
         self.tilt = Tilt(vehicle, priors["h"].value, self.cfg.road) if self.cfg.road.on else None
         self.mass = MassLearner(vehicle, m, self.tilt) if m.report or m.use else None
+        # the front wheels' compliance and roll steer a profile declares (core.steer; 0: none)
+        lf = vehicle.l_f if vehicle.l_f is not None else priors["l_f"].value
+        self.steer_k = steer.gain(vehicle, lf, priors["h"].value)
 
     # -- learner interface ---------------------------------------------
     def handle(self, t: float, s: Sample) -> Sample:
         """Take one aligned sample; return it with the derived fields (speed, gyro offsets) set."""
         self.t = t
+        if self.steer_k:
+            s = steer.sample(s, self.steer_k)
         if self.tilt is not None:  # a_x and a_y into the road's axes; the speed filter follows the grade (core.road)
             s = self.tilt.correct(s)
             self.speed.cfg = replace(self.speed.cfg, bias_walk=self.tilt.speed_walk(self.cfg.speed.bias_walk))
@@ -202,6 +207,8 @@ class TwoStageEstimator:
         n = len(T)
         if not n:
             return
+        if self.steer_k:
+            Y = steer.block(Y, self.steer_k)
         if self.mass is not None:  # the mass sees every sample (core.mass)
             for smp in sample_block(T, Y, F, A, gap):
                 self.mass.handle(smp.t, smp)

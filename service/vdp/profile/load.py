@@ -81,6 +81,31 @@ _VEHICLE_RANGE = {
 }
 
 
+# K&C steer (Vehicle.compliance_steer, roll_steer_f/_r), as a K&C rig reports it: key -> (field,
+# to SI, plausible range in the profile's unit).  Compact cars: about 0.1-0.3 deg/kN and 0.05-0.15
+# deg/deg; beyond these a unit slip (rad for deg, N for kN) is the likelier cause.
+_KC = {
+    "compliance_steer_deg_per_kN": ("compliance_steer", math.pi / 180.0 / 1000.0, (0.0, 2.0)),
+    "roll_steer_front": ("roll_steer_f", 1.0, (-0.5, 0.5)),
+    "roll_steer_rear": ("roll_steer_r", 1.0, (-0.5, 0.5)),
+}
+
+
+def _kc(where: str, raw: dict[str, Any]) -> dict[str, float]:
+    out = {}
+    for key, (dst, si, (lo, hi)) in _KC.items():
+        if key in raw:
+            v = _num(where, key, raw[key])
+            if not lo <= v <= hi:
+                unit = "per kN of the front axle's lateral force" if si != 1.0 else "per deg of body roll"
+                raise ProfileError(
+                    f"{where}: '{key}' = {v:g} is not plausible (expected {lo:g} to {hi:g} deg of "
+                    f"road-wheel angle {unit}, as a K&C rig reports it)"
+                )
+            out[dst] = v * si
+    return out
+
+
 def _vehicle(where: str, raw: dict[str, Any]) -> Vehicle:
     if not isinstance(raw, dict):
         raise ProfileError(
@@ -88,10 +113,11 @@ def _vehicle(where: str, raw: dict[str, Any]) -> Vehicle:
             f"{', '.join(k for k in _VEHICLE_KEYS if k != 'g')}"
         )
     optional = {"l_f", "l_f_std"}  # a measured l_f (axle scales) and its 1-sigma
-    unknown = set(raw) - set(_VEHICLE_KEYS) - {"roll_stiffness_per_deg", "roll_damping_per_deg"} - optional
+    unknown = set(raw) - set(_VEHICLE_KEYS) - {"roll_stiffness_per_deg", "roll_damping_per_deg"} - optional - set(_KC)
     if unknown:
         raise ProfileError(
-            f"{where} [vehicle]: unknown key(s) {sorted(unknown)}; allowed: {sorted(set(_VEHICLE_KEYS) | optional)}"
+            f"{where} [vehicle]: unknown key(s) {sorted(unknown)}; "
+            f"allowed: {sorted(set(_VEHICLE_KEYS) | optional | set(_KC))}"
         )
     vals: dict[str, Any] = {}
     # Table 6 gives k_phi and c_phi per degree; accept that form and convert (NOTES item 5).
@@ -130,6 +156,7 @@ def _vehicle(where: str, raw: dict[str, Any]) -> Vehicle:
         if v <= 0:
             raise ProfileError(f"{where} [vehicle]: '{key}' must be positive, got {v}")
         vals[key] = v
+    vals.update(_kc(f"{where} [vehicle]", raw))
     if "l_f_std" in vals and "l_f" not in vals:
         raise ProfileError(f"{where} [vehicle]: 'l_f_std' needs 'l_f' (the measured CG to front axle distance)")
     if "l_f" in vals and not vals["l_f"] < vals["wheelbase"]:

@@ -37,6 +37,13 @@ class Vehicle:
     # CG to front axle measured on axle scales (optional): stage 2 then needs no stage 1
     l_f: float | None = None  # [m]
     l_f_std: float | None = None  # [m], its 1-sigma (default 1 % of l_f)
+    # The front wheels' steer the steering-wheel angle does not show (a K&C rig's figures; core.steer):
+    # compliance steer out of the turn per N of the front axle's lateral force [rad/N] (the tyres'
+    # aligning torque on a compliant steering), and roll steer per rad of body roll [rad/rad], front
+    # out of the turn and rear into it (each understeer > 0).  0: the steering geometry is rigid.
+    compliance_steer: float = 0.0
+    roll_steer_f: float = 0.0
+    roll_steer_r: float = 0.0
 
 
 @dataclass(frozen=True)

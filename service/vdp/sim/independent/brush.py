@@ -297,6 +297,13 @@ class BrushModel(Model):
         self.gx = self.gy = 0.0
         self.gz = 1.0
 
+    def kc(self) -> dict[str, float]:
+        c = self.c
+        out = {"compliance_steer": c.trail / c.k_steer} if c.k_steer > 0.0 and c.trail else {}
+        if c.roll_steer_f or c.roll_steer_r:
+            out.update(roll_steer_f=c.roll_steer_f, roll_steer_r=c.roll_steer_r)
+        return out
+
     def set_road(self, theta: float, phi: float) -> None:
         """Grade theta (> 0 climbs) and bank phi (> 0 right side down) under the car now: gravity's
         part along the road pulls the body (v_x' = a_x + r v_y - g sin theta, v_y' = a_y - r v_x -

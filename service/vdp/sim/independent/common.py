@@ -123,6 +123,11 @@ class Model:
             g=self.g,
         )
 
+    def kc(self) -> dict[str, float]:
+        """The front wheels' compliance and roll steer as a K&C rig reports them, in the profile's
+        Vehicle fields (core.steer); {} for a model whose steering is rigid."""
+        return {}
+
     def profile(self) -> Profile:
         """vdp's bus (profiles/paper.toml's DBC and channels) with this car's known constants and priors."""
         base = load_profile(BASE_PROFILE)
@@ -142,6 +147,14 @@ class Model:
         for k in ("mass", "wheelbase", "wheel_radius", "wheel_inertia", "roll_stiffness", "roll_damping"):
             lines.append(f"{k} = {getattr(v, k)!r}")
         lines += [f"steering_ratio = {v.steering_ratio!r}", f"track = {v.track!r}", f"g = {v.g!r}", "", "[priors]"]
+        kc = self.kc()
+        if kc:  # known to a K&C rig, not to every owner: declared only when uncommented (core.steer)
+            lines[-2:-2] = [
+                "# the K&C rig's figures of this car's steering (uncomment to declare them):",
+                f"# compliance_steer_deg_per_kN = {kc.get('compliance_steer', 0.0) * 180e3 / math.pi:.4g}",
+                f"# roll_steer_front = {kc.get('roll_steer_f', 0.0)!r}",
+                f"# roll_steer_rear = {kc.get('roll_steer_r', 0.0)!r}",
+            ]
         for k, (val, sd) in self.priors.items():
             lines.append(f"{k} = {{ value = {float(val)!r}, std = {float(sd)!r} }}")
         text = BASE_PROFILE.read_text(encoding="utf-8")
