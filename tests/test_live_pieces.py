@@ -308,7 +308,7 @@ def test_a_silence_of_the_bus_runs_the_gap_hook_before_the_first_frame_after_it(
     seen: list = []
     frames: queue.Queue = queue.Queue()
     est = Estimation(FakePipeline(), frames, publish_interval=0.05)
-    est.gap_hook, est.gap_s = (lambda p: seen.append(p.frames)), 60.0
+    est.gap_hook, est.gap_s = (lambda p, end, start: seen.append((p.frames, end, start))), 60.0
 
     def rec(t: float):
         return (t, 0x123, 0, bytes(8), None)
@@ -323,4 +323,12 @@ def test_a_silence_of_the_bus_runs_the_gap_hook_before_the_first_frame_after_it(
         assert est.call(lambda p: p.frames) == 20
     finally:
         est.stop()
-    assert seen == [10, 17, 19]  # each look saw every frame before its silence, none after
+    # each look saw every frame before its silence, none after, and was told the silence's bounds
+    # (the first: before the run's first frame, the bus silent before it)
+    assert [n for n, _, _ in seen] == [0, 10, 17, 19]
+    assert [(e, t) for _, e, t in seen] == [
+        (None, 1000.0),
+        (pytest.approx(1000.09), 4600.0),
+        (4600.2, 9000.0),
+        (9001.0, 20000.0),
+    ]

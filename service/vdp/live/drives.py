@@ -173,6 +173,26 @@ class Drives:
         if self.confirmed:
             self._look(pipe, now)
 
+    def silence(self, pipe, end: float | None, start: float) -> None:
+        """The bus was silent from ``end`` to ``start`` [bus time] and the frame at ``start`` is not
+        yet fed (the worker's hook); ``end`` None: it is the run's first frame.  The drive so far
+        is looked at and ends at ``end``, and the next begins at ``start``, from the parameters as
+        they are before its first frame and with its frame counts from here.  Begun at the
+        keeper's next look instead, a drive fed faster than the keeper runs (a replayed drive, a
+        second of wall time) began with some of its own learning already in its start, so a tyre
+        change could not show, and a drive that ended before that look was never stored."""
+        if end is not None:
+            self.check(pipe)
+            if self.t0 is not None:
+                self.end(pipe, end)
+        self.begin(pipe, start)
+        self.count_t0 = start
+        self._seen = max(self._seen, start)  # the silence is handled: the next look does not end this drive
+
+    @staticmethod
+    def monitor_ok(pipe) -> bool:
+        return pipe.last_bus_time is not None and getattr(pipe, "monitor", None) is not None
+
     def _gap(self, mon) -> tuple[float, float] | None:
         """(end, start) of the newest silence longer than ``gap`` among the samples not yet seen (the
         self-check keeps only its last minutes: the samples before a long silence are gone from it,
@@ -354,6 +374,10 @@ class Drives:
         """The drive has ended (a silence, or the service stopping): keep its last values."""
         if self.t0 is None:
             return
+        if self.confirmed and self.monitor_ok(pipe) and (t is None or t >= pipe.last_bus_time):
+            # the drive's last measures: a change its last seconds show is named too (the looks come
+            # every EVERY s of bus time, and a drive fed faster than the keeper runs gets few)
+            self._look(pipe, pipe.last_bus_time)
         params = pipe.result().parameters
         if self.confirmed and self.drive is not None:
             self._write(

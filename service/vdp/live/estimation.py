@@ -82,10 +82,11 @@ class Estimation:
         self._resets_seen: dict = {}
         self._diverged: dict[str, tuple[float, str]] = {}  # filter kind -> (monotonic time, what)
         self._keep: frozenset | bool | None = False  # decoded ids, found at the first block
-        # run on the pipeline before the first frame after a silence of the bus longer than
-        # ``gap_s`` of bus time (the service's drive look: a silence ends a drive, and the look must
-        # see the drive before it while the self-check still holds it, whenever the keeper runs)
-        self.gap_hook: Callable[[Any], None] | None = None
+        # run as hook(pipeline, end, start) before the run's first frame (end None) and before the
+        # first frame after a silence of the bus longer than ``gap_s`` of bus time, end and start its
+        # bounds (the service's drives: a silence ends a drive and begins the next, whose frames must
+        # all count to it, whenever the keeper runs)
+        self.gap_hook: Callable[[Any, float, float], None] | None = None
         self.gap_s = math.inf
         self._last_t: float | None = None
 
@@ -186,11 +187,12 @@ class Estimation:
                 next_pub = now + interval
 
     def _after_gap(self, t: float) -> None:
-        """Run the gap hook if ``t`` (bus time of the next frame) follows a silence longer than gap_s."""
+        """Run the gap hook if ``t`` (bus time of the next frame) is the first or follows a silence
+        longer than gap_s."""
         last, self._last_t = self._last_t, t
-        if last is not None and t - last > self.gap_s and self.gap_hook is not None:
+        if (last is None or t - last > self.gap_s) and self.gap_hook is not None:
             try:
-                self.gap_hook(self.pipeline)
+                self.gap_hook(self.pipeline, last, t)
             except Exception:
                 log.exception("the look at a silence of the bus failed; carrying on")
 

@@ -78,7 +78,7 @@ class Service:
         self.writer = StoreWriter(settings.store, self.fingerprint, self.profile.vehicle.name)
         # drives, and the changes between them (a mass step, new tyres, another car on the bus)
         self.drives = Drives(self.profile, self.writer)
-        self.estimation.gap_hook, self.estimation.gap_s = self._drives_check, self.drives.gap
+        self.estimation.gap_hook, self.estimation.gap_s = self._drives_silence, self.drives.gap
         self._looking: Future | None = None  # the drive look queued on the worker
         self.restored: dict | None = None
         self.restore_error: str | None = None
@@ -219,6 +219,9 @@ class Service:
 
     def _drives_check(self, pipe) -> None:
         self._drives(self.drives.check, pipe)
+
+    def _drives_silence(self, pipe, end: float, start: float) -> None:
+        self._drives(lambda p: self.drives.silence(p, end, start), pipe)
 
     def _drives(self, fn, pipe=None) -> None:
         """Run a drive look on the pipeline (a real one: a test's stand-in has no decoder); a failure is
