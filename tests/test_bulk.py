@@ -152,7 +152,7 @@ def test_a_flood_of_unknown_ids_is_counted_not_stored(mixed, paper, tmp_path, mo
     monkeypatch.setattr(bulk, "BLOCK", 1 << 16)
     monkeypatch.setattr(bulk, "_ID_CACHE_MAX", 200)
     monkeypatch.setattr(bulk, "MAX_UNKNOWN", 100)
-    monkeypatch.setattr(decoder, "MAX_UNKNOWN", 100)
+    monkeypatch.setattr(decoder.frames, "MAX_UNKNOWN", 100)
     out = []
     for i, ln in enumerate(mixed.read_bytes().splitlines(keepends=True)):
         out.append(ln)
