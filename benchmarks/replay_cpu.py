@@ -60,7 +60,7 @@ def main() -> int:
         def cum(file, name):
             return sum(v[3] for (f, _, n), v in st.items() if f.endswith(file) and n == name)
 
-        tot = cum("io/bulk.py", "replay_log")
+        tot = cum("io/bulk/run.py", "replay_log")
         model2 = cum("core/lateral.py", "fx") + cum("core/lateral.py", "hx")
         model1 = cum("core/longitudinal.py", "fx") + cum("core/longitudinal.py", "hx")
         steps = cum("core/filters.py", "predict") + cum("core/filters.py", "update")

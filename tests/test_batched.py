@@ -160,7 +160,7 @@ def replay_both(path, profile, monkeypatch, cfg=None):
 
 
 def test_block_pass_gives_the_per_sample_result(drive, paper, monkeypatch):
-    monkeypatch.setattr(bulk, "BLOCK", 1 << 16)  # many blocks: windows and the hand-over cross their ends
+    monkeypatch.setattr(bulk.source, "BLOCK", 1 << 16)  # many blocks: windows and the hand-over cross their ends
     (a, sa), (b, sb), handed = replay_both(drive, paper, monkeypatch)
     assert b == a and sb == sa
     assert a["parameters"]["l_f"]["status"] == "converged"
@@ -178,7 +178,7 @@ def test_the_gates_fire_alike_in_both_paths(repo_root, tmp_path, monkeypatch):
     prof = load_profile(repo_root / "profiles" / "paper_status.toml")
     sim = Simulation(prof, "city", seed=4, duration=100.0, events=Events.parse("reverse=1,abs=1,kerb=3,spin=1"))
     write_log(sim.frames(), tmp_path / "events.log")
-    monkeypatch.setattr(bulk, "BLOCK", 1 << 16)
+    monkeypatch.setattr(bulk.source, "BLOCK", 1 << 16)
     (a, sa), (b, sb), _ = replay_both(tmp_path / "events.log", prof, monkeypatch)
     assert b == a and sb == sa
     gated = a["supervisor"]["gated"]["by_gate"]

@@ -49,7 +49,7 @@ def vectorised(caplog) -> bool:
 
 
 def test_same_estimates_stats_and_samples_as_the_per_frame_path(mixed, paper, monkeypatch, caplog):
-    monkeypatch.setattr(bulk, "BLOCK", 1 << 16)  # many blocks: lines and ticks cross their ends
+    monkeypatch.setattr(bulk.source, "BLOCK", 1 << 16)  # many blocks: lines and ticks cross their ends
     with caplog.at_level(logging.DEBUG, logger="vdp.io.bulk"):
         (a, pa), (b, pb) = both(mixed, paper)
     assert vectorised(caplog)
@@ -78,7 +78,7 @@ def test_gzip_and_a_gap_in_bus_time(mixed, paper, tmp_path, caplog):
 
 
 def test_bad_counters_and_checksums_are_counted_as_the_decoder_does(mixed, paper, tmp_path, monkeypatch, caplog):
-    monkeypatch.setattr(bulk, "BLOCK", 1 << 16)
+    monkeypatch.setattr(bulk.source, "BLOCK", 1 << 16)
     lines = mixed.read_bytes().splitlines(keepends=True)
     out = []
     for i, ln in enumerate(lines):
@@ -149,10 +149,10 @@ def test_a_flood_of_unknown_ids_is_counted_not_stored(mixed, paper, tmp_path, mo
     the per-frame path's (same totals, same top ids; only how many were passed over differs)."""
     from vdp.io import decoder
 
-    monkeypatch.setattr(bulk, "BLOCK", 1 << 16)
-    monkeypatch.setattr(bulk, "_ID_CACHE_MAX", 200)
-    monkeypatch.setattr(bulk, "MAX_UNKNOWN", 100)
-    monkeypatch.setattr(decoder, "MAX_UNKNOWN", 100)
+    monkeypatch.setattr(bulk.source, "BLOCK", 1 << 16)
+    monkeypatch.setattr(bulk.source, "_ID_CACHE_MAX", 200)
+    monkeypatch.setattr(bulk.decode, "MAX_UNKNOWN", 100)
+    monkeypatch.setattr(decoder.frames, "MAX_UNKNOWN", 100)
     out = []
     for i, ln in enumerate(mixed.read_bytes().splitlines(keepends=True)):
         out.append(ln)
