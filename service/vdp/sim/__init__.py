@@ -2,7 +2,9 @@
 
 Modules: :mod:`.truth` (Table 6 unknowns), :mod:`.vehicle` (pure physics),
 :mod:`.driver`, :mod:`.scenario`, :mod:`.sensors`, :mod:`.encode` (profile -> DBC),
-:mod:`.run` (streaming frames, log files, live bus).
+:mod:`.run` (streaming frames; its clock and profile lookup in :mod:`.base`, drops
+and filler frames in :mod:`.filler`), :mod:`.trace` (physics only), :mod:`.logfile`
+(log and truth files), :mod:`.bus` (live bus).
 
 ``simulate``, ``Simulation``, ``trace``, ``write_log`` and friends are importable from
 here; they load lazily so that ``vdp.sim.vehicle`` stays free of python-can.

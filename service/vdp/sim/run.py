@@ -10,18 +10,17 @@ fixed phase inside the period; timestamps are ``start_time + t`` exactly.
 Randomness comes from independent streams of one seed (IMU biases, sensor noise,
 frame drops, filler frames), so the same seed gives byte-identical output and
 turning drops on does not change the noise.
+
+The pieces: :mod:`.base` (clock, profile lookup), :mod:`.filler` (drops, unrelated
+frames), :mod:`.trace` (physics only), :mod:`.logfile` (log and truth files) and
+:mod:`.bus` (a live bus); every name stays importable from here.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import gzip
-import heapq
-import io
-import json
 import logging
 import math
-import time
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
@@ -29,52 +28,36 @@ import can
 import numpy as np
 
 from ..channels import STATUS
-from ..errors import BusError, ConfigError, LogFormatError, ProfileError
-from ..outfile import replacing, write_text
-from ..profile import Profile, load_profile
+from ..errors import ConfigError, ProfileError
+from ..profile import Profile
+from .base import (  # noqa: F401 (this module's names before the split)
+    DEFAULT_PROFILE,
+    DT,
+    REPO_ROOT,
+    START_TIME,
+    STEP_MS,
+    TRUTH_FORMAT,
+    _profile,
+    resolve_profile,
+    wheel_slips,
+)
+from .bus import open_bus, paced, send_live, tee_bus
 from .driver import Driver, DriverConfig
 from .encode import Encoder
 from .events import EventRun, Events
 from .events import plan as plan_events
+from .filler import _Filler, _Uniforms
+from .logfile import check_writable, truth_path, write_log, write_truth  # noqa: F401 (check_writable: cli.simulate's)
 from .road import Imu, Road, add_load, body_accel, get_road, placement
 from .scenario import Scenario, get_scenario
 from .sensors import NoiseModel, Sensors, draw_bias, noise_model
+from .trace import trace
 from .truth import axle_parameters, truth_parameters
-from .vehicle import STATE, V_FLOOR, Model, Params
+from .vehicle import Model, Params
 
 log = logging.getLogger(__name__)
 
-START_TIME = 1700000000.0
-STEP_MS = 1  # integration step and sampling grid [ms]; DBC cycle times are whole ms
-DT = STEP_MS / 1000.0
-TRUTH_FORMAT = "vdp-truth/1"
-REPO_ROOT = Path(__file__).resolve().parents[3]
-DEFAULT_PROFILE = Path("profiles/paper.toml")
-
 Tap = Callable[[float, str, dict], None]
-
-
-def resolve_profile(path: str | Path | None = None) -> Path:
-    """A profile path as given, else relative to the CWD, else relative to the repository."""
-    p = Path(path) if path else DEFAULT_PROFILE
-    if p.is_file():
-        return p
-    if not p.is_absolute():
-        for base in (Path.cwd(), REPO_ROOT):
-            q = base / p
-            if q.is_file():
-                return q
-    raise ProfileError(f"{p}: no such profile file (looked in {Path.cwd()} and {REPO_ROOT})")
-
-
-def _profile(profile: Profile | str | Path | None, dbc: str | Path | None) -> Profile:
-    prof = profile if isinstance(profile, Profile) else load_profile(resolve_profile(profile))
-    if dbc is not None:
-        d = Path(dbc)
-        if not d.is_file():
-            raise ProfileError(f"{d}: DBC file does not exist")
-        prof = dataclasses.replace(prof, dbc=d.resolve())
-    return prof
 
 
 class Simulation:
@@ -323,50 +306,6 @@ def imu_reading(imu: Imu, e: tuple, x, ang: tuple[float, float], g: float) -> tu
     return (a_x, a_y, *e[2:])
 
 
-def wheel_slips(x, r: float) -> tuple[float, float]:
-    """(s_f, s_r): each axle's wheel slip as its traction control sees it (eq 13, steering left out)."""
-    v = x[0]
-    d = v if v > V_FLOOR else V_FLOOR
-    return (x[5] * r - v) / d, (x[6] * r - v) / d
-
-
-class _Uniforms:
-    def __init__(self, rng: np.random.Generator, block: int = 4096):
-        self.rng, self.block, self.buf, self.i = rng, block, [], 0
-
-    def __call__(self) -> float:
-        if self.i >= len(self.buf):
-            self.buf, self.i = self.rng.random(self.block).tolist(), 0
-        self.i += 1
-        return self.buf[self.i - 1]
-
-
-class _Filler:
-    """Unrelated frames (IDs not in the DBC, random payloads), each ID at ``rate`` Hz."""
-
-    def __init__(self, rng: np.random.Generator, n: int, rate: float, taken: set[int], start_us: int):
-        free = np.array([i for i in range(0x800) if i not in taken])
-        self.ids = [int(i) for i in rng.choice(free, size=n, replace=False)]
-        self.period_us = max(1, int(round(1e6 / rate)))
-        self.rng = rng
-        self.heap = [(start_us + int(rng.integers(0, self.period_us)), i) for i in self.ids]
-        heapq.heapify(self.heap)
-
-    def until(self, end_us: int, chan: str) -> Iterator[can.Message]:
-        heap = self.heap
-        while heap[0][0] < end_us:
-            ts, fid = heapq.heappop(heap)
-            heapq.heappush(heap, (ts + self.period_us, fid))
-            yield can.Message(
-                timestamp=ts / 1e6,
-                arbitration_id=fid,
-                is_extended_id=False,
-                data=self.rng.bytes(8),
-                channel=chan,
-                is_rx=False,
-            )
-
-
 def simulate(
     profile: Profile | str | Path | None = None,
     scenario: str | Scenario = "paper",
@@ -427,198 +366,6 @@ class Repeated:
                     progress(off + t, self.duration)
 
             yield from sim.frames(tap, step if progress is not None else None)
-
-
-# -- physics-only trace (tests, plots) ------------------------------------------------
-def trace(
-    scenario: str | Scenario = "paper",
-    profile: Profile | str | Path | None = None,
-    *,
-    params: Mapping[str, float] | None = None,
-    dt: float = DT,
-    every: int = 10,
-    duration: float | None = None,
-    driver: DriverConfig | None = None,
-) -> dict[str, np.ndarray]:
-    """Truth time series of a scenario, without sensors: states, inputs, forces, heading.
-
-    Keys: ``t``, the state names of :data:`vdp.sim.vehicle.STATE`, ``T_f``, ``T_r``,
-    ``delta``, ``v_cmd``, ``delta_cmd``, every :class:`vdp.sim.vehicle.Forces` field,
-    and ``heading`` (integrated yaw angle).  Samples every ``every`` steps.
-    """
-    prof = _profile(profile, None)
-    veh = prof.vehicle
-    sc = scenario if isinstance(scenario, Scenario) else get_scenario(scenario, veh.wheelbase)
-    model = Model(Params.from_vehicle(veh, {**truth_parameters(params), **axle_parameters(params)}))
-    p = model.params
-    drv = Driver(driver or DriverConfig(), p.m, p.r, p.J)
-    T = sc.duration if duration is None else min(duration, sc.duration)
-    n_steps = int(round(T / dt))
-    keys = (
-        ("t",)
-        + STATE
-        + ("T_f", "T_r", "delta", "v_cmd", "delta_cmd")
-        + ("a_x", "a_y", "F_zf", "F_zr", "F_xf", "F_xr", "F_yf", "F_yr", "s_f", "s_r", "alpha_f", "alpha_r")
-        + ("heading",)
-    )
-    rows = []
-    x = model.straight(sc.v0)
-    hint, psi = 0, 0.0
-    for n in range(n_steps):
-        t = n * dt
-        v_cmd, a_cmd, d_cmd, hint = sc.command(t, hint)
-        tf, tr, delta = drv.update(dt, v_cmd, a_cmd, d_cmd, x[0], wheel_slips(x, p.r))
-        x1, e = model.advance(x, tf, tr, delta, dt, drv.next_delta(sc.command(t + dt, hint)[2]))
-        if n % every == 0:
-            rows.append((t, *x, tf, tr, delta, v_cmd, d_cmd, *e, psi))
-        psi += 0.5 * dt * (x[2] + x1[2])
-        x = x1
-    arr = np.array(rows, dtype=float).reshape(-1, len(keys))
-    return {k: arr[:, i] for i, k in enumerate(keys)}
-
-
-# -- outputs ------------------------------------------------------------------------------
-def truth_path(log_path: str | Path) -> Path:
-    """``drive.log`` -> ``drive.truth.json`` (also for ``drive.log.gz`` and other suffixes)."""
-    p = Path(log_path)
-    name = p.name
-    if name.lower().endswith(".gz"):
-        name = name[:-3]
-    stem = name.rsplit(".", 1)[0] if "." in name else name
-    return p.with_name(stem + ".truth.json")
-
-
-def write_truth(truth: dict, path: str | Path) -> Path:
-    path = Path(path)
-    write_text(path, json.dumps(truth, indent=2, sort_keys=False) + "\n")
-    return path
-
-
-def _candump_line(msg: can.Message, chan: str) -> str:
-    fid = f"{msg.arbitration_id:08X}" if msg.is_extended_id else f"{msg.arbitration_id:03X}"
-    sep = "##0" if msg.is_fd else "#"  # FD frames: flags nibble after '##'
-    return f"({msg.timestamp:.6f}) {msg.channel or chan} {fid}{sep}{msg.data.hex().upper()}\n"
-
-
-def check_writable(path: str | Path) -> None:
-    """A LogFormatError unless ``path``'s format is one vdp replays and can be written here."""
-    from ..io.logs import FORMATS
-
-    path = Path(path)
-    name = path.name.lower()
-    suffix = "".join(path.suffixes[-2:]).lower() if name.endswith(".gz") else path.suffix.lower()
-    if suffix.removesuffix(".gz") not in FORMATS:
-        # python-can writes some formats (.txt, .db) that no reader of vdp's takes back
-        raise LogFormatError(
-            f"{path}: vdp cannot replay '{suffix or path.name}' logs; write one of "
-            f"{', '.join(FORMATS)} (plain .log is candump -L, the bulk reader's)"
-        )
-    if suffix == ".mf4":
-        try:
-            import asammdf  # noqa: F401
-        except ImportError:
-            raise LogFormatError(f"{path}: python-can writes .mf4 only with asammdf: pip install 'vdp[mf4]'") from None
-
-
-def write_log(frames: Iterator[can.Message], path: str | Path, channel: str = "can0") -> int:
-    """Write frames to ``path``; the format follows the suffix.  Returns the frame count.
-
-    ``.log`` and ``.log.gz`` are written directly as ``candump -L`` lines (deterministic,
-    gzip without a timestamp); every other suffix goes through ``can.Logger``.
-    """
-    path = Path(path)
-    name = path.name.lower()
-    if not path.parent.is_dir():
-        raise LogFormatError(f"{path}: directory {path.parent} does not exist")
-    if not name.endswith((".log", ".log.gz")):
-        check_writable(path)
-    with replacing(path) as tmp:  # (the tmp's name ends in path's: python-can picks the same format)
-        return _write_frames(frames, tmp, path, channel)
-
-
-def _write_frames(frames: Iterator[can.Message], dest: Path, path: Path, channel: str) -> int:
-    """write_log's work, into ``dest`` (the file that becomes ``path``)."""
-    name = path.name.lower()
-    n = 0
-    if name.endswith((".log", ".log.gz")):
-        raw = open(dest, "wb")
-        try:
-            if name.endswith(".gz"):
-                gz = gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0)
-                out = io.TextIOWrapper(gz, encoding="ascii", newline="\n")
-            else:
-                gz, out = None, io.TextIOWrapper(raw, encoding="ascii", newline="\n")
-            buf = []
-            for msg in frames:
-                buf.append(_candump_line(msg, channel))
-                n += 1
-                if len(buf) >= 4096:
-                    out.write("".join(buf))
-                    buf.clear()
-            out.write("".join(buf))
-            out.flush()
-            if gz is not None:
-                out.detach()
-                gz.close()
-            else:
-                out.detach()
-        finally:
-            raw.close()
-        return n
-    try:
-        writer = can.Logger(str(dest))
-    except ValueError as exc:
-        raise LogFormatError(f"{path}: {exc}") from None
-    except (NotImplementedError, ImportError) as exc:  # .mf4 needs asammdf
-        raise LogFormatError(f"{path}: python-can cannot write it here ({exc}); pip install 'vdp[mf4]'") from None
-    with writer:
-        for msg in frames:
-            writer.on_message_received(msg)
-            n += 1
-    return n
-
-
-def open_bus(interface: str, channel: str | None = None) -> can.BusABC:
-    defaults = {"virtual": "vdp", "socketcan": "vcan0"}
-    if interface == "udp_multicast":
-        from can.interfaces.udp_multicast import UdpMulticastBus
-
-        defaults["udp_multicast"] = UdpMulticastBus.DEFAULT_GROUP_IPv4
-    chan = channel or defaults.get(interface)
-    try:
-        return can.Bus(interface=interface, channel=chan)
-    except Exception as exc:  # python-can raises many types (CanError, OSError, ImportError, ...)
-        raise BusError(f"cannot open {interface} bus '{chan}': {exc}") from None
-
-
-def paced(frames: Iterator[can.Message], speed: float) -> Iterator[can.Message]:
-    """Yield frames no earlier than ``speed`` x real time (0 = as fast as possible)."""
-    if speed <= 0:
-        yield from frames
-        return
-    t0 = w0 = None
-    for msg in frames:
-        if t0 is None:
-            t0, w0 = msg.timestamp, time.monotonic()
-        wait = w0 + (msg.timestamp - t0) / speed - time.monotonic()
-        if wait > 0.002:
-            time.sleep(wait)
-        yield msg
-
-
-def tee_bus(frames: Iterator[can.Message], bus: can.BusABC, speed: float = 1.0) -> Iterator[can.Message]:
-    """Send each frame onto ``bus`` at ``speed`` x real time, then pass it on."""
-    for msg in paced(frames, speed):
-        try:
-            bus.send(msg)
-        except can.CanError as exc:
-            raise BusError(f"send failed on {bus.channel_info}: {exc}") from None
-        yield msg
-
-
-def send_live(frames: Iterator[can.Message], bus: can.BusABC, speed: float = 1.0) -> int:
-    """Send frames onto ``bus`` at ``speed`` x real time; returns the number sent."""
-    return sum(1 for _ in tee_bus(frames, bus, speed))
 
 
 __all__ = [
