@@ -211,13 +211,22 @@ class Stage2(AxleSplit, StageLearner):
 
     def cover(self, name: str, value: float, std: float) -> tuple[float, str | None]:
         """C_alpha's and I_z's std covers the batch check's fit with a falling secant where the linear
-        tyre was kept (output_error.cover_bend, docs/decisions/0019)."""
+        tyre was kept (output_error.cover_bend, docs/decisions/0019), and C_alpha's the tyres' value
+        where the axles are further apart than tyres alike allow (output_error.cover_axles)."""
         if name in output_error.CHECKED and self.known is not None and self.cfg.batch_check:
             fit = self.batch_fit()
             if fit is not None:
                 _, std, note = output_error.cover_bend(name, value, std, None, fit)
+                if self.cfg.per_axle and not self._axles_given():
+                    std, axles = output_error.cover_axles(name, value, std, fit, self.known.l_f, self.known.L)
+                    if axles is not None:
+                        note = axles if note is None else f"{note}; {axles}"
                 return std, note
         return std, None
+
+    def _axles_given(self) -> bool:
+        """Whether the profile gives each axle's C_alpha prior (tyres that differ, declared)."""
+        return self.priors.get("C_alpha_f") is not None and self.priors.get("C_alpha_r") is not None
 
     def settle(self) -> None:
         """Let a background check end, and solve now on every row kept: the next snapshot is then

@@ -44,7 +44,7 @@ from __future__ import annotations
 from .check import REFIT_ROWS, Check
 from .problem import MAX_ROWS, MIN_ROWS, N_GLOBAL, N_THETA, Fit, Problem, Record
 from .solve import departs, mismatched, solve, spread, structured, whiteness
-from .verdict import CHECKED, Z_MAX, against, compare, cover_bend
+from .verdict import CHECKED, Z_MAX, against, compare, cover_axles, cover_bend
 
 __all__ = [
     "CHECKED",
@@ -60,6 +60,7 @@ __all__ = [
     "Record",
     "against",
     "compare",
+    "cover_axles",
     "cover_bend",
     "departs",
     "mismatched",

@@ -49,6 +49,50 @@ def cover_bend(name: str, value: float, std: float, why: str | None, fit: Fit) -
     return value, cover, f"{why}; {note}" if why else note
 
 
+def cover_axles(
+    name: str, value: float, std: float, fit: Fit, l_f: float, wheelbase: float
+) -> tuple[float, str | None]:
+    """C_alpha's std where the fit's axles are further apart than tyres alike allow: (std, note).
+
+    A tyre's cornering stiffness rises with its load, but less than in proportion over a car's
+    range of axle loads.  So with the same tyres front and rear, C_f / C_r lies between 1 and the
+    static load ratio F_zf / F_zr = l_r / l_f.  An axle that reads softer than that (the front of a
+    front-heavy car softer than the rear) steers itself out of the turn under lateral force:
+    compliance or roll steer, which the single track cannot tell from a softer tyre (brush/compact:
+    its front axle 0.80 as stiff as its tyres, docs/decisions/0024), or tyres that differ.  Then the
+    mean of the axles is an effective value: were one axle's value low by the distance beyond the
+    interval (d, in logs), the tyres' mean would be d / 2 above it.  The std takes d / 2 as a consider
+    term (the least the departure implies), ramped in between 2 and 3 of the ratio's own stds so
+    that no small change flips it.  No constant is chosen here."""
+    if name != "C_alpha" or not (math.isfinite(value) and math.isfinite(std) and value > 0):
+        return std, None
+    if not 0.0 < l_f < wheelbase:
+        return std, None
+    c_f, c_r = float(fit.theta[0]), float(fit.theta[1])
+    if not (c_f > 0 and c_r > 0):
+        return std, None
+    rho = math.log(c_f / c_r)
+    s = math.sqrt(max(float(fit.cov[0, 0] + fit.cov[1, 1] - 2.0 * fit.cov[0, 1]), 0.0))
+    lam = math.log((wheelbase - l_f) / l_f)
+    lo, hi = min(0.0, lam), max(0.0, lam)
+    d = lo - rho if rho < lo else (rho - hi if rho > hi else 0.0)
+    if not (d > 0.0 and s > 0.0 and math.isfinite(s)):
+        return std, None
+    weight = min(max(d / s - 2.0, 0.0), 1.0)
+    if weight == 0.0:
+        return std, None
+    carry = 0.5 * weight * d
+    wide = math.hypot(std, carry * value)
+    soft = "front" if rho < lo else "rear"
+    note = (
+        f"the axles' cornering stiffnesses are {100 * (math.exp(d) - 1):.0f} % further apart than tyres alike "
+        f"allow (front/rear {math.exp(rho):.2f}, their loads {math.exp(lam):.2f}): the {soft} axle's is an "
+        f"effective value, from compliance or roll steer (declare it: docs/PROFILES.md, 'K&C steer') or "
+        f"tyres that differ, and C_alpha's std carries {100 * carry:.0f} % for the tyres'"
+    )
+    return wide, note
+
+
 def against(name: str, value: float, std: float, fit: Fit, z_max: float) -> tuple[float, float, str | None]:
     """The filter's (value, std) against the fit's: (value, std, reason or None).
 
