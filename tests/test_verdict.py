@@ -192,8 +192,33 @@ def test_stage_1s_model_error_comes_in_with_the_colour_not_at_a_limit(repo_root)
     assert l1.model_error() is None
     l1.fit = SimpleNamespace(rho=0.5, chi2=1.5 * CHI2_QUIET)
     np.testing.assert_allclose(l1.model_error(), 0.5 * l1.spread)
-    l1.shaped = True  # a tyre the data showed to bend: the spread in full
-    np.testing.assert_allclose(l1.model_error(), l1.spread)
+    # a tyre the data showed to bend: the spread in full, and l_f's the axles' split its load
+    # sensitivity makes (axle_split_shift)
+    from vdp.core import longitudinal
+    from vdp.core.learn.stage1 import axle_split_shift
+    from vdp.core.learn.tuning import LOAD_SENSITIVITY
+
+    x = np.zeros(longitudinal.N_X)
+    x[longitudinal.L_F], x[longitudinal.H], x[longitudinal.C_K] = 1.1, 0.55, 14.0
+    l1.fit = SimpleNamespace(rho=0.5, chi2=0.3, t=l1.bounds.from_si(x))
+    l1.shaped = True
+    split = axle_split_shift(1.1, prof.vehicle.wheelbase, LOAD_SENSITIVITY)
+    assert split > 0.0
+    np.testing.assert_allclose(l1.model_error(), [np.hypot(l1.spread[0], split), *l1.spread[1:]])
+
+
+def test_one_tyre_on_axles_of_unequal_load_moves_l_f_by_its_split():
+    """A tyre's stiffness per unit load falling by q with load splits the axles by 2 q |L - 2 l_f| / L,
+    which stage 1 reads as l_f (L - l_f) / L times it: 0 at equal loads, symmetric about them, and
+    on mb/bmw_320i's geometry 1.0 %, where its load-moving slip offset gave -1.2 % (docs/decisions/0021)."""
+    from vdp.core.learn.stage1 import axle_split_shift
+
+    assert axle_split_shift(1.3, 2.6, 0.1) == 0.0
+    assert axle_split_shift(1.1, 2.6, 0.1) == pytest.approx(axle_split_shift(1.5, 2.6, 0.1))  # front or rear heavy
+    lf, L = 1.1717, 2.578
+    rel = axle_split_shift(lf, L, 0.1) / lf
+    assert 0.008 < rel < 0.015
+    assert axle_split_shift(lf, L, 0.2) == pytest.approx(2.0 * axle_split_shift(lf, L, 0.1))
 
 
 def test_the_load_sensitivity_moves_what_the_fit_ties_to_h():
