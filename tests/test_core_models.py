@@ -154,7 +154,8 @@ def test_stage2_jacobians_with_the_road_bank_as_a_tenth_state(vy, yaw, phid, ca,
     x9 = np.array([vy, yaw, 0.01, phid, ca, ca / split, iz, 1500.0, l_f])
     x = np.append(x9, bank)
     u = np.array([d, vx, vx * 1.01 / k.r, 0.5, 2.0 * d * vx])
-    eps = 1e-6 * np.maximum(np.abs(x), np.append(lateral.SCALE, lateral.BANK_SCALE) * 1e-2)
+    # central differences of steps a millionth of each state's scale: rounding stays below 1e-8
+    eps = 1e-6 * np.maximum(np.abs(x), np.append(lateral.SCALE, lateral.BANK_SCALE))
     A = lateral.jac_f(x, u, k)
     NA = numjac(lambda xx: lateral.deriv(xx, u, k), x, eps)
     np.testing.assert_allclose(A, NA, rtol=1e-4, atol=1e-6 * np.abs(NA).max())
