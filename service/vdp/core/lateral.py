@@ -67,7 +67,7 @@ CONSIDER = L_F  # a state the filters never update (its prior uncertainty is con
 SCALE = np.array([0.5, 0.2, 0.005, 0.02, 5.0e4, 5.0e4, 2.0e3, 3.0e3, 0.01])
 # the road's bank, g sin(bank) [m/s^2]: the tenth state, only with the road modelled (module docstring)
 BANK = 9
-BANK_NAME, BANK_UNIT, BANK_SCALE = "g_sin_bank", "m/s^2", 0.3
+BANK_SCALE = 0.3  # m/s^2: the filters' scale of it (SCALE)
 
 # input columns; U_AY, the measured a_y, drives eq (9) (Known.roll_by_ay; a row may stop at U_AX)
 U_DELTA, U_VX, U_WF, U_AX, U_AY = range(5)
