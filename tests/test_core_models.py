@@ -133,6 +133,50 @@ def test_stage2_jacobians(vy, yaw, phi, phid, ca, split, iz, ix, l_f, d, vx, wf_
     np.testing.assert_allclose(lateral.jac_h(x, u5, by_ay), lateral.jac_h(x, u, K2))
 
 
+@settings(max_examples=40, deadline=None)
+@given(
+    vy=st.floats(-1, 1),
+    yaw=st.floats(-0.6, 0.6),
+    phid=st.floats(-0.1, 0.1),
+    ca=st.floats(2e4, 2e5),
+    split=st.floats(0.6, 1.6),
+    iz=st.floats(800, 5000),
+    l_f=st.floats(0.9, 1.6),
+    d=st.floats(-0.15, 0.15),
+    vx=st.floats(5, 30),
+    bank=st.floats(-0.6, 0.6),
+    by_ay=st.booleans(),
+)
+def test_stage2_jacobians_with_the_road_bank_as_a_tenth_state(vy, yaw, phid, ca, split, iz, l_f, d, vx, bank, by_ay):
+    """The bank (lateral.BANK, g sin(bank)) pulls v_y down the road, eq (5), and nothing else; the other
+    nine states' rows and columns are the nine-state model's, and so are its measurements."""
+    k = dataclasses.replace(K2, roll_by_ay=by_ay)
+    x9 = np.array([vy, yaw, 0.01, phid, ca, ca / split, iz, 1500.0, l_f])
+    x = np.append(x9, bank)
+    u = np.array([d, vx, vx * 1.01 / k.r, 0.5, 2.0 * d * vx])
+    # central differences of steps a millionth of each state's scale: rounding stays below 1e-8
+    eps = 1e-6 * np.maximum(np.abs(x), np.append(lateral.SCALE, lateral.BANK_SCALE))
+    A = lateral.jac_f(x, u, k)
+    NA = numjac(lambda xx: lateral.deriv(xx, u, k), x, eps)
+    np.testing.assert_allclose(A, NA, rtol=1e-4, atol=1e-6 * np.abs(NA).max())
+    H = lateral.jac_h(x, u, k)
+    np.testing.assert_allclose(H, numjac(lambda xx: lateral.hx(xx, u, k), x, eps), rtol=1e-4, atol=1e-8)
+    assert A[lateral.V_Y, lateral.BANK] == -1.0 and not np.delete(A[:, lateral.BANK], lateral.V_Y).any()
+    assert not A[lateral.BANK].any() and not H[:, lateral.BANK].any()
+    np.testing.assert_array_equal(A[:9, :9], lateral.jac_f(x9, u, k))
+    np.testing.assert_array_equal(H[:, :9], lateral.jac_h(x9, u, k))
+    # the derivative and the step: v_y alone moves with the bank; a bank of 0 is the nine-state model's, to the bit
+    f, f9 = lateral.deriv(x, u, k), lateral.deriv(x9, u, k)
+    assert f[lateral.V_Y] == pytest.approx(f9[lateral.V_Y] - bank) and f[lateral.BANK] == 0.0
+    np.testing.assert_array_equal(np.delete(f[:9], lateral.V_Y), np.delete(f9, lateral.V_Y))
+    x0 = np.append(x9, 0.0)
+    np.testing.assert_array_equal(lateral.fx(x0, 0.04, u, k)[:9], lateral.fx(x9, 0.04, u, k))
+    step = lateral.fx(x, 0.04, u, k)
+    assert step[lateral.BANK] == bank
+    dv = step[lateral.V_Y] - lateral.fx(x0, 0.04, u, k)[lateral.V_Y]  # down the bank, less what the tyres push back
+    assert dv * bank <= 0.0 and abs(dv) <= 0.04 * abs(bank) * (1.0 + 1e-9)
+
+
 def test_roll_driven_by_measured_ay():
     """Known.roll_by_ay: eq (9) takes the input's a_y where finite, the model's elsewhere (and
     without the flag); the step agrees with a fine RK4 reference driven the same way."""

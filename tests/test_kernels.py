@@ -30,7 +30,9 @@ MEAN_ROUNDING = 1e-10  # and the weighted mean rounds to ~3e4 x 2e-16 of the sta
 DRIVE_RTOL = 1e-7
 
 
-def _lat_pair(per_axle: bool, roll_by_ay: bool = False):
+def _lat_pair(per_axle: bool, roll_by_ay: bool = False, bank: bool = False):
+    """The numpy and the compiled UKF on stage 2's model; ``bank``: with the road's bank as a tenth
+    state (lateral.BANK, as LearnerConfig.bank gives it)."""
     k = lateral.Known(
         m=1600.0,
         L=2.7,
@@ -50,6 +52,13 @@ def _lat_pair(per_axle: bool, roll_by_ay: bool = False):
     Q = np.diag([1e-5, 4e-4, 1e-8, 2.5e-5, 1e-8, 1e-8, 1e-8, 1e-8, 0.0])
     R = np.diag([3e-6, 3e-6, 5e-3])
     scale = np.where(b.transformed, 1.0, lateral.SCALE)
+    if bank:
+        b = Bounds(lateral.BANK + 1, log=(lateral.C_F, lateral.C_R, lateral.I_Z, lateral.I_X))
+        x0, scale = np.append(x0, 0.2), np.append(scale, lateral.BANK_SCALE)
+        P0 = np.pad(P0, ((0, 1), (0, 1)))
+        P0[lateral.BANK, lateral.BANK] = 0.25
+        Q = np.pad(Q, ((0, 1), (0, 1)))
+        Q[lateral.BANK, lateral.BANK] = 0.0018
     fx = b.wrap_fx(lambda x, dt, u: lateral.fx(x, dt, u, k))
     hx = b.wrap_hx(lambda x, u: lateral.hx(x, u, k))
     ref = UKF(x0, P0, Q, R, scale, fx, hx, lateral.CONSIDER)
@@ -86,9 +95,13 @@ def _same(ref, fast):
     _sync(ref, fast)
 
 
-@pytest.mark.parametrize(("per_axle", "roll_by_ay"), [(False, False), (True, False), (True, True)])
-def test_stage2_steps_are_the_numpy_steps(per_axle, roll_by_ay):
-    ref, fast = _lat_pair(per_axle, roll_by_ay)
+@pytest.mark.parametrize(
+    ("per_axle", "roll_by_ay", "bank"),
+    [(False, False, False), (True, False, False), (True, True, False), (True, True, True)],
+)
+def test_stage2_steps_are_the_numpy_steps(per_axle, roll_by_ay, bank):
+    ref, fast = _lat_pair(per_axle, roll_by_ay, bank)
+    assert len(fast.x) == (10 if bank else 9)  # the compiled steps size the state by its array
     rng = np.random.default_rng(3)
     for i in range(40):
         # inputs sampled over the step (steering ramp, speed, front wheel speed, a_x, a_y), as Stage2 passes them
@@ -230,19 +243,23 @@ def drive(repo_root):
     return prof, list(frames)
 
 
-def _estimates(prof, frames, compiled: bool):
-    pipe = Pipeline(prof, EstimatorConfig(baseline=False, learner=LearnerConfig(compiled=compiled)))
+def _estimates(prof, frames, compiled: bool, bank: bool = False):
+    pipe = Pipeline(prof, EstimatorConfig(baseline=False, learner=LearnerConfig(compiled=compiled, bank=bank)))
     for m in frames:
         pipe.feed(m)
     l1, l2 = pipe.estimator.s1["ukf"], pipe.estimator.s2["ukf"]
     return pipe.result(), l1, l2
 
 
-def test_a_drive_gives_the_same_estimates_compiled_or_not(drive):
+@pytest.mark.parametrize("bank", [False, True])
+def test_a_drive_gives_the_same_estimates_compiled_or_not(drive, bank):
+    """Also with stage 2's tenth state, the road's bank (LearnerConfig.bank; here without the road's
+    tilt, so that the drive takes the block pass and core.kernels.lat_run steps ten states)."""
     prof, frames = drive
-    ref, r1, r2 = _estimates(prof, frames, compiled=False)
-    fast, f1, f2 = _estimates(prof, frames, compiled=True)
+    ref, r1, r2 = _estimates(prof, frames, compiled=False, bank=bank)
+    fast, f1, f2 = _estimates(prof, frames, compiled=True, bank=bank)
     assert type(f1.filter).__name__ == "LongitudinalUKF" and type(r1.filter).__name__ == "UKF"
+    assert f2._n == r2._n == (10 if bank else 9)
     assert f2.updates > 1000 and f2.updates == r2.updates  # stage 2 ran, step for step
     assert f1.reseeds == r1.reseeds and f1.gated == r1.gated and len(f1._blocks) == len(r1._blocks)
     for name, e in ref.parameters.items():

@@ -71,7 +71,8 @@ def add_parser(sub):
     p.add_argument(
         "--road",
         action="store_true",
-        help="model the road's grade and the IMU's tilt with the body (a body-fixed IMU; issue 28)",
+        help="model the road's grade, its bank (a state of stage 2) and the IMU's tilt with the body "
+        "(a body-fixed IMU; issue 28)",
     )
     p.add_argument(
         "--after",

@@ -107,7 +107,9 @@ class TwoStageEstimator:
         self.priors = priors
         self.cfg = cfg or EstimatorConfig()
         kinds = ("ukf", "ekf") if self.cfg.baseline else ("ukf",)
-        lcfg = replace(self.cfg.learner, tick=self.cfg.tick)
+        # with the road modelled, stage 2 carries its bank as a state (LearnerConfig.bank, core.lateral.BANK)
+        road = self.cfg.road
+        lcfg = replace(self.cfg.learner, tick=self.cfg.tick, bank=self.cfg.learner.bank or (road.on and road.bank))
         self.s1 = {k: Stage1(k, vehicle, priors, lcfg) for k in kinds}
         self.s2 = {k: Stage2(k, vehicle, priors, lcfg) for k in kinds}
         # with the free-rolling axle as the speed reference, no stage waits for a GNSS speed

@@ -2,7 +2,7 @@
 
 Filter state (SI units)::
 
-    x = [v_y, yaw_rate, phi, phi_dot, C_alpha_f, C_alpha_r, I_z, I_x, l_f]
+    x = [v_y, yaw_rate, phi, phi_dot, C_alpha_f, C_alpha_r, I_z, I_x, l_f(, g_sin_bank)]
 
 v_y and the roll angle phi have no sensor on a production car, so they are
 filter states estimated jointly with the parameters (NOTES item 13; the
@@ -12,6 +12,13 @@ paper's "future work").  Inputs ``u`` (columns below) and measurements
 C_alpha_f and C_alpha_r are the front and the rear axle's cornering stiffness
 (eq 11b per axle): a real car's differ, and their ratio sets its understeer,
 which one C_alpha for both cannot fit.  Their mean is the paper's single C_alpha.
+
+With the road modelled (``vdp replay --road``: LearnerConfig.bank) a tenth state, ``BANK``, is
+the road's bank as gravity's pull down it, g sin(bank) [m/s^2], a random walk: on a banked road
+the accelerometer (road axes) reads the tyres' force, which holds the car against that pull,
+while v_y does not turn with it, so eq (5) is v_y_dot = a_y - v_x r - g sin(bank)
+(docs/decisions/0025).  Every function here takes a state of nine or of ten (sized by the
+state it is given); with nine the numbers are those of the model without the bank, to the bit.
 
 l_f is stage 1's estimate, carried as a *consider* state (Schmidt): the filter
 never updates it, but its stage-1 uncertainty flows into C_alpha and I_z
@@ -58,6 +65,9 @@ STATE_UNITS = ("m/s", "rad/s", "rad", "rad/s", "N/rad", "N/rad", "kg*m^2", "kg*m
 PARAM_SLICE = slice(4, 8)
 CONSIDER = L_F  # a state the filters never update (its prior uncertainty is considered)
 SCALE = np.array([0.5, 0.2, 0.005, 0.02, 5.0e4, 5.0e4, 2.0e3, 3.0e3, 0.01])
+# the road's bank, g sin(bank) [m/s^2]: the tenth state, only with the road modelled (module docstring)
+BANK = 9
+BANK_SCALE = 0.3  # m/s^2: the filters' scale of it (SCALE)
 
 # input columns; U_AY, the measured a_y, drives eq (9) (Known.roll_by_ay; a row may stop at U_AX)
 U_DELTA, U_VX, U_WF, U_AX, U_AY = range(5)
@@ -149,8 +159,14 @@ def _rates(v_y, yaw, c_f, c_r, i_z, pre, geo, k: Known, clamp=np.maximum):
     return a_y - v_x * yaw, (l_f * y_f - l_r * f_yr) / i_z, a_y, y_f, f_yr  # eqs (5), (8), (10)
 
 
+def _bank(x):
+    """The bank state g sin(bank) of a state or of each sigma point; 0.0 for a state of nine."""
+    return x[..., BANK] if np.shape(x)[-1] > BANK else 0.0
+
+
 def _unpack(x, tied: bool = False):
-    """(v_y, yaw, phi, phi_dot, C_alpha_f, C_alpha_r, I_z, I_x, l_f, clamp), the parameters floored.
+    """(v_y, yaw, phi, phi_dot, C_alpha_f, C_alpha_r, I_z, I_x, l_f, clamp), the parameters floored
+    (the bank, a tenth state, is read apart: :func:`_bank`).
 
     Plain floats and the builtin max for one state (the EKF's: numpy's per-call cost
     would dominate), arrays and np.maximum for many (the UKF's sigma points).
@@ -158,7 +174,7 @@ def _unpack(x, tied: bool = False):
     """
     r = C_F if tied else C_R
     if np.ndim(x) == 1:
-        v_y, yaw, phi, phi_d, c_f, c_r, i_z, i_x, l_f = np.asarray(x, dtype=float).tolist()
+        v_y, yaw, phi, phi_d, c_f, c_r, i_z, i_x, l_f = np.asarray(x, dtype=float).tolist()[:9]
         c_r = c_f if tied else c_r
         fl = _FLOOR
         return v_y, yaw, phi, phi_d, max(c_f, fl[0]), max(c_r, fl[1]), max(i_z, fl[2]), max(i_x, fl[3]), l_f, max
@@ -220,7 +236,7 @@ def deriv(x, u, k: Known):
     if m is not None:
         a_y = np.where(np.isfinite(m), m, a_y) if np.ndim(m) else m
     out = np.zeros(np.shape(x))
-    out[..., V_Y] = vy_d
+    out[..., V_Y] = vy_d - _bank(x)  # eq (5) with the road's bank (0 without the state)
     out[..., YAW] = yaw_d
     out[..., PHI] = phi_d
     out[..., PHI_D] = (k.m * k.h * (a_y + k.g * phi) - k.k_phi * phi - k.c_phi * phi_d) / i_x  # eq (9)
@@ -311,6 +327,9 @@ def fx(x, dt, u, k: Known, substeps: int | None = None):
     x = np.array(x, dtype=float, copy=True)
     h = dt / substeps
     v_y, yaw, phi, phi_d, c_f, c_r, i_z, i_x, l_f, clamp = _unpack(x, not k.per_axle)
+    bank = _bank(x)  # eq (5)'s g sin(bank), constant over the step (a random walk); 0.0: none
+    if np.ndim(bank) == 0:
+        bank = float(bank)
     geo = _geometry(l_f, k)
     (t11, t12, t21, t22), (p1, p2), (q1, q2) = _roll_map(i_x, h, k)
     # per-step input constants at every start, mid and end point, as plain floats
@@ -321,13 +340,13 @@ def fx(x, dt, u, k: Known, substeps: int | None = None):
     ays = None if ays is None else [a if math.isfinite(a) else None for a in ays[0::2].tolist()]
     start = _rates(v_y, yaw, c_f, c_r, i_z, pres[0], geo, k, clamp)
     for i in range(substeps):
-        vy_d, yaw_d, a0 = start[0], start[1], start[2]
+        vy_d, yaw_d, a0 = start[0] - bank, start[1], start[2]  # (x - 0.0 is x, to the bit)
         if ays is not None and ays[i] is not None:
             a0 = ays[i]
         vy_d1, yaw_d1, _, _, _ = _rates(
             v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_f, c_r, i_z, pres[2 * i + 1], geo, k, clamp
         )
-        v_y = v_y + h * vy_d1
+        v_y = v_y + h * (vy_d1 - bank)
         yaw = yaw + h * yaw_d1
         start = _rates(v_y, yaw, c_f, c_r, i_z, pres[2 * i + 2], geo, k, clamp)
         a1 = start[2] if ays is None or ays[i + 1] is None else ays[i + 1]
@@ -356,13 +375,14 @@ def _dforces(x, u, k: Known):
     v_w = v_x * cd + (v_y + l_f * yaw) * sd
     # d F_xf / d v_w through s_f = omega r / v_w - 1 (zero where v_w is clamped)
     dfx_dvw = -ck_fz * w_r / v_w**2 if v_w > V_MIN else 0.0
-    dyf = np.zeros(N_X)
+    n = len(x)
+    dyf = np.zeros(n)
     dyf[V_Y] = dfx_dvw * sd * sd + c_f * (-1.0 / v_x) * cd  # d Y_f / d p, p = v_y + l_f r
     dyf[YAW] = l_f * dyf[V_Y]
     dyf[C_F] = alpha_f * cd if x[C_F] > PARAM_FLOOR[0] else 0.0
     # l_f moves p and, through the front load (eq 3a), C_sigma
     dyf[L_F] = yaw * dyf[V_Y] - k.ck_slope * sd * (w_r / max(v_w, V_MIN) - 1.0)
-    dfr = np.zeros(N_X)
+    dfr = np.zeros(n)
     dfr[V_Y] = -c_r / v_x
     dfr[YAW] = c_r * l_r / v_x
     rear = C_R if k.per_axle else C_F  # the state the rear axle's stiffness is
@@ -381,9 +401,11 @@ def jac_f(x, u, k: Known):
     y_f, f_yr, _ = forces(x, u, k)
     i_z, i_x = max(x[I_Z], PARAM_FLOOR[2]), max(x[I_X], PARAM_FLOOR[3])
     l_f = x[L_F]
-    A = np.zeros((N_X, N_X))
+    A = np.zeros((len(x), len(x)))
     A[V_Y] = day
     A[V_Y, YAW] -= v_x
+    if len(x) > BANK:
+        A[V_Y, BANK] = -1.0  # eq (5): the bank's pull on v_y
     A[YAW] = (l_f * dyf - (k.L - l_f) * dfr) / i_z
     A[YAW, L_F] += (y_f + f_yr) / i_z  # the moment arms, eq (10)
     if x[I_Z] > PARAM_FLOOR[2]:
@@ -401,7 +423,7 @@ def jac_f(x, u, k: Known):
 def jac_h(x, u, k: Known):
     """H = d hx / d x, analytic."""
     dyf, dfr = _dforces(np.asarray(x, dtype=float), u, k)
-    H = np.zeros((3, N_X))
+    H = np.zeros((3, np.shape(x)[-1]))
     H[Z_YAW, YAW] = 1.0
     H[Z_ROLL, PHI_D] = 1.0
     H[Z_AY] = (dyf + dfr) / k.m

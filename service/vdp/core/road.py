@@ -70,6 +70,7 @@ class RoadConfig:
     on: bool = False  # off: today's estimates, to the bit
     body_imu: bool = True  # take the body's roll out of a_y (a road-aligned IMU: False)
     speed_walk: float = GRADE_BIAS_WALK  # the speed filter's a_x offset walk [m/s^2 per sqrt(s)]
+    bank: bool = True  # stage 2 estimates the road's bank as a state (LearnerConfig.bank; docs/decisions/0025)
 
 
 @dataclass

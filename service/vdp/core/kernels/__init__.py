@@ -8,9 +8,10 @@ with compiled steps), ``scan`` (stage 2's output-error pass).  core.warm compile
 Also stage 2's output-error pass (``oe_states``: core.output_error.Problem's prefix scan as
 one loop over the rows, the same products associated left to right).
 
-The UKF's arrays are tiny (stage 2: 19 sigma points of 9 states; stage 1: 15 of 7), so
-the numpy path (core.filters with core.lateral / core.longitudinal) spends its time in
-the per-call overhead of ~100 array operations per step, not in arithmetic.  Here one
+The UKF's arrays are tiny (stage 2: 19 sigma points of 9 states, 21 of 10 with the road's
+bank; stage 1: 15 of 7), so the numpy path (core.filters with core.lateral /
+core.longitudinal) spends its time in the per-call overhead of ~100 array operations per
+step, not in arithmetic.  Here one
 compiled call does a whole predict or update: the sigma points, the bounded transform
 (core.bounds), the model on each point, the unscented transform and the gain.
 

@@ -53,9 +53,11 @@ def _lat_params(x, k):
 
 @_jit
 def _lat_fx(x, dt, g, n, k):
-    """lateral.fx of one SI state on the input constants ``g`` of n sub-steps (in place)."""
+    """lateral.fx of one SI state on the input constants ``g`` of n sub-steps (in place); a state of
+    ten carries the road's bank (lateral.BANK: eq 5's g sin(bank), held over the step)."""
     h = dt / n
     v_y, yaw, phi, phi_d = x[lateral.V_Y], x[lateral.YAW], x[lateral.PHI], x[lateral.PHI_D]
+    bank = x[lateral.BANK] if x.shape[0] > lateral.BANK else 0.0  # (x - 0.0 is x, to the bit)
     c_f, c_r, i_z, i_x = _lat_params(x, k)
     geo = _geometry(x[lateral.L_F], k)
     T, p, q = _roll_map(i_x, h, k)
@@ -64,11 +66,11 @@ def _lat_fx(x, dt, g, n, k):
     q1, q2 = q
     start = _rates(v_y, yaw, c_f, c_r, i_z, _row(g, 0), geo, k, _max)
     for i in range(n):
-        vy_d, yaw_d, a0 = start[0], start[1], start[2]
+        vy_d, yaw_d, a0 = start[0] - bank, start[1], start[2]
         if math.isfinite(g[2 * i, 6]):  # eq (9) driven by the measured a_y (lateral.fx's ``ays``)
             a0 = g[2 * i, 6]
         mid = _rates(v_y + h / 2 * vy_d, yaw + h / 2 * yaw_d, c_f, c_r, i_z, _row(g, 2 * i + 1), geo, k, _max)
-        v_y = v_y + h * mid[0]
+        v_y = v_y + h * (mid[0] - bank)
         yaw = yaw + h * mid[1]
         start = _rates(v_y, yaw, c_f, c_r, i_z, _row(g, 2 * i + 2), geo, k, _max)
         a1 = start[2] if not math.isfinite(g[2 * i + 2, 6]) else g[2 * i + 2, 6]

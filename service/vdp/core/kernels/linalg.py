@@ -1,5 +1,5 @@
 """The UKF's linear algebra (core.filters.UKF), compiled: Cholesky, sigma points, the
-unscented transform, the gain step.  Loops, not BLAS: the matrices are at most 9 x 9.
+unscented transform, the gain step.  Loops, not BLAS: the matrices are at most 10 x 10.
 """
 
 from __future__ import annotations

@@ -57,6 +57,9 @@ class LearnerConfig:
     # Stage 2's batch check (core.output_error): C_alpha's and I_z's stds widen where an output-error
     # fit of the windows disagrees with the filter or with itself (off: the filter's own stds)
     batch_check: bool = True
+    # Stage 2 carries the road's bank as a tenth state (lateral.BANK; on with the road modelled,
+    # RoadConfig.bank: the estimator sets it); off: nine states, today's numbers to the bit
+    bank: bool = False
     # Stage 1 reads C_K as the small-slip (initial) stiffness of a tyre law that bends
     # (core.longitudinal), so it takes only blocks where both axles use at most this share of
     # their load (|F_x| / F_z): beyond it the law's third-order series leaves the brush curve
@@ -310,7 +313,7 @@ class StageLearner:
         d = b.grad(t0)
         P0 = np.asarray(P0, dtype=float) / np.outer(d, d)
         Q = self._q_rate() / np.outer(d, d)  # the walk stated in SI, at the start's slope
-        scale = np.where(b.transformed, 1.0, m.SCALE)
+        scale = np.where(b.transformed, 1.0, self._scale())
         fx, hx = b.wrap_fx(self._fx), b.wrap_hx(self._hx)
         if self.kind == "ukf":
             cls = kernel(self.compiled_ukf) if self.cfg.compiled and self.compiled_ukf else None
@@ -319,6 +322,10 @@ class StageLearner:
             return UKF(t0, P0, Q, R, scale, fx, hx, m.CONSIDER)
         jf, jh = b.wrap_jac_f(self._jac_f), b.wrap_jac_h(self._jac_h)
         return EKF(t0, P0, Q, R, scale, fx, hx, jf, jh, m.CONSIDER)
+
+    def _scale(self) -> np.ndarray:
+        """The filter's scale per state (core.filters), of the untransformed states."""
+        return self.model.SCALE
 
     def _param_q(self) -> np.ndarray:
         return (self.cfg.param_walk * self.prior_std) ** 2

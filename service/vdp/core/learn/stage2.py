@@ -62,6 +62,9 @@ class Stage2(AxleSplit, StageLearner):
         # the batch check: windows' samples and their output-error fit
         self.check = output_error.Check(compiled=self.cfg.compiled, executor=self.cfg.check_executor)
         super().reset()
+        if self.cfg.bank:  # the road's bank, a tenth state (lateral.BANK)
+            self._n = lateral.BANK + 1
+            self.bounds = self._bounds()
         P = self.theta_P
         self.prior_diff_std = math.sqrt(P[0, 0] + P[1, 1] - 2.0 * P[0, 1])  # of C_alpha_f - C_alpha_r
         # the split starts held (SPLIT_HELD) when it comes from the C_alpha prior, not the profile's per-axle priors
@@ -113,6 +116,8 @@ class Stage2(AxleSplit, StageLearner):
         P0[self._p, self._p] = self.theta_P
         sd, c = self.l_f_std, lateral.L_F
         P0[c, c] = sd * sd
+        if self._n > lateral.BANK:
+            P0[lateral.BANK, lateral.BANK] = tuning.BANK_STD**2
         if self.cross is not None:
             # correlation kept, scaled to stage 1's std now (a congruence: stays positive definite)
             cov, sd_then = self.cross
@@ -274,9 +279,19 @@ class Stage2(AxleSplit, StageLearner):
         return _verdict(self.total, "innovations", "a_y innovations", "model mismatch")
 
     def _bounds(self) -> Bounds:
-        return Bounds(
-            lateral.N_X, log=(lateral.C_F, lateral.C_R, lateral.I_Z, lateral.I_X)
-        )  # stiffnesses, inertias > 0
+        return Bounds(self._n, log=(lateral.C_F, lateral.C_R, lateral.I_Z, lateral.I_X))  # stiffnesses, inertias > 0
+
+    def _scale(self) -> np.ndarray:
+        s = lateral.SCALE
+        return np.append(s, lateral.BANK_SCALE) if self._n > lateral.BANK else s
+
+    def bank(self) -> tuple[float, float] | None:
+        """The open window's road bank, g sin(bank) [m/s^2], and its std; None without the state or
+        a window (lateral.BANK; LearnerConfig.bank)."""
+        if self.filter is None or self._n <= lateral.BANK:
+            return None
+        x, P = self.filter_state()
+        return float(x[lateral.BANK]), math.sqrt(max(float(P[lateral.BANK, lateral.BANK]), 0.0))
 
     def _fx(self, x, dt, u):
         return lateral.fx(x, dt, u, self.known)
@@ -299,7 +314,8 @@ class Stage2(AxleSplit, StageLearner):
             n = self.cfg.noise
             i_x = max(float(self.theta[self.keys.index("I_x")]), lateral.PARAM_FLOOR[3])
             dyn[3] += (k.m * k.h * n.accel * n.inflate / i_x) ** 2 * self.cfg.tick
-        return np.diag(np.concatenate([dyn, self._param_q(), [0.0]]))  # l_f: constant
+        bank = [tuning.BANK_Q] if self._n > lateral.BANK else []  # the road's bank: a random walk
+        return np.diag(np.concatenate([dyn, self._param_q(), [0.0], bank]))  # l_f: constant
 
     def _R(self):
         n = self.cfg.noise
@@ -376,10 +392,10 @@ class Stage2(AxleSplit, StageLearner):
         c_r = max(self.theta[rear - lateral.C_F], lateral.PARAM_FLOOR[1])
         g = k.m * a_y * l_f * v_x / k.L
         v_y = (k.L - l_f) * yaw - g / c_r
-        x0 = np.concatenate([[v_y, yaw, phi, roll_rate], self.theta, [l_f]])
+        x0 = np.concatenate([[v_y, yaw, phi, roll_rate], self.theta, [l_f], [0.0] * (self._n - lateral.BANK)])
         P0 = self._initial_cov()
         dv_dc = g / (c_r * c_r)  # d v_y / d C_alpha_r
-        rest = slice(lateral.C_F, self._n)  # the parameters and the considered l_f
+        rest = slice(lateral.C_F, lateral.L_F + 1)  # the parameters and the considered l_f
         P0[lateral.V_Y, rest] = P0[rest, lateral.V_Y] = dv_dc * P0[rear, rest]
         P0[lateral.V_Y, lateral.V_Y] = tuning.V_Y_START_STD**2 + dv_dc**2 * P0[rear, rear]
         return x0, P0

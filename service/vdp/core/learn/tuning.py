@@ -30,6 +30,13 @@ SETTLED_YAW_ACC: Final[float] = 0.15  # rad/s^2
 SETTLED_STEER_RATE: Final[float] = math.radians(3.0)  # rad/s of road-wheel angle
 # m/s: the steady-state start's own error (transients, slopes), beside C_alpha's share
 V_Y_START_STD: Final[float] = 0.05
+# The road's bank as stage 2's tenth state (lateral.BANK, g sin(bank), only with the road modelled:
+# LearnerConfig.bank), a random walk from 0 at each window's start.  The prior's std covers a
+# bank of 3 deg (0.51 m/s^2).  The walk: 0.0018 (m/s^2)^2/s (0.3 m/s^2 in 50 s) tracked the
+# hills' and bank's 450-m sine to 0.02-0.04 m/s^2 and cost nothing on a flat road; ten times
+# that cost C_alpha 1-3 % on the flat (docs/decisions/0023, 0025).
+BANK_STD: Final[float] = 0.5  # m/s^2
+BANK_Q: Final[float] = 0.0018  # (m/s^2)^2 per s
 # Model mismatch (docs/decisions/0006): on vdp's own simulator, whose model
 # is the estimator's, stage 2's NIS per row is about 0.18 and both lag-1 autocorrelations
 # about 0; on the independent models they reached 1.2 and 0.65.  Beyond these the model
