@@ -43,6 +43,22 @@ def test_per_axle_reaches_the_live_estimator(tmp_path):
     assert all(l2.cfg.per_axle for l2 in svc.estimation.pipeline.estimator.s2.values())
 
 
+def test_road_reaches_the_live_estimator(tmp_path):
+    """``[service] road = true`` models the road as ``vdp replay --road`` does: the grade and the IMU's
+    tilt (core.road.Tilt) and the bank as stage 2's tenth state; off by default, nine states."""
+    from vdp.core import lateral
+    from vdp.live.service import Service
+
+    prof = f'profile = "{ROOT / "profiles" / "paper.toml"}"\n'
+    off = Service(load_settings(write(tmp_path, prof))).estimation.pipeline.estimator
+    assert off.tilt is None and not off.s2["ukf"].cfg.bank
+    s = load_settings(write(tmp_path, prof + "[service]\nroad = true\n"))
+    assert s.service.road is True
+    est = Service(s).estimation.pipeline.estimator  # built, not started
+    assert est.tilt is not None and est.cfg.road.on and est.s2["ukf"].cfg.bank
+    assert lateral.BANK == lateral.N_X  # the tenth state follows the nine
+
+
 @pytest.mark.parametrize(
     "text, match",
     [
@@ -56,6 +72,7 @@ def test_per_axle_reaches_the_live_estimator(tmp_path):
         ('profile = "p.toml"\n[store]\nsynchronous = "off"\n', "'synchronous'"),
         ('profile = "p.toml"\n[service]\nreconnect_max = 0.1\n', "'reconnect_max'"),
         ('profile = "p.toml"\n[service]\nper_axle = "yes"\n', "'per_axle'"),
+        ('profile = "p.toml"\n[service]\nroad = 1\n', "'road'"),
         ('profile = "p.toml"\n[bus.kwargs]\nchannel = "x"\n', r"\[bus.kwargs\]"),
         ('profile = "p.toml"\n[mystery]\n', "unknown section"),
         ('profile = "p.toml"\nbus = 3\n', r"\[bus\]: must be a table"),

@@ -99,6 +99,9 @@ class ServiceSettings:
     # learn the mass as driven (core.mass): published beside the six and put into C_K, C_alpha and I_z,
     # as vdp replay --mass does; off, /estimates says the mass is not estimated and the profile's is used
     mass: bool = False
+    # model the road's grade and bank and the IMU's tilt with the body (core.road; the bank a state of
+    # stage 2, docs/decisions/0025), as vdp replay --road does: for a car driven on hills and banked roads
+    road: bool = False
 
 
 @dataclass(frozen=True)

@@ -70,7 +70,9 @@ class Service:
         # Stage 2's batch check solves in a background thread: numpy's ~20 s for a full record of a
         # bending tyre would stop this worker, whose queue holds ~8 s of a saturated bus.
         self.checks = CheckThread()
-        cfg = self.estimator_config(settings.service.per_axle, self.checks, mass=settings.service.mass)
+        cfg = self.estimator_config(
+            settings.service.per_axle, self.checks, mass=settings.service.mass, road=settings.service.road
+        )
         pipe = pipeline if pipeline is not None else Pipeline(self.profile, cfg)
         self.estimation = Estimation(
             pipe, self.ingest.queue, settings.service.publish_interval, channel=self.ingest.channel
@@ -91,19 +93,23 @@ class Service:
         self.running = False
 
     @staticmethod
-    def estimator_config(per_axle: bool, checks, mass: bool = False):
+    def estimator_config(per_axle: bool, checks, mass: bool = False, road: bool = False):
         """The live pipeline's estimator settings (``checks``: the executor of stage 2's batch checks;
-        ``mass``: learn the mass and scale the six with it, ``[service] mass``)."""
+        ``mass``: learn the mass and scale the six with it, ``[service] mass``; ``road``: the road's grade
+        and bank and the IMU's tilt modelled, ``[service] road``, as ``vdp replay --road``)."""
         from ..core.estimator import EstimatorConfig
         from ..core.learner import LearnerConfig
         from ..core.mass import MassConfig
+        from ..core.road import RoadConfig
 
         # The live trace only backs plots of recent data; history lives in the store.
         # numpy's filter steps, not the compiled ones (core.kernels): a live bus brings 50 samples/s,
         # which they keep up with at a few per cent of a core, and numba's LLVM would add ~120 MB
         # to the service's RSS (docs/decisions/0012, 0002; tests/test_live_pieces.py checks it never loads).
         learner = LearnerConfig(per_axle=per_axle, compiled=False, check_executor=checks)
-        return EstimatorConfig(trace_len=600, learner=learner, mass=MassConfig(report=mass, use=mass))
+        return EstimatorConfig(
+            trace_len=600, learner=learner, mass=MassConfig(report=mass, use=mass), road=RoadConfig(on=road)
+        )
 
     # the pieces' parts that callers and tests reach for
     pipeline = property(lambda self: self.estimation.pipeline)
