@@ -57,7 +57,8 @@ def linger_for(rcvbuf: int | None, floor: float = LINGER) -> float:
     """The receive thread's sleep after a block, for a socket of ``rcvbuf`` bytes (``SO_RCVBUF``, as
     Linux reports it): ``floor``, up to :data:`LINGER_MAX` where the buffer holds 8 times as long a
     saturated bus.  Fewer, larger blocks cost less CPU (each wakes the estimation thread too): with
-    a 4 MiB buffer, 25 ms instead of 10 took receive + raw logging from ~6.4 to ~5.6 % of a core
+    a 4 MiB buffer, 25 ms instead of 10 took receive + raw logging from ~6.4 to ~5.6 % of a core, and
+    50 ms instead of 25 took ~10 % off the receive thread's CPU and ~15 % off estimation's
     (docs/decisions/0020); a default 208 KiB buffer (~50 ms of a saturated bus) keeps ``floor``."""
     if not rcvbuf or rcvbuf <= 0:
         return floor
