@@ -9,8 +9,8 @@
   namespace (``unshare -n``: nothing leaves the machine), so the service
   process's CPU is the service's alone;
 - CPU per thread from ``time.pthread_getcpuclockid``, RSS from /proc/self/status;
-- uvicorn serving the app on 127.0.0.1 in a thread of the service process, as
-  ``vdp serve`` does.
+- ``vdp serve``'s own uvicorn server (``vdp.cli.serve.build_server``) serving the app on
+  127.0.0.1 in a thread of the service process, as ``vdp serve`` does.
 """
 
 from __future__ import annotations
@@ -243,18 +243,15 @@ def drain(svc, sent: int, limit: float = 60.0) -> None:
 
 
 class ApiServer:
-    """uvicorn serving the app on 127.0.0.1 (a free port) in a thread, as `vdp serve` does."""
+    """`vdp serve`'s own uvicorn server (its host guard and guarded HTTP protocol: ``build_server``)
+    serving the app on 127.0.0.1 (a free port) in a thread, as `vdp serve` does."""
 
     def __init__(self, settings, service):
-        import uvicorn
-
-        from vdp.api import create_app
-        from vdp.cli.serve import _bind
+        from vdp.cli.serve import _bind, build_server
 
         self.sock = _bind("127.0.0.1", 0)  # the very socket `vdp serve` listens on
         self.port = self.sock.getsockname()[1]
-        config = uvicorn.Config(create_app(settings, service), log_level="warning", access_log=False, lifespan="on")
-        self.server = uvicorn.Server(config)
+        self.server = build_server(settings, service)
         self.thread = threading.Thread(
             target=self.server.run, kwargs={"sockets": [self.sock]}, name="uvicorn", daemon=True
         )

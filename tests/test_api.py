@@ -247,7 +247,8 @@ def test_app_factory_builds_its_service_in_the_lifespan(tmp_path, monkeypatch):
 
 
 def test_estimates_answered_before_fastapi_are_the_routes_own_answer(running):
-    """GET /estimates skips FastAPI's routing (routes.Snapshot): the same bytes and headers as the route."""
+    """GET /estimates skips FastAPI's middleware and routing (routes.answer_estimates): the same bytes and headers
+    as the route."""
     import asyncio
 
     from vdp.api import routes

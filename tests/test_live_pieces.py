@@ -332,3 +332,42 @@ def test_a_silence_of_the_bus_runs_the_gap_hook_before_the_first_frame_after_it(
         (4600.2, 9000.0),
         (9001.0, 20000.0),
     ]
+
+
+def test_a_block_is_fed_and_counted_as_frame_by_frame(paper):
+    """Estimation._feed_block (a block of standard-id data frames is counted by id in C, other blocks frame
+    by frame) decodes and counts what Pipeline.feed of each frame does: decoded, unknown ids and their order."""
+    import itertools
+
+    from vdp.live.reader import ERR, EXT, TX, frame_of
+    from vdp.pipeline import Pipeline
+    from vdp.sim.run import Simulation
+
+    sim = Simulation(paper, "paper", 1, "realistic", extra_ids=12, extra_rate=100.0, start_time=1000.0)
+    msgs = list(itertools.islice(sim.frames(), 600))
+    msgs.append(
+        can.Message(timestamp=msgs[-1].timestamp + 0.001, arbitration_id=0x18DAF110, data=bytes(8), is_extended_id=True)
+    )
+    msgs.append(
+        can.Message(
+            timestamp=msgs[-1].timestamp + 0.001,
+            arbitration_id=0x4,
+            data=bytes(8),
+            is_extended_id=False,
+            is_error_frame=True,
+        )
+    )
+    one = Pipeline(paper)
+    for m in msgs:
+        one.feed(m)
+    blocks = Pipeline(paper)
+    est = Estimation(blocks, queue.Queue(), 1.0, channel="can0")
+    recs = [(f[0], f[1], f[2] & ~TX, f[3], None) for f in map(frame_of, msgs)]  # as read from a socket
+    plain, mixed = recs[:300], recs[300:]  # a block of plain frames, and one with an extended id and an error frame
+    assert not any(f[2] for f in plain) and {f[2] & (EXT | ERR) for f in mixed} == {0, EXT, ERR}
+    est._feed_block(plain)
+    est._feed_block(mixed)
+    a, b = one.decoder.stats.as_dict(top=100), blocks.decoder.stats.as_dict(top=100)
+    assert a == b and a["decoded"] > 0 and a["unknown_distinct"] == 13
+    assert list(one.decoder.stats.unknown) == list(blocks.decoder.stats.unknown)
+    assert est.fed == len(msgs) and blocks.samples == one.samples

@@ -57,6 +57,15 @@ async def _sqlite_error(request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse({"detail": f"the estimate store failed ({exc}); see /health"}, status_code=503)
 
 
+class _App(FastAPI):
+    """FastAPI, but ``GET /estimates`` is answered from the published snapshot before the middleware
+    stack (routes.answer_estimates); a server's HostGuard still comes first (vdp serve)."""
+
+    async def __call__(self, scope, receive, send) -> None:
+        if not await routes.answer_estimates(self, scope, send):
+            await super().__call__(scope, receive, send)
+
+
 def create_app(
     settings: Settings | str | Path, service: live.Service | None = None, max_requests: int = 1024
 ) -> FastAPI:
@@ -79,7 +88,7 @@ def create_app(
                 app.state.service.stop()
                 app.state.service = None
 
-    app = FastAPI(
+    app = _App(
         title="vdp",
         version=__version__,
         lifespan=lifespan,
@@ -92,7 +101,6 @@ def create_app(
     app.state.service = service
     app.add_exception_handler(VdpError, _vdp_error)
     app.add_exception_handler(sqlite3.Error, _sqlite_error)
-    app.add_middleware(routes.Snapshot)  # GET /estimates without FastAPI's routing (inside the gate)
     # outermost: token and size are checked before anything reads the body
     app.add_middleware(Gate, settings=settings, max_requests=max(1, max_requests))
     dashboard.install(app)

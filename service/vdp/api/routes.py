@@ -48,25 +48,28 @@ def _estimates_body(svc) -> bytes:
     return _cached["body"]
 
 
-class Snapshot:
-    """ASGI middleware (inside the gate): ``GET /estimates`` answered with :func:`_estimates_body`, the
-    very bytes and headers the route answers, without FastAPI's routing and dependency solving, which
-    cost far more CPU than handing over the cached body (a client polling at 50 req/s:
-    docs/decisions/0020).  Anything else, and a service not there yet, goes on to FastAPI."""
+_HEAD = [(b"content-type", b"application/json")]
+_BODY = (b"content-length", b"transfer-encoding")
 
-    def __init__(self, app):
-        self.app = app
 
-    async def __call__(self, scope, receive, send):
-        if scope["type"] == "http" and scope["path"] == "/estimates" and scope["method"] == "GET":
-            svc = getattr(scope["app"].state, "service", None)
-            if svc is not None:
-                body = _estimates_body(svc)
-                head = [(b"content-length", str(len(body)).encode()), (b"content-type", b"application/json")]
-                await send({"type": "http.response.start", "status": 200, "headers": head})
-                await send({"type": "http.response.body", "body": body})
-                return
-        await self.app(scope, receive, send)
+async def answer_estimates(app, scope, send) -> bool:
+    """``GET /estimates`` (without a body) answered with :func:`_estimates_body`, the very bytes and headers
+    the route answers; False (nothing sent) for anything else, and for a service not there yet.  Like
+    ``GET /health`` it is never refused as busy: it is answered at once, from memory.  Called by the
+    app itself before Starlette's middleware stack, FastAPI's routing and dependency solving, which cost
+    far more CPU than handing over the cached body (a client polling at 50 req/s: docs/decisions/0020)."""
+    if scope["type"] != "http" or scope["path"] != "/estimates" or scope["method"] != "GET":
+        return False
+    if any(k in _BODY for k, _v in scope["headers"]):
+        return False  # a request with a body goes through the gate, which reads or refuses it
+    svc = getattr(app.state, "service", None)
+    if svc is None:
+        return False
+    body = _estimates_body(svc)
+    head = [(b"content-length", str(len(body)).encode()), *_HEAD]
+    await send({"type": "http.response.start", "status": 200, "headers": head})
+    await send({"type": "http.response.body", "body": body})
+    return True
 
 
 @router.get(

@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 Frame = tuple
 EXT, RTR, ERR, FD, BRS, ESI, TX = 1, 2, 4, 8, 16, 32, 64
 LINGER = 0.01  # s the receive thread sleeps after a block, while the kernel (or driver) queues the next
-LINGER_MAX = 0.025  # s: the longest, where the socket's receive buffer holds 8 times that of a saturated bus
+LINGER_MAX = 0.05  # s: the longest, where the socket's receive buffer holds 8 times that of a saturated bus
 FRAME_BYTES = 1024  # bytes of receive buffer a frame takes in the kernel (its skb; ~800 for a CAN or udp frame)
 BUS_MAX = 9000  # frames/s of a saturated 1 Mbit/s classic CAN bus, 8-byte frames (~8,000 with stuffing)
 BLOCK_MAX = 1024  # frames at most in one block
@@ -57,7 +57,8 @@ def linger_for(rcvbuf: int | None, floor: float = LINGER) -> float:
     """The receive thread's sleep after a block, for a socket of ``rcvbuf`` bytes (``SO_RCVBUF``, as
     Linux reports it): ``floor``, up to :data:`LINGER_MAX` where the buffer holds 8 times as long a
     saturated bus.  Fewer, larger blocks cost less CPU (each wakes the estimation thread too): with
-    a 4 MiB buffer, 25 ms instead of 10 took receive + raw logging from ~6.4 to ~5.6 % of a core
+    a 4 MiB buffer, 25 ms instead of 10 took receive + raw logging from ~6.4 to ~5.6 % of a core, and
+    50 ms instead of 25 took ~10 % off the receive thread's CPU and ~15 % off estimation's
     (docs/decisions/0020); a default 208 KiB buffer (~50 ms of a saturated bus) keeps ``floor``."""
     if not rcvbuf or rcvbuf <= 0:
         return floor
