@@ -335,8 +335,8 @@ def test_a_silence_of_the_bus_runs_the_gap_hook_before_the_first_frame_after_it(
 
 
 def test_a_block_is_fed_and_counted_as_frame_by_frame(paper):
-    """Estimation._feed_block (a block of standard-id data frames is counted by id in C, other blocks frame
-    by frame) decodes and counts what Pipeline.feed of each frame does: decoded, unknown ids and their order."""
+    """Estimation._feed_block decodes and counts what Pipeline.feed of each frame does: decoded, unknown ids
+    and their order, for a block of plain frames and one with an extended id and an error frame."""
     import itertools
 
     from vdp.live.reader import ERR, EXT, TX, frame_of

@@ -14,13 +14,10 @@ import math
 import queue
 import threading
 import time
-from collections import Counter
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, field
-from itertools import compress
-from operator import itemgetter
 from typing import Any
 
 from ..errors import VdpError
@@ -31,7 +28,6 @@ log = logging.getLogger(__name__)
 
 _STOP = object()
 _EXT_KEY = 1 << 31  # the decoder's key of an extended id (vdp.io.decoder)
-_ID, _FLAGS = itemgetter(1), itemgetter(2)  # of a frame record
 COMMAND_TIMEOUT = 10.0  # s an API command waits for the worker
 
 
@@ -237,24 +233,6 @@ class Estimation:
                 self._feed_one(message_of(f, chan))
             return
         feed = pipe.feed
-        if not any(map(_FLAGS, block)):
-            # standard-id data frames only (a car's bus, nearly always): counted by id and picked out in C, the
-            # same counts in the same order (each id's first frame) as frame by frame
-            counts = Counter(map(_ID, block))
-            if not keep.isdisjoint(counts):
-                for f in compress(block, map(keep.__contains__, map(_ID, block))):
-                    try:
-                        feed(message_of(f, chan))
-                    except Exception:
-                        self._failed()
-                counts = {k: n for k, n in counts.items() if k not in keep}
-            if counts:
-                try:
-                    pipe.pass_over(counts)
-                except Exception:
-                    self._failed()
-            self.fed += len(block)
-            return
         other: dict[int, int] = {}
         for f in block:
             fl = f[2]
