@@ -56,7 +56,7 @@ def test_road_reaches_the_live_estimator(tmp_path):
     assert s.service.road is True
     est = Service(s).estimation.pipeline.estimator  # built, not started
     assert est.tilt is not None and est.cfg.road.on and est.s2["ukf"].cfg.bank
-    assert lateral.BANK == lateral.N_X  # the tenth state follows the nine
+    assert est.s2["ukf"]._n == lateral.BANK + 1 and off.s2["ukf"]._n == lateral.N_X  # ten states, or nine
 
 
 @pytest.mark.parametrize(
