@@ -68,6 +68,7 @@ CORE_MAY_IMPORT |= {"numba"}  # core.kernels, core.prepass: the compiled steps, 
 CORE_MAY_IMPORT |= {"hashlib", "pathlib"}  # core.jit: its cache directory, named by a hash of the compiled sources
 CORE_MAY_IMPORT |= {"threading"}  # core.warm: one compile at a time
 CORE_MAY_IMPORT |= {"enum"}  # core.supervisor: a reason's Code
+CORE_MAY_IMPORT |= {"types"}  # core.prepass: a copy of a core.passes step that calls the compiled helpers
 
 
 def module_name(path: Path) -> str:

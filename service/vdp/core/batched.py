@@ -5,11 +5,13 @@ gyro offsets (estimator.GyroBias) and the gating supervisor (core.supervisor) in
 ~7 us a sample, a fifth of a replay's CPU once the reader is fast.  None of them depends on
 the learners, only on the samples and on whether l_f is known (the hand-over), so a replay
 can run them over a whole block in one compiled loop (core.prepass) and visit in Python
-only the samples a learner takes.  The loop repeats those classes' operations in their order,
-so it gives their numbers to the last bit; this module holds the loop's state layout and
-moves the state between it and the objects, without numba.  ``tests/test_batched.py`` holds
-the two paths to the same estimates, supervisor state and windows, and the speed filter's and
-the supervisor's own tests run on the classes, the reference.  A change to either must be followed here.
+only the samples a learner takes.  The speed filter's step is written once (core.passes: the
+class calls it per sample, the loop compiles it); the loop repeats the other classes'
+operations in their order, so it gives their numbers to the last bit.  This module moves the
+state between the loop's array (core.passes' layout) and the objects, without numba.
+``tests/test_batched.py`` holds the two paths to the same estimates, supervisor state and
+windows, and the supervisor's own tests run on the class, the reference: a change to it must
+be followed in core.prepass.
 
 The learners' own steps over an open window's run of samples are compiled as well
 (``core.kernels.lat_run`` and ``lon_run``, called by ``learner.Stage2.steps`` and
@@ -18,8 +20,9 @@ The learners' own steps over an open window's run of samples are compiled as wel
 due), so the rare paths are written once.  With both, an hour of a busy bus replays in ~2.8 s
 of CPU where it took ~5.8 s sample by sample (docs/decisions/0003).
 
-The state crosses over as one float array (:func:`pack`, :func:`unpack`): the Python objects
-stay the state's owners, so a live service and a replay can hand a drive to each other.
+The state crosses over as one float array (:func:`pack`, :func:`unpack`; the speed filter's
+part is already laid out so, in the estimator's state list): the Python objects stay the
+state's owners, so a live service and a replay can hand a drive to each other.
 Without numba, with the compiled steps off (LearnerConfig.compiled) or with a coarse GNSS's
 rounding-error filter, the estimator runs per sample.
 """
@@ -32,17 +35,39 @@ import numpy as np
 
 from .. import channels as ch
 from . import supervisor as sup
+from .passes import (
+    AX_M,
+    AX_SQ,
+    BRAKE_MAX,
+    D_M,
+    D_SQ,
+    EXC1,
+    EXC2,
+    G_N,
+    G_ROLL,
+    G_T,
+    G_YAW,
+    GYRO_TAU,
+    K_AX,
+    K_DT,
+    K_STEER,
+    N_PARAMS,
+    OBSERVED,
+    OPEN1,
+    OPEN2,
+    RADIUS,
+    SINCE1,
+    SINCE2,
+    U_T,
+    WHEEL_NOISE,
+    WHEEL_REF,
+    YAW_SQ,
+    gate_params,
+    speed_params,
+)
 from .speed import SpeedFilter
 
-# the state array: the speed filter, the gyro offsets, the supervisor (NaN stands for None)
-(V, P_VV, P_VB, P_BB, BIAS, S_T, A_PREV, G_YAW, G_ROLL, G_N, G_T, U_T, OBSERVED, EXC1, EXC2, AX_M, AX_SQ, D_M, D_SQ,
- YAW_SQ, OPEN1, SINCE1, OPEN2, SINCE2, K_DT, K_AX, K_STEER) = range(27)  # fmt: skip
-N_STATE = 27
 N_CODES = max(sup.REASONS) + 1  # reason codes 0 (none) to supervisor.WAITING, then the gates' (GATED + k)
-# the parameters array
-(ACCEL_NOISE, BIAS_WALK, GNSS_NOISE, MAX_GAP, WHEEL_REF, WHEEL_NOISE, BRAKE_MAX, RADIUS, GYRO_TAU, V_MIN,
- DELTA_MAX_1, YAW_MAX_1, AX_STD_MIN, AX_MEAN_MAX_2, DELTA_STD_MIN_2, YAW_RMS_MIN_2, TAU_AX, TAU_STEER, T_ON,
- T_OFF) = range(20)  # fmt: skip
 # the supervisor's reason codes, as copies: numba freezes a global into the cached code and invalidates
 # that cache only when this file changes (tests/test_batched.py holds them equal)
 _SPEED_LOW, _STEERING, _YAWING, _LITTLE_AX, _LITTLE_STEER, _NOT_CONSTANT, _MISSING, _WAITING = range(1, 9)
@@ -66,15 +91,11 @@ def params(cfg, vehicle, gyro_tau: float) -> np.ndarray:
     """The parameters array of an EstimatorConfig (its speed and gate configs) for ``vehicle``."""
     s, g = cfg.speed, cfg.gate
     ref = {None: 0.0, "front": 1.0}.get(s.wheel_ref, 2.0)
-    p = np.zeros(20)
-    p[[ACCEL_NOISE, BIAS_WALK, GNSS_NOISE, MAX_GAP, WHEEL_REF, WHEEL_NOISE, BRAKE_MAX, RADIUS, GYRO_TAU]] = (
-        s.accel_noise, s.bias_walk, s.gnss_noise, s.max_gap, ref, s.wheel_noise, s.brake_torque_max,
-        vehicle.wheel_radius, gyro_tau,
-    )  # fmt: skip
-    p[[V_MIN, DELTA_MAX_1, YAW_MAX_1, AX_STD_MIN, AX_MEAN_MAX_2, DELTA_STD_MIN_2, YAW_RMS_MIN_2]] = (
-        g.v_min, g.delta_max_1, g.yaw_max_1, g.ax_std_min, g.ax_mean_max_2, g.delta_std_min_2, g.yaw_rms_min_2,
-    )  # fmt: skip
-    p[[TAU_AX, TAU_STEER, T_ON, T_OFF]] = (g.tau_ax, g.tau_steer, g.t_on, g.t_off)
+    p = np.zeros(N_PARAMS)
+    speed_params(p, s)
+    p[[WHEEL_REF, WHEEL_NOISE, BRAKE_MAX]] = ref, s.wheel_noise, s.brake_torque_max
+    p[RADIUS], p[GYRO_TAU] = vehicle.wheel_radius, gyro_tau
+    gate_params(p, g)
     return p
 
 
@@ -86,12 +107,11 @@ def _back(x: float) -> float | None:
     return None if math.isnan(x) else x
 
 
-def pack(speed, gyro, su) -> np.ndarray:
-    """The state array of a SpeedFilter, a GyroBias and a Supervisor."""
-    st = np.empty(N_STATE)
+def pack(state: list[float], gyro, su) -> np.ndarray:
+    """The state array: the estimator's state list (the speed filter's part), a GyroBias's and a Supervisor's."""
+    st = np.array(state)
     g1, g2 = su._gates[1], su._gates[2]
-    st[:] = (
-        speed.v, speed.p_vv, speed.p_vb, speed.p_bb, speed.bias, _none(speed.t), speed.a_prev,
+    st[G_YAW:] = (
         gyro.yaw, gyro.roll, gyro.n, _none(gyro.t),
         _none(su._t), su.observed, su.excited[1], su.excited[2], su._ax_m, su._ax_sq, su._d_m, su._d_sq, su._yaw_sq,
         float(g1.open), _none(g1.since), float(g2.open), _none(g2.since), su._dt, su._k[0], su._k[1],
@@ -99,11 +119,10 @@ def pack(speed, gyro, su) -> np.ndarray:
     return st
 
 
-def unpack(st: np.ndarray, speed, gyro, su) -> None:
-    """Set the three objects' state from the array (pack's inverse)."""
+def unpack(st: np.ndarray, state: list[float], gyro, su) -> None:
+    """Set the state list and the objects' state from the array (pack's inverse)."""
     x = st.tolist()
-    speed.v, speed.p_vv, speed.p_vb, speed.p_bb, speed.bias = x[V], x[P_VV], x[P_VB], x[P_BB], x[BIAS]
-    speed.t, speed.a_prev = _back(x[S_T]), x[A_PREV]
+    state[:] = x
     gyro.yaw, gyro.roll, gyro.n, gyro.t = x[G_YAW], x[G_ROLL], int(x[G_N]), _back(x[G_T])
     su._t, su.observed, su.excited[1], su.excited[2] = _back(x[U_T]), x[OBSERVED], x[EXC1], x[EXC2]
     su._ax_m, su._ax_sq, su._d_m, su._d_sq, su._yaw_sq = x[AX_M], x[AX_SQ], x[D_M], x[D_SQ], x[YAW_SQ]

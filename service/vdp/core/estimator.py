@@ -27,6 +27,7 @@ from .mass import STAGE as MASS_STAGE
 from .mass import MassConfig, MassLearner, scaled, unscaled
 from .mass import off as mass_off
 from .params import MASS
+from .passes import new_state
 from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
 from .road import RoadConfig, Tilt
 from .sample import Sample
@@ -117,7 +118,9 @@ class TwoStageEstimator:
         if self.cfg.speed.wheel_ref is not None:
             need1, need2 = (tuple(i for i in n if i != ch.SPEED) for n in (need1, need2))
         self.supervisor = Supervisor(self.cfg.gate, need1, need2, wheel_radius=vehicle.wheel_radius)
-        self.speed = speed_filter(self.cfg.speed)
+        # the speed filter's, the gyro offsets' and the supervisor's state, laid out as the block pass's (core.passes)
+        self.state = new_state()
+        self.speed = speed_filter(self.cfg.speed, self.state)
         self.gyro_bias = GyroBias()
         self.trace: deque = deque(maxlen=self.cfg.trace_len)
         self._next_trace = None
@@ -215,7 +218,7 @@ class TwoStageEstimator:
             for smp in sample_block(T, Y, F, A, gap):
                 self.mass.handle(smp.t, smp)
         su = self.supervisor
-        st0 = batched.pack(self.speed, self.gyro_bias, su)
+        st0 = batched.pack(self.state, self.gyro_bias, su)
         blk0, first0 = batched.blockers(su)
         prev0 = self._stage or 0
         gaps = np.zeros(n, dtype=bool)
@@ -237,7 +240,7 @@ class TwoStageEstimator:
                 break
             # l_f became known at sample ``handed``: the supervisor sees it from the next on
             done_from = i0 = handed + 1
-        batched.unpack(st, self.speed, self.gyro_bias, su)
+        batched.unpack(st, self.state, self.gyro_bias, su)
         batched.set_blockers(su, blk, first)
         batched.windows(su, T, stage)
         last = Y[-1].tolist()

@@ -28,7 +28,7 @@ log = logging.getLogger(__name__)
 
 HERE = Path(__file__).resolve().parent
 # every file whose functions numba compiles or whose constants it freezes into compiled code
-SOURCES = ("lateral.py", "longitudinal.py", "batched.py", "prepass.py", "kernels/*.py")
+SOURCES = ("lateral.py", "longitudinal.py", "batched.py", "passes.py", "prepass.py", "kernels/*.py")
 # what the first compile after an install costs (core.warm.warm in a fresh cache, this checkout,
 # an idle 2-core machine, 2026-11-28: 67 s wall, 66.5 s CPU; it was 146-160 s before each compiled
 # run took one signature, core.compiled.sig_in)

@@ -1,16 +1,19 @@
 """core.batched's pass over a block, compiled (numba): imported at its first use, not with the core.
 
 Speed filter (core.speed.SpeedFilter), gyro offsets (estimator.GyroBias) and gating
-supervisor (core.supervisor.Supervisor) over a block of samples in one loop, their operations
-in their order (see core.batched, which packs their state into the array this works on).
-The helpers are compiled inlined into the pass (a call per sample cost too much).  Cached by
-core.jit; ``NUMBA_DISABLE_JIT=1`` runs this same source as Python.
+supervisor (core.supervisor.Supervisor) over a block of samples in one loop, on the state
+array core.passes lays out (core.batched packs it).  The speed filter's step is core.passes',
+compiled; the rest repeats the classes' operations in their order.  The helpers are compiled
+inlined into the pass (a call per sample cost too much).  Cached by core.jit;
+``NUMBA_DISABLE_JIT=1`` runs this same source as Python.
 """
 
 from __future__ import annotations
 
 import math
+import types
 
+from . import passes
 from .batched import (
     _GATED,
     _LITTLE_AX,
@@ -22,19 +25,28 @@ from .batched import (
     _STEERING,
     _WAITING,
     _YAWING,
-    A_PREV,
-    ACCEL_NOISE,
     AX,
+    DELTA,
+    ROLL,
+    SPEED,
+    T_F,
+    T_R,
+    WS_FL,
+    WS_FR,
+    WS_RL,
+    WS_RR,
+    YAW,
+)
+from .jit import jit
+from .passes import (
     AX_M,
     AX_MEAN_MAX_2,
     AX_SQ,
     AX_STD_MIN,
     BIAS,
-    BIAS_WALK,
     BRAKE_MAX,
     D_M,
     D_SQ,
-    DELTA,
     DELTA_MAX_1,
     DELTA_STD_MIN_2,
     EXC1,
@@ -43,96 +55,42 @@ from .batched import (
     G_ROLL,
     G_T,
     G_YAW,
-    GNSS_NOISE,
     GYRO_TAU,
     K_AX,
     K_DT,
     K_STEER,
-    MAX_GAP,
     OBSERVED,
     OPEN1,
     OPEN2,
-    P_BB,
-    P_VB,
     P_VV,
     RADIUS,
-    ROLL,
-    S_T,
     SINCE1,
     SINCE2,
-    SPEED,
-    T_F,
     T_OFF,
     T_ON,
-    T_R,
     TAU_AX,
     TAU_STEER,
     U_T,
     V_MIN,
     WHEEL_NOISE,
     WHEEL_REF,
-    WS_FL,
-    WS_FR,
-    WS_RL,
-    WS_RR,
-    YAW,
     YAW_MAX_1,
     YAW_RMS_MIN_2,
     YAW_SQ,
     V,
 )
-from .jit import jit
 
 _inline = jit(inline="always")
 
 
-@_inline
-def _speed_reset(st):
-    st[V] = math.nan
-    st[P_VV] = 0.0
-    st[P_VB] = 0.0
-    st[S_T] = math.nan
-    st[A_PREV] = math.nan
+def _calling(fn, **helpers):
+    """A copy of ``fn`` whose globals name the compiled ``helpers`` (numba calls no Python
+    function); ``fn`` itself, the per-sample path's, keeps calling the Python ones."""
+    return types.FunctionType(fn.__code__, {**fn.__globals__, **helpers}, fn.__name__, fn.__defaults__, fn.__closure__)
 
 
-@_inline
-def _speed_step(st, p, t, a_x, gnss, has_gnss, noise):
-    """SpeedFilter.step; ``has_gnss`` False for None, ``noise`` NaN for the default."""
-    r = p[GNSS_NOISE] if math.isnan(noise) else noise
-    no_t = math.isnan(st[S_T])
-    dt = 0.0 if no_t else t - st[S_T]
-    if not math.isfinite(a_x) or no_t or dt <= 0 or dt > p[MAX_GAP]:
-        _speed_reset(st)
-        st[S_T] = t if math.isfinite(a_x) else math.nan
-    elif math.isfinite(st[V]):
-        a_mean = 0.5 * (a_x + st[A_PREV]) if math.isfinite(st[A_PREV]) else a_x
-        st[V] += dt * (a_mean - st[BIAS])
-        an = p[ACCEL_NOISE] * dt
-        p_vv = st[P_VV] - 2 * dt * st[P_VB] + dt * dt * st[P_BB] + an * an
-        p_vb = st[P_VB] - dt * st[P_BB]
-        st[P_VV] = p_vv
-        st[P_VB] = p_vb
-        st[P_BB] += p[BIAS_WALK] * p[BIAS_WALK] * dt
-        st[S_T] = t
-    st[A_PREV] = a_x
-    if not has_gnss or not math.isfinite(gnss):
-        return
-    if not math.isfinite(st[V]):
-        st[V] = gnss
-        st[P_VV] = r * r
-        st[P_VB] = 0.0
-        st[S_T] = t
-        return
-    s = st[P_VV] + r * r
-    k_v = st[P_VV] / s
-    k_b = st[P_VB] / s
-    e = gnss - st[V]
-    st[V] += k_v * e
-    st[BIAS] += k_b * e
-    p_vv, p_vb, p_bb = st[P_VV], st[P_VB], st[P_BB]
-    st[P_VV] = p_vv - k_v * p_vv
-    st[P_VB] = p_vb - k_v * p_vb
-    st[P_BB] = p_bb - k_b * p_vb
+_speed_reset = _inline(passes.speed_reset)
+_speed_step = _inline(_calling(passes.speed_step, speed_reset=_speed_reset))
 
 
 @_inline

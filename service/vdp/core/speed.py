@@ -31,6 +31,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .passes import (
+    A_PREV,
+    BIAS,
+    N_PARAMS,
+    P_BB,
+    P_VB,
+    P_VV,
+    S_T,
+    Entry,
+    V,
+    new_state,
+    speed_params,
+    speed_reset,
+    speed_step,
+)
+
 
 @dataclass(frozen=True)
 class SpeedConfig:
@@ -75,28 +91,43 @@ def wheel_reference(
     return 0.5 * (ws_left + ws_right) * wheel_radius
 
 
-def speed_filter(cfg: SpeedConfig) -> SpeedFilter:
-    """The speed filter for ``cfg``: with a rounding-error state for a coarse GNSS step."""
-    return RoundedSpeedFilter(cfg) if cfg.gnss_step > 0.0 else SpeedFilter(cfg)
+def speed_filter(cfg: SpeedConfig, st: list[float] | None = None) -> SpeedFilter:
+    """The speed filter for ``cfg``: with a rounding-error state for a coarse GNSS step (``st``: SpeedFilter's)."""
+    return RoundedSpeedFilter(cfg, st) if cfg.gnss_step > 0.0 else SpeedFilter(cfg, st)
 
 
 class SpeedFilter:
-    def __init__(self, cfg: SpeedConfig | None = None):
+    """The two-state filter.  Its state is entries V to A_PREV of a state list (core.passes, whose
+    :func:`~vdp.core.passes.speed_step` is its step here and in the compiled block pass): ``st``,
+    one the estimator shares with its other parts, or a list of its own."""
+
+    v, p_vv, p_vb, p_bb, bias = Entry(V), Entry(P_VV), Entry(P_VB), Entry(P_BB), Entry(BIAS)
+    t, a_prev = Entry(S_T, none=True), Entry(A_PREV)
+
+    def __init__(self, cfg: SpeedConfig | None = None, st: list[float] | None = None):
+        self.st = new_state() if st is None else st
         self.cfg = cfg or SpeedConfig()
         self.bias = 0.0
         self.p_bb = 0.05**2
         self.reset()
 
+    @property
+    def cfg(self) -> SpeedConfig:
+        return self._cfg
+
+    @cfg.setter
+    def cfg(self, cfg: SpeedConfig) -> None:  # (the estimator changes bias_walk with the road's grade)
+        self._cfg = cfg
+        self._p = [math.nan] * N_PARAMS
+        speed_params(self._p, cfg)
+
     def reset(self) -> None:
         """Forget the speed (not the bias, which outlives gaps)."""
-        self.v = math.nan
-        self.p_vv = self.p_vb = 0.0
-        self.t: float | None = None
-        self.a_prev = math.nan
+        speed_reset(self.st)
 
     @property
     def ready(self) -> bool:
-        return math.isfinite(self.v)
+        return math.isfinite(self.st[V])
 
     @property
     def std(self) -> float:
@@ -109,41 +140,8 @@ class SpeedFilter:
     def step(self, t: float, a_x: float, gnss: float | None, noise: float | None = None) -> None:
         """Advance to ``t`` with the measured a_x; correct with a speed measured at ``t``
         (GNSS, or the free-rolling axle), of std ``noise`` (default: ``gnss_noise``)."""
-        c = self.cfg
-        r = c.gnss_noise if noise is None else noise
-        dt = None if self.t is None else t - self.t
-        if not math.isfinite(a_x) or dt is None or dt <= 0 or dt > c.max_gap:
-            self.reset()
-            self.t = t if math.isfinite(a_x) else None
-        elif self.ready:
-            # trapezoidal: exact for a_x linear in time, so a smooth a_x leaves no drift to mistake for bias
-            a_mean = 0.5 * (a_x + self.a_prev) if math.isfinite(self.a_prev) else a_x
-            self.v += dt * (a_mean - self.bias)
-            # P = F P F^T + Q with F = [[1, -dt], [0, 1]]
-            # (squares as products, not **: pow can differ from x * x in the last bit, and the
-            # compiled block pass, core.batched, multiplies)
-            an = c.accel_noise * dt
-            p_vv = self.p_vv - 2 * dt * self.p_vb + dt * dt * self.p_bb + an * an
-            p_vb = self.p_vb - dt * self.p_bb
-            self.p_vv, self.p_vb = p_vv, p_vb
-            self.p_bb += c.bias_walk * c.bias_walk * dt
-            self.t = t
-        self.a_prev = a_x
-        if gnss is None or not math.isfinite(gnss):
-            return
-        if not self.ready:
-            self.v, self.p_vv, self.p_vb = gnss, r * r, 0.0
-            self.t = t
-            return
-        s = self.p_vv + r * r
-        k_v, k_b = self.p_vv / s, self.p_vb / s
-        e = gnss - self.v
-        self.v += k_v * e
-        self.bias += k_b * e
-        p_vv, p_vb, p_bb = self.p_vv, self.p_vb, self.p_bb
-        self.p_vv = p_vv - k_v * p_vv
-        self.p_vb = p_vb - k_v * p_vb
-        self.p_bb = p_bb - k_b * p_vb
+        has = gnss is not None
+        speed_step(self.st, self._p, t, a_x, gnss if has else 0.0, has, math.nan if noise is None else noise)
 
 
 class RoundedSpeedFilter(SpeedFilter):
@@ -162,7 +160,7 @@ class RoundedSpeedFilter(SpeedFilter):
         self.t_meas: float | None = None
         self.P = np.zeros((3, 3))
         self.P[1, 1] = self.p_bb
-        self.t: float | None = None
+        self.t = None
         self.a_prev = math.nan
 
     @property

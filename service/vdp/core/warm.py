@@ -16,7 +16,7 @@ import threading
 import numpy as np
 
 from .. import channels as ch
-from . import batched, jit, kernels, lateral, longitudinal, prepass
+from . import batched, jit, kernels, lateral, longitudinal, passes, prepass
 from .bounds import Bounds
 from .supervisor import Supervisor
 
@@ -136,7 +136,7 @@ def _prepass() -> None:
     F, A = np.ones((n, ch.N), dtype=bool), np.zeros((n, ch.N))
     blk, first = np.zeros((2, batched.N_CODES)), np.full((2, batched.N_CODES), -1, np.int64)
     need = np.arange(2, dtype=np.int64)
-    p = np.ones(20)  # (a time constant of 0 would divide by zero)
+    p = np.ones(passes.N_PARAMS)  # (a time constant of 0 would divide by zero)
     prepass.prepass(
         np.arange(n) * 0.02,
         Y,
@@ -144,7 +144,7 @@ def _prepass() -> None:
         A,
         np.zeros(n, dtype=bool),
         np.zeros(n, dtype=np.int64),
-        np.zeros(batched.N_STATE),
+        np.zeros(passes.N_STATE),
         p,
         batched.CHANNELS,
         need,

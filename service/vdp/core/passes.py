@@ -1,0 +1,119 @@
+"""The steps the estimator takes before its learners, written once on a state array (issue 29).
+
+The speed filter (core.speed.SpeedFilter), the gyro offsets (estimator.GyroBias) and the
+gating supervisor's hysteresis (core.supervisor.Supervisor) keep their state in one array
+laid out by the named indices below (NaN stands for None).  Each step is a plain function of
+that array: the classes call it per sample on a list (Python floats: a list is the fast
+container for them), and core.prepass compiles the same function, inlined into its pass over
+a block, on a numpy array.  So there is one implementation per algorithm, and the two paths
+agree to the last bit by construction.  No numba here: the per-sample path (a live service,
+a short log) must never import it (core.compiled).
+
+numba cannot call a Python function: where a step calls another (speed_step, speed_reset),
+core.prepass compiles the callee too and gives the caller's compiled copy the compiled one.
+numba freezes this module's constants into its cached code: this file is one of core.jit's
+SOURCES, so a change here compiles anew.
+"""
+
+from __future__ import annotations
+
+import math
+
+# the state array: the speed filter, the gyro offsets, the supervisor (NaN stands for None)
+(V, P_VV, P_VB, P_BB, BIAS, S_T, A_PREV, G_YAW, G_ROLL, G_N, G_T, U_T, OBSERVED, EXC1, EXC2, AX_M, AX_SQ, D_M, D_SQ,
+ YAW_SQ, OPEN1, SINCE1, OPEN2, SINCE2, K_DT, K_AX, K_STEER) = range(27)  # fmt: skip
+N_STATE = 27
+# the parameters array
+(ACCEL_NOISE, BIAS_WALK, GNSS_NOISE, MAX_GAP, WHEEL_REF, WHEEL_NOISE, BRAKE_MAX, RADIUS, GYRO_TAU, V_MIN,
+ DELTA_MAX_1, YAW_MAX_1, AX_STD_MIN, AX_MEAN_MAX_2, DELTA_STD_MIN_2, YAW_RMS_MIN_2, TAU_AX, TAU_STEER, T_ON,
+ T_OFF) = range(20)  # fmt: skip
+N_PARAMS = 20
+
+
+def new_state() -> list[float]:
+    """A state list (each part's owner sets its own entries)."""
+    return [math.nan] * N_STATE
+
+
+class Entry:
+    """An entry of its owner's state list (``self.st``) as an attribute; ``none``: NaN reads as None."""
+
+    def __init__(self, i: int, none: bool = False):
+        self.i, self.none = i, none
+
+    def __get__(self, obj, cls=None):
+        if obj is None:
+            return self
+        x = obj.st[self.i]
+        return None if self.none and math.isnan(x) else x
+
+    def __set__(self, obj, x) -> None:
+        obj.st[self.i] = math.nan if x is None else x
+
+
+def gate_params(p, g) -> None:
+    """Set the entries of a parameters array (or list) a GateConfig gives (the supervisor's and the gyro offsets')."""
+    p[V_MIN], p[DELTA_MAX_1], p[YAW_MAX_1], p[AX_STD_MIN] = g.v_min, g.delta_max_1, g.yaw_max_1, g.ax_std_min
+    p[AX_MEAN_MAX_2], p[DELTA_STD_MIN_2], p[YAW_RMS_MIN_2] = g.ax_mean_max_2, g.delta_std_min_2, g.yaw_rms_min_2
+    p[TAU_AX], p[TAU_STEER], p[T_ON], p[T_OFF] = g.tau_ax, g.tau_steer, g.t_on, g.t_off
+
+
+# -- the speed filter (core.speed.SpeedFilter) ------------------------------------
+
+
+def speed_params(p, cfg) -> None:
+    """Set the speed filter's entries of a parameters array (or list) from its SpeedConfig."""
+    p[ACCEL_NOISE], p[BIAS_WALK], p[GNSS_NOISE] = cfg.accel_noise, cfg.bias_walk, cfg.gnss_noise
+    p[MAX_GAP] = cfg.max_gap
+
+
+def speed_reset(st):
+    """Forget the speed (not the bias, which outlives gaps)."""
+    st[V] = math.nan
+    st[P_VV] = 0.0
+    st[P_VB] = 0.0
+    st[S_T] = math.nan
+    st[A_PREV] = math.nan
+
+
+def speed_step(st, p, t, a_x, gnss, has_gnss, noise):
+    """Advance to ``t`` with the measured a_x; correct with a speed measured at ``t`` (GNSS, or
+    the free-rolling axle; ``has_gnss`` False: none), of std ``noise`` (NaN: ``GNSS_NOISE``)."""
+    r = p[GNSS_NOISE] if math.isnan(noise) else noise
+    no_t = math.isnan(st[S_T])
+    dt = 0.0 if no_t else t - st[S_T]
+    if not math.isfinite(a_x) or no_t or dt <= 0 or dt > p[MAX_GAP]:
+        speed_reset(st)
+        st[S_T] = t if math.isfinite(a_x) else math.nan
+    elif math.isfinite(st[V]):
+        # trapezoidal: exact for a_x linear in time, so a smooth a_x leaves no drift to mistake for bias
+        a_mean = 0.5 * (a_x + st[A_PREV]) if math.isfinite(st[A_PREV]) else a_x
+        st[V] += dt * (a_mean - st[BIAS])
+        # P = F P F^T + Q with F = [[1, -dt], [0, 1]] (squares as products, not **: Python's pow can
+        # differ from x * x in the last bit, and numba may compile ** as a product)
+        an = p[ACCEL_NOISE] * dt
+        p_vv = st[P_VV] - 2 * dt * st[P_VB] + dt * dt * st[P_BB] + an * an
+        p_vb = st[P_VB] - dt * st[P_BB]
+        st[P_VV] = p_vv
+        st[P_VB] = p_vb
+        st[P_BB] += p[BIAS_WALK] * p[BIAS_WALK] * dt
+        st[S_T] = t
+    st[A_PREV] = a_x
+    if not has_gnss or not math.isfinite(gnss):
+        return
+    if not math.isfinite(st[V]):
+        st[V] = gnss
+        st[P_VV] = r * r
+        st[P_VB] = 0.0
+        st[S_T] = t
+        return
+    s = st[P_VV] + r * r
+    k_v = st[P_VV] / s
+    k_b = st[P_VB] / s
+    e = gnss - st[V]
+    st[V] += k_v * e
+    st[BIAS] += k_b * e
+    p_vv, p_vb, p_bb = st[P_VV], st[P_VB], st[P_BB]
+    st[P_VV] = p_vv - k_v * p_vv
+    st[P_VB] = p_vb - k_v * p_vb
+    st[P_BB] = p_bb - k_b * p_vb

@@ -1,0 +1,80 @@
+"""core.passes' steps, each written once: compiled (core.prepass, numba) on an array against the
+plain Python function on a list (the per-sample path's), on the same inputs, to the bit."""
+
+import math
+
+import numpy as np
+import pytest
+
+from vdp.core import passes
+from vdp.core.speed import SpeedConfig, SpeedFilter
+
+prepass = pytest.importorskip("vdp.core.prepass", reason="numba is not installed: nothing compiled")
+
+
+def same(a, b) -> bool:
+    """The same floats to the bit (a NaN matches a NaN: numba's and Python's may differ in payload)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    nan = np.isnan(a)
+    return bool(np.array_equal(nan, np.isnan(b)) and np.array_equal(a[~nan].view(np.int64), b[~nan].view(np.int64)))
+
+
+def params() -> list[float]:
+    p = [math.nan] * passes.N_PARAMS
+    passes.speed_params(p, SpeedConfig())
+    return p
+
+
+def speed_inputs(n: int = 3000, seed: int = 0):
+    """(t, a_x, gnss, has, noise) per step: every branch of the step (a_x missing, time going
+    back or leaping past max_gap, a GNSS speed missing or NaN, the wheels' noise) now and then."""
+    rng = np.random.default_rng(seed)
+    t, v = 0.0, 10.0
+    for k in range(n):
+        u = rng.random()
+        t += -0.05 if u < 0.01 else 0.5 if u < 0.02 else 0.02
+        a = 0.3 * math.sin(0.01 * k) + 0.05 * rng.standard_normal()
+        v += 0.02 * a
+        ax = math.nan if rng.random() < 0.01 else a + 0.1
+        has = k % 5 == 0 or rng.random() < 0.01
+        gnss = (math.nan if rng.random() < 0.05 else v + 0.05 * rng.standard_normal()) if has else 0.0
+        noise = 0.08 if rng.random() < 0.2 else math.nan
+        yield t, ax, gnss, has, noise
+
+
+def test_the_speed_step_compiled_is_the_python_one():
+    assert prepass._speed_step.py_func.__code__ is passes.speed_step.__code__  # one source, compiled
+    p = params()
+    py, jit = passes.new_state(), np.array(passes.new_state())
+    py[passes.BIAS] = jit[passes.BIAS] = 0.0
+    py[passes.P_BB] = jit[passes.P_BB] = 0.05**2
+    passes.speed_reset(py)
+    prepass._speed_reset(jit)
+    assert same(py, jit)
+    pa = np.array(p)
+    ready = resets = 0
+    for k, (t, ax, gnss, has, noise) in enumerate(speed_inputs()):
+        if k % 700 == 699:  # a gap in the grid: the estimator resets the filter
+            passes.speed_reset(py)
+            prepass._speed_reset(jit)
+        passes.speed_step(py, p, t, ax, gnss, has, noise)
+        prepass._speed_step(jit, pa, t, ax, gnss, has, noise)
+        assert same(py, jit), k
+        ready += math.isfinite(py[passes.V])
+        resets += math.isnan(py[passes.V])
+    assert ready > 2000 and resets > 20  # (the inputs met both: a filter running, and restarting)
+    assert py[passes.BIAS] != 0.0 and py[passes.P_BB] != 0.05**2  # the bias learnt
+
+
+def test_the_speed_filter_steps_on_its_state_list():
+    """SpeedFilter is core.passes' step on its list: None for no GNSS or the default noise, and
+    the attributes read the list."""
+    f, st, p = SpeedFilter(), passes.new_state(), params()
+    st[passes.BIAS], st[passes.P_BB] = 0.0, 0.05**2
+    passes.speed_reset(st)
+    assert same(f.st, st) and f.t is None and not f.ready
+    for t, ax, gnss, has, noise in speed_inputs(500, seed=1):
+        f.step(t, ax, gnss if has else None, None if math.isnan(noise) else noise)
+        passes.speed_step(st, p, t, ax, gnss, has, noise)
+        assert same(f.st, st)
+    assert f.ready and (f.v, f.bias, f.p_vv, f.t) == (st[passes.V], st[passes.BIAS], st[passes.P_VV], st[passes.S_T])
