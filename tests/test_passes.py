@@ -6,8 +6,12 @@ import math
 import numpy as np
 import pytest
 
+from vdp import channels as ch
 from vdp.core import passes
+from vdp.core.estimator import GyroBias
+from vdp.core.sample import Sample
 from vdp.core.speed import SpeedConfig, SpeedFilter
+from vdp.core.supervisor import GateConfig
 
 prepass = pytest.importorskip("vdp.core.prepass", reason="numba is not installed: nothing compiled")
 
@@ -22,6 +26,8 @@ def same(a, b) -> bool:
 def params() -> list[float]:
     p = [math.nan] * passes.N_PARAMS
     passes.speed_params(p, SpeedConfig())
+    passes.gate_params(p, GateConfig())
+    p[passes.GYRO_TAU] = 30.0
     return p
 
 
@@ -78,3 +84,45 @@ def test_the_speed_filter_steps_on_its_state_list():
         passes.speed_step(st, p, t, ax, gnss, has, noise)
         assert same(f.st, st)
     assert f.ready and (f.v, f.bias, f.p_vv, f.t) == (st[passes.V], st[passes.BIAS], st[passes.P_VV], st[passes.S_T])
+
+
+def gyro_inputs(n: int = 3000, seed: int = 0):
+    """(t, delta, yaw, roll) per step: straight driving mostly, now and then a turn beyond
+    stage 1's limits, a channel missing, the clock going back or leaping."""
+    rng = np.random.default_rng(seed)
+    t = 0.0
+    for _ in range(n):
+        u = rng.random()
+        t += -0.05 if u < 0.01 else 0.5 if u < 0.02 else 0.02
+        d, yaw, roll = 0.005 * rng.standard_normal(), 0.003 + 0.01 * rng.standard_normal(), -0.002 + 0.01 * rng.random()
+        if rng.random() < 0.03:
+            d, yaw, roll = (math.nan, yaw, roll) if rng.random() < 0.5 else (d, yaw, math.nan)
+        yield t, d, yaw, roll
+
+
+def test_the_gyro_offsets_compiled_are_the_python_ones():
+    assert prepass._gyro_update.py_func is passes.gyro_update
+    p, py = params(), GyroBias().st  # (the class's initial state)
+    jit, pa = np.array(py), np.array(p)
+    taken = 0
+    for k, (t, d, yaw, roll) in enumerate(gyro_inputs()):
+        n = py[passes.G_N]
+        passes.gyro_update(py, p, t, d, yaw, roll)
+        prepass._gyro_update(jit, pa, t, d, yaw, roll)
+        assert same(py, jit), k
+        taken += py[passes.G_N] > n
+    assert 1000 < taken < 3000 and py[passes.G_YAW] != 0.0 and py[passes.G_ROLL] != 0.0  # straight samples only
+
+
+def test_the_gyro_offsets_step_on_their_state_list():
+    g, st, p = GyroBias(), passes.new_state(), params()
+    st[passes.G_YAW] = st[passes.G_ROLL] = st[passes.G_N] = 0.0
+    assert same(g.st, st) and g.t is None and g.n == 0
+    cfg = GateConfig()
+    for t, d, yaw, roll in gyro_inputs(500, seed=1):
+        y = [math.nan] * (max(ch.DELTA, ch.YAW, ch.ROLL) + 1)
+        y[ch.DELTA], y[ch.YAW], y[ch.ROLL] = d, yaw, roll
+        out = g.update(Sample(t, tuple(y), (), ()), cfg)
+        passes.gyro_update(st, p, t, d, yaw, roll)
+        assert same(g.st, st) and out == (st[passes.G_YAW], st[passes.G_ROLL])
+    assert g.n == int(st[passes.G_N]) > 400 and g.t == t

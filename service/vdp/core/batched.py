@@ -5,9 +5,9 @@ gyro offsets (estimator.GyroBias) and the gating supervisor (core.supervisor) in
 ~7 us a sample, a fifth of a replay's CPU once the reader is fast.  None of them depends on
 the learners, only on the samples and on whether l_f is known (the hand-over), so a replay
 can run them over a whole block in one compiled loop (core.prepass) and visit in Python
-only the samples a learner takes.  The speed filter's step is written once (core.passes: the
-class calls it per sample, the loop compiles it); the loop repeats the other classes'
-operations in their order, so it gives their numbers to the last bit.  This module moves the
+only the samples a learner takes.  The speed filter's and the gyro offsets' steps are written
+once (core.passes: the classes call them per sample, the loop compiles them); the loop
+repeats the supervisor's operations in their order, so it gives its numbers to the last bit.  This module moves the
 state between the loop's array (core.passes' layout) and the objects, without numba.
 ``tests/test_batched.py`` holds the two paths to the same estimates, supervisor state and
 windows, and the supervisor's own tests run on the class, the reference: a change to it must
@@ -21,7 +21,7 @@ due), so the rare paths are written once.  With both, an hour of a busy bus repl
 of CPU where it took ~5.8 s sample by sample (docs/decisions/0003).
 
 The state crosses over as one float array (:func:`pack`, :func:`unpack`; the speed filter's
-part is already laid out so, in the estimator's state list): the Python objects stay the
+and the gyro offsets' part is already laid out so, in the estimator's state list): the Python objects stay the
 state's owners, so a live service and a replay can hand a drive to each other.
 Without numba, with the compiled steps off (LearnerConfig.compiled) or with a coarse GNSS's
 rounding-error filter, the estimator runs per sample.
@@ -43,10 +43,6 @@ from .passes import (
     D_SQ,
     EXC1,
     EXC2,
-    G_N,
-    G_ROLL,
-    G_T,
-    G_YAW,
     GYRO_TAU,
     K_AX,
     K_DT,
@@ -107,23 +103,21 @@ def _back(x: float) -> float | None:
     return None if math.isnan(x) else x
 
 
-def pack(state: list[float], gyro, su) -> np.ndarray:
-    """The state array: the estimator's state list (the speed filter's part), a GyroBias's and a Supervisor's."""
+def pack(state: list[float], su) -> np.ndarray:
+    """The state array: the estimator's state list (the speed filter's and gyro offsets' part), a Supervisor's."""
     st = np.array(state)
     g1, g2 = su._gates[1], su._gates[2]
-    st[G_YAW:] = (
-        gyro.yaw, gyro.roll, gyro.n, _none(gyro.t),
+    st[U_T:] = (
         _none(su._t), su.observed, su.excited[1], su.excited[2], su._ax_m, su._ax_sq, su._d_m, su._d_sq, su._yaw_sq,
         float(g1.open), _none(g1.since), float(g2.open), _none(g2.since), su._dt, su._k[0], su._k[1],
     )  # fmt: skip
     return st
 
 
-def unpack(st: np.ndarray, state: list[float], gyro, su) -> None:
-    """Set the state list and the objects' state from the array (pack's inverse)."""
+def unpack(st: np.ndarray, state: list[float], su) -> None:
+    """Set the state list and the Supervisor's state from the array (pack's inverse)."""
     x = st.tolist()
     state[:] = x
-    gyro.yaw, gyro.roll, gyro.n, gyro.t = x[G_YAW], x[G_ROLL], int(x[G_N]), _back(x[G_T])
     su._t, su.observed, su.excited[1], su.excited[2] = _back(x[U_T]), x[OBSERVED], x[EXC1], x[EXC2]
     su._ax_m, su._ax_sq, su._d_m, su._d_sq, su._yaw_sq = x[AX_M], x[AX_SQ], x[D_M], x[D_SQ], x[YAW_SQ]
     g1, g2 = su._gates[1], su._gates[2]

@@ -27,7 +27,7 @@ from .mass import STAGE as MASS_STAGE
 from .mass import MassConfig, MassLearner, scaled, unscaled
 from .mass import off as mass_off
 from .params import MASS
-from .passes import new_state
+from .passes import G_N, G_ROLL, G_T, G_YAW, GYRO_TAU, N_PARAMS, Entry, gate_params, gyro_update, new_state
 from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
 from .road import RoadConfig, Tilt
 from .sample import Sample
@@ -64,29 +64,33 @@ class GyroBias:
 
     On a straight, level road both true rates are ~0, so their mean is the
     offset; an unmodelled offset would otherwise be read as roll or yaw
-    dynamics and bias I_x and C_alpha.
+    dynamics and bias I_x and C_alpha.  The state is entries G_YAW to G_T of a
+    state list (core.passes, whose ``gyro_update`` is the step on both paths):
+    ``st``, the estimator's, or a list of its own.
     """
 
-    def __init__(self, tau: float = 30.0):
+    yaw, roll, t = Entry(G_YAW), Entry(G_ROLL), Entry(G_T, none=True)
+
+    def __init__(self, tau: float = 30.0, st: list[float] | None = None):
         self.tau = tau
-        self.yaw = self.roll = 0.0
-        self.n = 0
-        self.t: float | None = None
+        self.st = new_state() if st is None else st
+        self.st[G_YAW] = self.st[G_ROLL] = self.st[G_N] = 0.0
+        self.st[G_T] = math.nan
+        self._gate: GateConfig | None = None
+
+    @property
+    def n(self) -> int:
+        return int(self.st[G_N])
 
     def update(self, s, gate: GateConfig) -> tuple[float, float]:
         """Take one sample; return the (yaw, roll) offsets to remove from it."""
+        if gate is not self._gate:  # (the parameters list made once: the estimator passes its one config)
+            self._gate, self._p = gate, [math.nan] * N_PARAMS
+            gate_params(self._p, gate)
+            self._p[GYRO_TAU] = self.tau
         y = s.values
-        d, yaw, roll = y[ch.DELTA], y[ch.YAW], y[ch.ROLL]
-        if math.isfinite(d) and math.isfinite(yaw) and abs(d) < gate.delta_max_1 and abs(yaw) < gate.yaw_max_1:
-            # plain mean for the first samples, then an exponential one
-            dt = 0.01 if self.t is None else min(max(s.t - self.t, 0.0), 0.1)
-            k = max(dt / self.tau, 1.0 / (self.n + 1))
-            self.yaw += k * (yaw - self.yaw)
-            if math.isfinite(roll):  # a car without a roll-rate gyro still has its yaw offset learnt
-                self.roll += k * (roll - self.roll)
-            self.n += 1
-        self.t = s.t
-        return self.yaw, self.roll
+        gyro_update(self.st, self._p, s.t, y[ch.DELTA], y[ch.YAW], y[ch.ROLL])
+        return self.st[G_YAW], self.st[G_ROLL]
 
 
 def _close(a: float | None, b: float | None) -> bool:
@@ -121,7 +125,7 @@ class TwoStageEstimator:
         # the speed filter's, the gyro offsets' and the supervisor's state, laid out as the block pass's (core.passes)
         self.state = new_state()
         self.speed = speed_filter(self.cfg.speed, self.state)
-        self.gyro_bias = GyroBias()
+        self.gyro_bias = GyroBias(st=self.state)
         self.trace: deque = deque(maxlen=self.cfg.trace_len)
         self._next_trace = None
         self._trace_every = self.cfg.trace_every
@@ -218,7 +222,7 @@ class TwoStageEstimator:
             for smp in sample_block(T, Y, F, A, gap):
                 self.mass.handle(smp.t, smp)
         su = self.supervisor
-        st0 = batched.pack(self.state, self.gyro_bias, su)
+        st0 = batched.pack(self.state, su)
         blk0, first0 = batched.blockers(su)
         prev0 = self._stage or 0
         gaps = np.zeros(n, dtype=bool)
@@ -240,7 +244,7 @@ class TwoStageEstimator:
                 break
             # l_f became known at sample ``handed``: the supervisor sees it from the next on
             done_from = i0 = handed + 1
-        batched.unpack(st, self.state, self.gyro_bias, su)
+        batched.unpack(st, self.state, su)
         batched.set_blockers(su, blk, first)
         batched.windows(su, T, stage)
         last = Y[-1].tolist()

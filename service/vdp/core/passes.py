@@ -117,3 +117,20 @@ def speed_step(st, p, t, a_x, gnss, has_gnss, noise):
     st[P_VV] = p_vv - k_v * p_vv
     st[P_VB] = p_vb - k_v * p_vb
     st[P_BB] = p_bb - k_b * p_vb
+
+
+# -- the gyro offsets (estimator.GyroBias) ------------------------------------------
+
+
+def gyro_update(st, p, t, d, yaw, roll):
+    """Take a sample's steering angle ``d`` and yaw and roll rates at ``t``: while the car drives
+    straight (within stage 1's limits), their means are the gyros' offsets."""
+    if math.isfinite(d) and math.isfinite(yaw) and abs(d) < p[DELTA_MAX_1] and abs(yaw) < p[YAW_MAX_1]:
+        # plain mean for the first samples, then an exponential one
+        dt = 0.01 if math.isnan(st[G_T]) else min(max(t - st[G_T], 0.0), 0.1)
+        k = max(dt / p[GYRO_TAU], 1.0 / (st[G_N] + 1))
+        st[G_YAW] += k * (yaw - st[G_YAW])
+        if math.isfinite(roll):  # a car without a roll-rate gyro still has its yaw offset learnt
+            st[G_ROLL] += k * (roll - st[G_ROLL])
+        st[G_N] += 1
+    st[G_T] = t

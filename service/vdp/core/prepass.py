@@ -2,10 +2,10 @@
 
 Speed filter (core.speed.SpeedFilter), gyro offsets (estimator.GyroBias) and gating
 supervisor (core.supervisor.Supervisor) over a block of samples in one loop, on the state
-array core.passes lays out (core.batched packs it).  The speed filter's step is core.passes',
-compiled; the rest repeats the classes' operations in their order.  The helpers are compiled
-inlined into the pass (a call per sample cost too much).  Cached by core.jit;
-``NUMBA_DISABLE_JIT=1`` runs this same source as Python.
+array core.passes lays out (core.batched packs it).  The speed filter's and the gyro
+offsets' steps are core.passes', compiled; the rest repeats the supervisor's operations in
+their order.  The helpers are compiled inlined into the pass (a call per sample cost too
+much).  Cached by core.jit; ``NUMBA_DISABLE_JIT=1`` runs this same source as Python.
 """
 
 from __future__ import annotations
@@ -51,11 +51,8 @@ from .passes import (
     DELTA_STD_MIN_2,
     EXC1,
     EXC2,
-    G_N,
     G_ROLL,
-    G_T,
     G_YAW,
-    GYRO_TAU,
     K_AX,
     K_DT,
     K_STEER,
@@ -91,6 +88,7 @@ def _calling(fn, **helpers):
 
 _speed_reset = _inline(passes.speed_reset)
 _speed_step = _inline(_calling(passes.speed_step, speed_reset=_speed_reset))
+_gyro_update = _inline(passes.gyro_update)
 
 
 @_inline
@@ -171,15 +169,8 @@ def prepass(T, Y, F, A, gap, gate, st, p, c, needs1, needs2, done_from, blk, fir
         out[i, 1] = math.sqrt(st[P_VV]) if math.isfinite(v) else math.nan
         out[i, 2] = st[BIAS]
         # -- GyroBias.update
-        d, yaw, roll = y[c[DELTA]], y[c[YAW]], y[c[ROLL]]
-        if math.isfinite(d) and math.isfinite(yaw) and abs(d) < p[DELTA_MAX_1] and abs(yaw) < p[YAW_MAX_1]:
-            dt = 0.01 if math.isnan(st[G_T]) else min(max(t - st[G_T], 0.0), 0.1)
-            k = max(dt / p[GYRO_TAU], 1.0 / (st[G_N] + 1))
-            st[G_YAW] += k * (yaw - st[G_YAW])
-            if math.isfinite(roll):
-                st[G_ROLL] += k * (roll - st[G_ROLL])
-            st[G_N] += 1
-        st[G_T] = t
+        d, yaw = y[c[DELTA]], y[c[YAW]]
+        _gyro_update(st, p, t, d, yaw, y[c[ROLL]])
         out[i, 3] = st[G_YAW]
         out[i, 4] = st[G_ROLL]
         # -- Supervisor.update
