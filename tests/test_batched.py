@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vdp.buffer import SampleRing
-from vdp.core import batched, lateral, learner, longitudinal
+from vdp.core import batched, lateral, learner, longitudinal, passes
 from vdp.core.compiled import kernel
 from vdp.core.estimator import EstimatorConfig, TwoStageEstimator
 from vdp.core.learner import Stage1, Stage2
@@ -63,7 +63,7 @@ def supervisor_state(su):
     return (
         list(su.blockers[1].items()), list(su.blockers[2].items()), [w.as_dict() for w in su.windows],
         su.window_count, su.active, su.reason, su.observed, su.excited, su._ax_m, su._ax_sq, su._d_m, su._d_sq,
-        su._yaw_sq, [(g.open, g.since) for g in su._gates.values()], su.gates.st,
+        su._yaw_sq, su.st[passes.OPEN1 : passes.SINCE2 + 1], su.gates.st,
     )  # fmt: skip
 
 

@@ -126,3 +126,27 @@ def test_the_gyro_offsets_step_on_their_state_list():
         passes.gyro_update(st, p, t, d, yaw, roll)
         assert same(g.st, st) and out == (st[passes.G_YAW], st[passes.G_ROLL])
     assert g.n == int(st[passes.G_N]) > 400 and g.t == t
+
+
+def test_the_windows_hysteresis_compiled_is_the_python_one():
+    """Both windows through conditions that flicker, hold, fail hard or softly, and a clock that steps back."""
+    assert prepass._hyst.py_func is passes.hyst
+    rng = np.random.default_rng(2)
+    p, py = params(), passes.new_state()
+    py[passes.OPEN1] = py[passes.OPEN2] = 0.0
+    jit, pa = np.array(py), np.array(p)
+    t, opened, closed = 0.0, 0, 0
+    ok = [False, False]
+    for k in range(4000):
+        t += -0.3 if rng.random() < 0.005 else 0.02
+        for w, (i_open, i_since) in enumerate(((passes.OPEN1, passes.SINCE1), (passes.OPEN2, passes.SINCE2))):
+            if rng.random() < 0.05:  # the condition changes, now and then for a while
+                ok[w] = not ok[w]
+            hard = rng.random() < 0.3
+            was = py[i_open]
+            a = passes.hyst(py, i_open, i_since, t, ok[w], hard, p)
+            b = prepass._hyst(jit, i_open, i_since, t, ok[w], hard, pa)
+            assert a == b and same(py, jit), k
+            opened += was == 0.0 and a
+            closed += was == 1.0 and not a
+    assert opened > 20 and closed > 20

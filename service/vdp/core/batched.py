@@ -5,13 +5,13 @@ gyro offsets (estimator.GyroBias) and the gating supervisor (core.supervisor) in
 ~7 us a sample, a fifth of a replay's CPU once the reader is fast.  None of them depends on
 the learners, only on the samples and on whether l_f is known (the hand-over), so a replay
 can run them over a whole block in one compiled loop (core.prepass) and visit in Python
-only the samples a learner takes.  The speed filter's and the gyro offsets' steps are written
-once (core.passes: the classes call them per sample, the loop compiles them); the loop
-repeats the supervisor's operations in their order, so it gives its numbers to the last bit.  This module moves the
-state between the loop's array (core.passes' layout) and the objects, without numba.
-``tests/test_batched.py`` holds the two paths to the same estimates, supervisor state and
-windows, and the supervisor's own tests run on the class, the reference: a change to it must
-be followed in core.prepass.
+only the samples a learner takes.  The speed filter's and the gyro offsets' steps and the
+windows' hysteresis are written once (core.passes: the classes call them per sample, the loop
+compiles them); the loop repeats the supervisor's other operations in their order, so it
+gives its numbers to the last bit.  This module moves the state between the loop's array
+(core.passes' layout) and the objects, without numba.  ``tests/test_batched.py`` holds the
+two paths to the same estimates, supervisor state and windows, and the supervisor's own tests
+run on the class, the reference: a change to it must be followed in core.prepass.
 
 The learners' own steps over an open window's run of samples are compiled as well
 (``core.kernels.lat_run`` and ``lon_run``, called by ``learner.Stage2.steps`` and
@@ -20,9 +20,10 @@ The learners' own steps over an open window's run of samples are compiled as wel
 due), so the rare paths are written once.  With both, an hour of a busy bus replays in ~2.8 s
 of CPU where it took ~5.8 s sample by sample (docs/decisions/0003).
 
-The state crosses over as one float array (:func:`pack`, :func:`unpack`; the speed filter's
-and the gyro offsets' part is already laid out so, in the estimator's state list): the Python objects stay the
-state's owners, so a live service and a replay can hand a drive to each other.
+The state crosses over as one float array (:func:`pack`, :func:`unpack`; the speed filter's,
+the gyro offsets' and the windows' part already in its layout, the estimator's state list):
+the Python objects stay the state's owners, so a live service and a replay can hand a drive
+to each other.
 Without numba, with the compiled steps off (LearnerConfig.compiled) or with a coarse GNSS's
 rounding-error filter, the estimator runs per sample.
 """
@@ -50,10 +51,7 @@ from .passes import (
     N_PARAMS,
     OBSERVED,
     OPEN1,
-    OPEN2,
     RADIUS,
-    SINCE1,
-    SINCE2,
     U_T,
     WHEEL_NOISE,
     WHEEL_REF,
@@ -104,24 +102,22 @@ def _back(x: float) -> float | None:
 
 
 def pack(state: list[float], su) -> np.ndarray:
-    """The state array: the estimator's state list (the speed filter's and gyro offsets' part), a Supervisor's."""
+    """The state array: the estimator's state list (the speed filter's, the gyro offsets' and the
+    windows' part) and a Supervisor's excitation."""
     st = np.array(state)
-    g1, g2 = su._gates[1], su._gates[2]
-    st[U_T:] = (
+    st[U_T:OPEN1] = (
         _none(su._t), su.observed, su.excited[1], su.excited[2], su._ax_m, su._ax_sq, su._d_m, su._d_sq, su._yaw_sq,
-        float(g1.open), _none(g1.since), float(g2.open), _none(g2.since), su._dt, su._k[0], su._k[1],
     )  # fmt: skip
+    st[K_DT:] = su._dt, su._k[0], su._k[1]
     return st
 
 
 def unpack(st: np.ndarray, state: list[float], su) -> None:
-    """Set the state list and the Supervisor's state from the array (pack's inverse)."""
+    """Set the state list and the Supervisor's excitation from the array (pack's inverse)."""
     x = st.tolist()
     state[:] = x
     su._t, su.observed, su.excited[1], su.excited[2] = _back(x[U_T]), x[OBSERVED], x[EXC1], x[EXC2]
     su._ax_m, su._ax_sq, su._d_m, su._d_sq, su._yaw_sq = x[AX_M], x[AX_SQ], x[D_M], x[D_SQ], x[YAW_SQ]
-    g1, g2 = su._gates[1], su._gates[2]
-    g1.open, g1.since, g2.open, g2.since = x[OPEN1] != 0.0, _back(x[SINCE1]), x[OPEN2] != 0.0, _back(x[SINCE2])
     su._dt, su._k = x[K_DT], (x[K_AX], x[K_STEER])
 
 

@@ -121,9 +121,9 @@ class TwoStageEstimator:
         need1, need2 = Supervisor.stage1_needs, Supervisor.stage2_needs
         if self.cfg.speed.wheel_ref is not None:
             need1, need2 = (tuple(i for i in n if i != ch.SPEED) for n in (need1, need2))
-        self.supervisor = Supervisor(self.cfg.gate, need1, need2, wheel_radius=vehicle.wheel_radius)
         # the speed filter's, the gyro offsets' and the supervisor's state, laid out as the block pass's (core.passes)
         self.state = new_state()
+        self.supervisor = Supervisor(self.cfg.gate, need1, need2, wheel_radius=vehicle.wheel_radius, st=self.state)
         self.speed = speed_filter(self.cfg.speed, self.state)
         self.gyro_bias = GyroBias(st=self.state)
         self.trace: deque = deque(maxlen=self.cfg.trace_len)

@@ -134,3 +134,26 @@ def gyro_update(st, p, t, d, yaw, roll):
             st[G_ROLL] += k * (roll - st[G_ROLL])
         st[G_N] += 1
     st[G_T] = t
+
+
+# -- the gating supervisor (core.supervisor.Supervisor) --------------------------------
+
+
+def hyst(st, i_open, i_since, t, ok, hard, p):
+    """A stage's window with hysteresis (its entries ``i_open``, 0 or 1, and ``i_since``, when the
+    condition last changed): it opens once ``ok`` has held for T_ON and closes once it has
+    failed for T_OFF, or at once where ``hard``.  Returns whether it is open."""
+    is_open = st[i_open] != 0.0
+    if ok == is_open:
+        st[i_since] = math.nan
+        return is_open
+    if not ok and hard:
+        st[i_open] = 0.0
+        st[i_since] = math.nan
+        return False
+    if math.isnan(st[i_since]) or t < st[i_since]:  # (t < since: the bus clock stepped back)
+        st[i_since] = t
+    if t - st[i_since] >= (p[T_ON] if ok else p[T_OFF]):
+        st[i_open] = 1.0 if ok else 0.0
+        st[i_since] = math.nan
+    return st[i_open] != 0.0

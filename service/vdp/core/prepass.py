@@ -3,8 +3,8 @@
 Speed filter (core.speed.SpeedFilter), gyro offsets (estimator.GyroBias) and gating
 supervisor (core.supervisor.Supervisor) over a block of samples in one loop, on the state
 array core.passes lays out (core.batched packs it).  The speed filter's and the gyro
-offsets' steps are core.passes', compiled; the rest repeats the supervisor's operations in
-their order.  The helpers are compiled inlined into the pass (a call per sample cost too
+offsets' steps and the windows' hysteresis are core.passes', compiled; the rest repeats the
+supervisor's operations in their order.  The helpers are compiled inlined into the pass (a call per sample cost too
 much).  Cached by core.jit; ``NUMBA_DISABLE_JIT=1`` runs this same source as Python.
 """
 
@@ -63,8 +63,6 @@ from .passes import (
     RADIUS,
     SINCE1,
     SINCE2,
-    T_OFF,
-    T_ON,
     TAU_AX,
     TAU_STEER,
     U_T,
@@ -89,25 +87,7 @@ def _calling(fn, **helpers):
 _speed_reset = _inline(passes.speed_reset)
 _speed_step = _inline(_calling(passes.speed_step, speed_reset=_speed_reset))
 _gyro_update = _inline(passes.gyro_update)
-
-
-@_inline
-def _hyst(st, i_open, i_since, t, ok, hard, p):
-    """Supervisor._hyst on the state array's gate (open: 0/1, since: NaN for None)."""
-    is_open = st[i_open] != 0.0
-    if ok == is_open:
-        st[i_since] = math.nan
-        return is_open
-    if not ok and hard:
-        st[i_open] = 0.0
-        st[i_since] = math.nan
-        return False
-    if math.isnan(st[i_since]) or t < st[i_since]:
-        st[i_since] = t
-    if t - st[i_since] >= (p[T_ON] if ok else p[T_OFF]):
-        st[i_open] = 1.0 if ok else 0.0
-        st[i_since] = math.nan
-    return st[i_open] != 0.0
+_hyst = _inline(passes.hyst)
 
 
 @_inline

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 from .. import channels as ch
 from . import gates as gt
+from .passes import N_PARAMS, OPEN1, OPEN2, SINCE1, SINCE2, gate_params, hyst, new_state
 
 MAX_WINDOWS = 500  # windows kept for reports and the API
 
@@ -120,20 +121,19 @@ class Window:
 
 
 @dataclass
-class _Gate:
-    open: bool = False
-    since: float | None = None  # when the raw condition last changed
-
-
-@dataclass
 class Supervisor:
     cfg: GateConfig = field(default_factory=GateConfig)
     stage1_needs: tuple[int, ...] = tuple(ch.INDEX[n] for n in ch.STAGE1_NEEDS)
     stage2_needs: tuple[int, ...] = tuple(ch.INDEX[n] for n in ch.STAGE2_NEEDS)
     wheel_radius: float = 0.3
     gates_cfg: gt.GatesConfig = field(default_factory=gt.GatesConfig)
+    # the windows' hysteresis in entries OPEN1 to SINCE2 of a state list (core.passes, whose ``hyst`` is
+    # the step on both paths): the estimator's, or one of its own
+    st: list[float] = field(default_factory=new_state, repr=False, compare=False)
 
     def __post_init__(self):
+        self._p = [math.nan] * N_PARAMS
+        gate_params(self._p, self.cfg)
         # each code's reason, in this supervisor's limits, made once (the per-sample path hands them out)
         self._reasons = {code: Reason(code, text.format(v_min=self.cfg.v_min)) for code, text in REASONS.items()}
         self.gates = gt.Gates(self.gates_cfg, self.wheel_radius)
@@ -148,7 +148,8 @@ class Supervisor:
         self.blockers: dict[int, dict[str, float]] = {1: {}, 2: {}}
         self._ax_m = self._ax_sq = 0.0
         self._d_m = self._d_sq = self._yaw_sq = 0.0
-        self._gates = {1: _Gate(), 2: _Gate()}
+        self.st[OPEN1] = self.st[OPEN2] = 0.0  # shut, neither condition changing
+        self.st[SINCE1] = self.st[SINCE2] = math.nan
         self.windows: deque[Window] = deque(maxlen=MAX_WINDOWS)  # the newest; memory stays flat
         self.window_count = 0
         self.active: int | None = None
@@ -206,8 +207,8 @@ class Supervisor:
         self._r1, self._r2 = r1, r2
         hard1 = r1 is not None and r1.hard
         hard2 = r2 is not None and r2.hard
-        o1 = self._hyst(1, t, r1 is None, hard1)
-        o2 = self._hyst(2, t, r2 is None, hard2)
+        o1 = hyst(self.st, OPEN1, SINCE1, t, r1 is None, hard1, self._p)
+        o2 = hyst(self.st, OPEN2, SINCE2, t, r2 is None, hard2, self._p)
         stage = 2 if o2 else 1 if o1 else None  # the conditions exclude each other; 2 wins a tie
         if stage != self.active:
             if self.active is not None:
@@ -272,20 +273,6 @@ class Supervisor:
                 "main_blocker": max(b, key=b.get) if b else None,
             }
         return out
-
-    def _hyst(self, stage: int, t: float, ok: bool, hard: bool) -> bool:
-        g = self._gates[stage]
-        if ok == g.open:
-            g.since = None
-            return g.open
-        if not ok and hard:
-            g.open, g.since = False, None
-            return False
-        if g.since is None or t < g.since:  # (t < since: the bus clock stepped back)
-            g.since = t
-        if t - g.since >= (self.cfg.t_on if ok else self.cfg.t_off):
-            g.open, g.since = ok, None
-        return g.open
 
     def state(self) -> dict:
         return {
