@@ -62,8 +62,7 @@ def norm(x):
 def supervisor_state(su):
     return (
         list(su.blockers[1].items()), list(su.blockers[2].items()), [w.as_dict() for w in su.windows],
-        su.window_count, su.active, su.reason, su.observed, su.excited, su._ax_m, su._ax_sq, su._d_m, su._d_sq,
-        su._yaw_sq, su.st[passes.OPEN1 : passes.SINCE2 + 1], su.gates.st,
+        su.window_count, su.active, su.reason, su.st[passes.U_T : passes.K_STEER + 1], su.gates.st,
     )  # fmt: skip
 
 
@@ -92,13 +91,11 @@ def stage2_state(l2):
 
 def estimator_state(e):
     """Everything of the estimator a later sample, a snapshot or a live service could see."""
-    sp, gy = e.speed, e.gyro_bias
     return norm({
         **{f"stage1 {k}": stage1_state(l) for k, l in e.s1.items()},
         **{f"stage2 {k}": stage2_state(l) for k, l in e.s2.items()},
         "supervisor": supervisor_state(e.supervisor),
-        "speed": (sp.v, sp.p_vv, sp.p_vb, sp.p_bb, sp.bias, sp.t, sp.a_prev),
-        "gyro": (gy.yaw, gy.roll, gy.n, gy.t),
+        "state": e.state,  # the speed filter's, the gyro offsets' and the supervisor's (core.passes)
         "handover_t": e.handover_t,
         "clock": (e.t, e._stage),
         "snapshot": repr(e.snapshot()),
@@ -288,8 +285,8 @@ def test_other_settings_and_filters_that_fail_inside_a_run(drive, paper):
 def test_the_pass_words_reasons_as_the_supervisor():
     from vdp.core import supervisor as sup
 
-    copies = (batched._SPEED_LOW, batched._STEERING, batched._YAWING, batched._LITTLE_AX, batched._LITTLE_STEER,
-              batched._NOT_CONSTANT, batched._MISSING, batched._WAITING, batched._GATED, batched._SHUTS)  # fmt: skip
+    copies = (passes._SPEED_LOW, passes._STEERING, passes._YAWING, passes._LITTLE_AX, passes._LITTLE_STEER,
+              passes._NOT_CONSTANT, passes._MISSING, passes._WAITING, passes._GATED, passes._SHUTS)  # fmt: skip
     assert copies == (sup.SPEED_LOW, sup.STEERING, sup.YAWING, sup.LITTLE_AX, sup.LITTLE_STEER, sup.NOT_CONSTANT,
                       sup.MISSING, sup.WAITING, sup.GATED, sup.gt.SHUTS)  # fmt: skip
     little = [c for c in range(1, batched.N_CODES) if c != sup.MISSING and sup.REASONS[c].startswith("little")]

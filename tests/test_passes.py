@@ -150,3 +150,36 @@ def test_the_windows_hysteresis_compiled_is_the_python_one():
             opened += was == 0.0 and a
             closed += was == 1.0 and not a
     assert opened > 20 and closed > 20
+
+
+def test_the_supervisors_excitation_compiled_is_the_python_one():
+    """A drive through every reason code: slow and fast, straight and turning, a_x still and busy,
+    a gate now and then, channels missing, steps of uneven length and gaps."""
+    assert prepass._supervise.py_func is passes.supervise
+    rng = np.random.default_rng(3)
+    p = params()
+    p[passes.RADIUS] = 0.3
+    py = passes.new_state()
+    py[passes.U_T : passes.K_STEER + 1] = [0.0] * (passes.K_STEER + 1 - passes.U_T)
+    py[passes.U_T] = py[passes.K_DT] = math.nan
+    jit, pa = np.array(py), np.array(p)
+    t, seen = 0.0, set()
+    for k in range(6000):
+        t += 0.02 if k % 11 else float(rng.uniform(-0.01, 0.2))
+        phase = (k // 400) % 5  # every 8 s: slow, accelerating, weaving, cruising, braking
+        v = 3.0 if phase == 0 else 20.0
+        ax = {1: 2.0 * math.sin(0.05 * k), 4: -3.0}.get(phase, 0.05 * rng.standard_normal())
+        if phase == 2 and k % 400 >= 200:  # weaving while speeding up
+            ax += 1.0
+        d = 0.05 * math.sin(0.03 * k) if phase == 2 else 0.002 * rng.standard_normal()
+        yaw = 0.3 * math.sin(0.03 * k) if phase == 2 else 0.004 * rng.standard_normal()
+        gap, gate = bool(rng.random() < 0.002), int(rng.integers(1, 9)) if rng.random() < 0.02 else 0
+        v_x = math.nan if rng.random() < 0.05 else v
+        gnss = math.nan if rng.random() < 0.5 else v
+        ax, d = (math.nan if rng.random() < 0.01 else x for x in (ax, d))
+        args = (t, gap, gate, ax, d, yaw, v_x, gnss, v / 0.3, v / 0.3)
+        a = passes.supervise(py, p, *args)
+        b = prepass._supervise(jit, pa, *args)
+        assert a == b and same(py, jit), k
+        seen.update(a[1:])
+    assert seen == {0, *range(1, 7), *range(passes._GATED + 1, passes._GATED + passes._SHUTS + 1)}

@@ -5,13 +5,12 @@ gyro offsets (estimator.GyroBias) and the gating supervisor (core.supervisor) in
 ~7 us a sample, a fifth of a replay's CPU once the reader is fast.  None of them depends on
 the learners, only on the samples and on whether l_f is known (the hand-over), so a replay
 can run them over a whole block in one compiled loop (core.prepass) and visit in Python
-only the samples a learner takes.  The speed filter's and the gyro offsets' steps and the
-windows' hysteresis are written once (core.passes: the classes call them per sample, the loop
-compiles them); the loop repeats the supervisor's other operations in their order, so it
-gives its numbers to the last bit.  This module moves the state between the loop's array
-(core.passes' layout) and the objects, without numba.  ``tests/test_batched.py`` holds the
-two paths to the same estimates, supervisor state and windows, and the supervisor's own tests
-run on the class, the reference: a change to it must be followed in core.prepass.
+only the samples a learner takes.  Their steps are written once (core.passes): the classes
+call them per sample on the estimator's state list, the loop compiles them, so both paths give
+the same numbers to the last bit.  The loop adds only what the classes hold in Python form (the
+speed measurement, the supervisor's blockers and missing channels); ``tests/test_batched.py``
+holds the two paths to the same estimates, supervisor state and windows.  This module makes
+the loop's parameters and turns what it counts back into the supervisor's, without numba.
 
 The learners' own steps over an open window's run of samples are compiled as well
 (``core.kernels.lat_run`` and ``lon_run``, called by ``learner.Stage2.steps`` and
@@ -20,52 +19,31 @@ The learners' own steps over an open window's run of samples are compiled as wel
 due), so the rare paths are written once.  With both, an hour of a busy bus replays in ~2.8 s
 of CPU where it took ~5.8 s sample by sample (docs/decisions/0003).
 
-The state crosses over as one float array (:func:`pack`, :func:`unpack`; the speed filter's,
-the gyro offsets' and the windows' part already in its layout, the estimator's state list):
-the Python objects stay the state's owners, so a live service and a replay can hand a drive
-to each other.
-Without numba, with the compiled steps off (LearnerConfig.compiled) or with a coarse GNSS's
-rounding-error filter, the estimator runs per sample.
+The state crosses over as the estimator's state list, copied into an array and back: the
+Python objects stay the state's owners, so a live service and a replay can hand a drive to
+each other.  Without numba, with the compiled steps off (LearnerConfig.compiled) or with a
+coarse GNSS's rounding-error filter, the estimator runs per sample.
 """
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 
 from .. import channels as ch
 from . import supervisor as sup
 from .passes import (
-    AX_M,
-    AX_SQ,
     BRAKE_MAX,
-    D_M,
-    D_SQ,
-    EXC1,
-    EXC2,
     GYRO_TAU,
-    K_AX,
-    K_DT,
-    K_STEER,
     N_PARAMS,
-    OBSERVED,
-    OPEN1,
     RADIUS,
-    U_T,
     WHEEL_NOISE,
     WHEEL_REF,
-    YAW_SQ,
     gate_params,
     speed_params,
 )
 from .speed import SpeedFilter
 
 N_CODES = max(sup.REASONS) + 1  # reason codes 0 (none) to supervisor.WAITING, then the gates' (GATED + k)
-# the supervisor's reason codes, as copies: numba freezes a global into the cached code and invalidates
-# that cache only when this file changes (tests/test_batched.py holds them equal)
-_SPEED_LOW, _STEERING, _YAWING, _LITTLE_AX, _LITTLE_STEER, _NOT_CONSTANT, _MISSING, _WAITING = range(1, 9)
-_GATED, _SHUTS = _WAITING, 6  # supervisor.GATED, gates.SHUTS: gate k's reason code is _GATED + k
 # channel indices, passed in (numba would freeze module globals into its cache)
 CHANNELS = np.array(
     [ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR, ch.T_F, ch.T_R, ch.DELTA, ch.AX, ch.YAW, ch.ROLL, ch.SPEED]
@@ -73,7 +51,7 @@ CHANNELS = np.array(
 WS_FL, WS_FR, WS_RL, WS_RR, T_F, T_R, DELTA, AX, YAW, ROLL, SPEED = range(11)
 
 
-# -- the state and parameters, from and to the estimator's objects ------------------
+# -- the parameters, and what the pass counts back into the supervisor ------------------
 
 
 def batchable(speed) -> bool:
@@ -91,34 +69,6 @@ def params(cfg, vehicle, gyro_tau: float) -> np.ndarray:
     p[RADIUS], p[GYRO_TAU] = vehicle.wheel_radius, gyro_tau
     gate_params(p, g)
     return p
-
-
-def _none(x: float | None) -> float:
-    return math.nan if x is None else x
-
-
-def _back(x: float) -> float | None:
-    return None if math.isnan(x) else x
-
-
-def pack(state: list[float], su) -> np.ndarray:
-    """The state array: the estimator's state list (the speed filter's, the gyro offsets' and the
-    windows' part) and a Supervisor's excitation."""
-    st = np.array(state)
-    st[U_T:OPEN1] = (
-        _none(su._t), su.observed, su.excited[1], su.excited[2], su._ax_m, su._ax_sq, su._d_m, su._d_sq, su._yaw_sq,
-    )  # fmt: skip
-    st[K_DT:] = su._dt, su._k[0], su._k[1]
-    return st
-
-
-def unpack(st: np.ndarray, state: list[float], su) -> None:
-    """Set the state list and the Supervisor's excitation from the array (pack's inverse)."""
-    x = st.tolist()
-    state[:] = x
-    su._t, su.observed, su.excited[1], su.excited[2] = _back(x[U_T]), x[OBSERVED], x[EXC1], x[EXC2]
-    su._ax_m, su._ax_sq, su._d_m, su._d_sq, su._yaw_sq = x[AX_M], x[AX_SQ], x[D_M], x[D_SQ], x[YAW_SQ]
-    su._dt, su._k = x[K_DT], (x[K_AX], x[K_STEER])
 
 
 def blockers(su) -> tuple[np.ndarray, np.ndarray]:

@@ -222,7 +222,7 @@ class TwoStageEstimator:
             for smp in sample_block(T, Y, F, A, gap):
                 self.mass.handle(smp.t, smp)
         su = self.supervisor
-        st0 = batched.pack(self.state, su)
+        st0 = np.array(self.state)  # (core.passes' layout: the speed filter's, gyro offsets' and supervisor's state)
         blk0, first0 = batched.blockers(su)
         prev0 = self._stage or 0
         gaps = np.zeros(n, dtype=bool)
@@ -244,7 +244,7 @@ class TwoStageEstimator:
                 break
             # l_f became known at sample ``handed``: the supervisor sees it from the next on
             done_from = i0 = handed + 1
-        batched.unpack(st, self.state, su)
+        self.state[:] = st.tolist()
         batched.set_blockers(su, blk, first)
         batched.windows(su, T, stage)
         last = Y[-1].tolist()

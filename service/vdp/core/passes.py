@@ -1,13 +1,13 @@
 """The steps the estimator takes before its learners, written once on a state array (issue 29).
 
 The speed filter (core.speed.SpeedFilter), the gyro offsets (estimator.GyroBias) and the
-gating supervisor's hysteresis (core.supervisor.Supervisor) keep their state in one array
-laid out by the named indices below (NaN stands for None).  Each step is a plain function of
-that array: the classes call it per sample on a list (Python floats: a list is the fast
-container for them), and core.prepass compiles the same function, inlined into its pass over
-a block, on a numpy array.  So there is one implementation per algorithm, and the two paths
-agree to the last bit by construction.  No numba here: the per-sample path (a live service,
-a short log) must never import it (core.compiled).
+gating supervisor (core.supervisor.Supervisor) keep their state in one array laid out by the
+named indices below (NaN stands for None).  Each step is a plain function of that array: the
+classes call it per sample on a list (Python floats: a list is the fast container for them),
+and core.prepass compiles the same function, inlined into its pass over a block, on a numpy
+array.  So each algorithm has one implementation, and the two paths agree to the last bit
+(tests/test_passes.py holds each compiled step to the Python one).  No numba here: the
+per-sample path (a live service, a short log) must never import it (core.compiled).
 
 numba cannot call a Python function: where a step calls another (speed_step, speed_reset),
 core.prepass compiles the callee too and gives the caller's compiled copy the compiled one.
@@ -28,6 +28,10 @@ N_STATE = 27
  DELTA_MAX_1, YAW_MAX_1, AX_STD_MIN, AX_MEAN_MAX_2, DELTA_STD_MIN_2, YAW_RMS_MIN_2, TAU_AX, TAU_STEER, T_ON,
  T_OFF) = range(20)  # fmt: skip
 N_PARAMS = 20
+# the supervisor's reason codes, as copies: numba freezes a global into the cached code and invalidates
+# that cache only when this file changes (tests/test_batched.py holds them equal)
+_SPEED_LOW, _STEERING, _YAWING, _LITTLE_AX, _LITTLE_STEER, _NOT_CONSTANT, _MISSING, _WAITING = range(1, 9)
+_GATED, _SHUTS = _WAITING, 6  # supervisor.GATED, gates.SHUTS: gate k's reason code is _GATED + k
 
 
 def new_state() -> list[float]:
@@ -157,3 +161,59 @@ def hyst(st, i_open, i_since, t, ok, hard, p):
         st[i_open] = 1.0 if ok else 0.0
         st[i_since] = math.nan
     return st[i_open] != 0.0
+
+
+def supervise(st, p, t, gap, gate, ax, d, yaw, v_x, gnss, ws_rl, ws_rr):
+    """A sample's excitation, at ``t`` (``gap``: the first after a gap; ``gate``: its gate code,
+    core.gates): the moving statistics, the seconds observed and excited, and the reason codes
+    (0: none) that keep each stage's window shut, the channels and the hand-over aside.
+    Returns (the step's seconds, stage 1's code, stage 2's code)."""
+    dt = 0.01 if math.isnan(st[U_T]) or gap else min(max(t - st[U_T], 0.0), 0.1)
+    st[U_T] = t
+    if dt != st[K_DT]:  # nearly every step is one tick: its gains kept (two exp per sample were a tenth of the cost)
+        st[K_DT] = dt
+        st[K_AX] = 1.0 - math.exp(-dt / p[TAU_AX])
+        st[K_STEER] = 1.0 - math.exp(-dt / p[TAU_STEER])
+    k_ax, k_steer = st[K_AX], st[K_STEER]
+    if math.isfinite(ax):
+        st[AX_M] += k_ax * (ax - st[AX_M])
+        st[AX_SQ] += k_ax * (ax * ax - st[AX_SQ])
+    if math.isfinite(d) and math.isfinite(yaw):
+        st[D_M] += k_steer * (d - st[D_M])
+        st[D_SQ] += k_steer * (d * d - st[D_SQ])
+        st[YAW_SQ] += k_steer * (yaw * yaw - st[YAW_SQ])
+    speed = v_x if math.isfinite(v_x) else gnss
+    if not math.isfinite(speed):
+        speed = 0.5 * (ws_rl + ws_rr) * p[RADIUS]
+    # stage 1 (a missing channel is not judged here)
+    if not speed > p[V_MIN]:
+        d1 = _SPEED_LOW
+    elif abs(d) >= p[DELTA_MAX_1]:
+        d1 = _STEERING
+    elif abs(yaw) >= p[YAW_MAX_1]:
+        d1 = _YAWING
+    elif math.sqrt(max(st[AX_SQ] - st[AX_M] * st[AX_M], 0.0)) < p[AX_STD_MIN]:
+        d1 = _LITTLE_AX  # the spread of a_x, not its RMS: a constant offset (grade, bias) excites nothing
+    else:
+        d1 = 0
+    # stage 2: steering first, it is what defines this stage, so it is the blocker worth naming
+    d_std = math.sqrt(max(st[D_SQ] - st[D_M] * st[D_M], 0.0))
+    if d_std < p[DELTA_STD_MIN_2] and math.sqrt(max(st[YAW_SQ], 0.0)) < p[YAW_RMS_MIN_2]:
+        d2 = _LITTLE_STEER
+    elif not speed > p[V_MIN]:
+        d2 = _SPEED_LOW
+    elif abs(st[AX_M]) > p[AX_MEAN_MAX_2]:
+        d2 = _NOT_CONSTANT
+    else:
+        d2 = 0
+    if 0 < gate <= _SHUTS:  # a gate shuts both windows, unless the driving already does
+        if d1 == 0 or d1 == _LITTLE_AX:  # noqa: PLR1714 (numba: no set)
+            d1 = _GATED + gate
+        if d2 == 0 or d2 == _LITTLE_STEER:  # noqa: PLR1714
+            d2 = _GATED + gate
+    st[OBSERVED] += dt
+    if d1 == 0:
+        st[EXC1] += dt
+    if d2 == 0:
+        st[EXC2] += dt
+    return dt, d1, d2

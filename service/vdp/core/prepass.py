@@ -1,11 +1,13 @@
 """core.batched's pass over a block, compiled (numba): imported at its first use, not with the core.
 
-Speed filter (core.speed.SpeedFilter), gyro offsets (estimator.GyroBias) and gating
-supervisor (core.supervisor.Supervisor) over a block of samples in one loop, on the state
-array core.passes lays out (core.batched packs it).  The speed filter's and the gyro
-offsets' steps and the windows' hysteresis are core.passes', compiled; the rest repeats the
-supervisor's operations in their order.  The helpers are compiled inlined into the pass (a call per sample cost too
-much).  Cached by core.jit; ``NUMBA_DISABLE_JIT=1`` runs this same source as Python.
+The speed filter (core.speed.SpeedFilter), the gyro offsets (estimator.GyroBias) and the
+gating supervisor (core.supervisor.Supervisor) over a block of samples in one loop, on the
+state array core.passes lays out.  Their steps are core.passes', compiled here; the loop adds
+what the classes hold in Python form: the speed measurement of each sample
+(TwoStageEstimator._speed), the supervisor's blockers (seconds per reason code, where the class
+keys a dict by its reasons) and its test for missing channels.  The helpers are compiled
+inlined into the pass (a call per sample cost too much).  Cached by core.jit;
+``NUMBA_DISABLE_JIT=1`` runs this same source as Python.
 """
 
 from __future__ import annotations
@@ -15,16 +17,6 @@ import types
 
 from . import passes
 from .batched import (
-    _GATED,
-    _LITTLE_AX,
-    _LITTLE_STEER,
-    _MISSING,
-    _NOT_CONSTANT,
-    _SHUTS,
-    _SPEED_LOW,
-    _STEERING,
-    _WAITING,
-    _YAWING,
     AX,
     DELTA,
     ROLL,
@@ -39,39 +31,22 @@ from .batched import (
 )
 from .jit import jit
 from .passes import (
-    AX_M,
-    AX_MEAN_MAX_2,
-    AX_SQ,
-    AX_STD_MIN,
+    _LITTLE_AX,
+    _LITTLE_STEER,
+    _MISSING,
+    _WAITING,
     BIAS,
     BRAKE_MAX,
-    D_M,
-    D_SQ,
-    DELTA_MAX_1,
-    DELTA_STD_MIN_2,
-    EXC1,
-    EXC2,
     G_ROLL,
     G_YAW,
-    K_AX,
-    K_DT,
-    K_STEER,
-    OBSERVED,
     OPEN1,
     OPEN2,
     P_VV,
     RADIUS,
     SINCE1,
     SINCE2,
-    TAU_AX,
-    TAU_STEER,
-    U_T,
-    V_MIN,
     WHEEL_NOISE,
     WHEEL_REF,
-    YAW_MAX_1,
-    YAW_RMS_MIN_2,
-    YAW_SQ,
     V,
 )
 
@@ -88,6 +63,7 @@ _speed_reset = _inline(passes.speed_reset)
 _speed_step = _inline(_calling(passes.speed_step, speed_reset=_speed_reset))
 _gyro_update = _inline(passes.gyro_update)
 _hyst = _inline(passes.hyst)
+_supervise = _inline(passes.supervise)
 
 
 @_inline
@@ -149,62 +125,15 @@ def prepass(T, Y, F, A, gap, gate, st, p, c, needs1, needs2, done_from, blk, fir
         out[i, 1] = math.sqrt(st[P_VV]) if math.isfinite(v) else math.nan
         out[i, 2] = st[BIAS]
         # -- GyroBias.update
-        d, yaw = y[c[DELTA]], y[c[YAW]]
-        _gyro_update(st, p, t, d, yaw, y[c[ROLL]])
+        _gyro_update(st, p, t, y[c[DELTA]], y[c[YAW]], y[c[ROLL]])
         out[i, 3] = st[G_YAW]
         out[i, 4] = st[G_ROLL]
         # -- Supervisor.update
-        dt = 0.01 if math.isnan(st[U_T]) or gap[i] else min(max(t - st[U_T], 0.0), 0.1)
-        st[U_T] = t
-        if dt != st[K_DT]:
-            st[K_DT] = dt
-            st[K_AX] = 1.0 - math.exp(-dt / p[TAU_AX])
-            st[K_STEER] = 1.0 - math.exp(-dt / p[TAU_STEER])
-        k_ax, k_steer = st[K_AX], st[K_STEER]
-        if math.isfinite(ax):
-            st[AX_M] += k_ax * (ax - st[AX_M])
-            st[AX_SQ] += k_ax * (ax * ax - st[AX_SQ])
-        if math.isfinite(d) and math.isfinite(yaw):
-            st[D_M] += k_steer * (d - st[D_M])
-            st[D_SQ] += k_steer * (d * d - st[D_SQ])
-            st[YAW_SQ] += k_steer * (yaw * yaw - st[YAW_SQ])
-        speed = v if math.isfinite(v) else y[c[SPEED]]
-        if not math.isfinite(speed):
-            speed = 0.5 * (y[c[WS_RL]] + y[c[WS_RR]]) * p[RADIUS]
-        # Supervisor._drive1, _drive2
-        if not speed > p[V_MIN]:
-            d1 = _SPEED_LOW
-        elif abs(d) >= p[DELTA_MAX_1]:
-            d1 = _STEERING
-        elif abs(yaw) >= p[YAW_MAX_1]:
-            d1 = _YAWING
-        elif math.sqrt(max(st[AX_SQ] - st[AX_M] * st[AX_M], 0.0)) < p[AX_STD_MIN]:
-            d1 = _LITTLE_AX
-        else:
-            d1 = 0
-        d_std = math.sqrt(max(st[D_SQ] - st[D_M] * st[D_M], 0.0))
-        if d_std < p[DELTA_STD_MIN_2] and math.sqrt(max(st[YAW_SQ], 0.0)) < p[YAW_RMS_MIN_2]:
-            d2 = _LITTLE_STEER
-        elif not speed > p[V_MIN]:
-            d2 = _SPEED_LOW
-        elif abs(st[AX_M]) > p[AX_MEAN_MAX_2]:
-            d2 = _NOT_CONSTANT
-        else:
-            d2 = 0
-        g = gate[i]
-        if 0 < g <= _SHUTS:  # Supervisor.update: a gate shuts both windows, unless the driving already does
-            if d1 == 0 or d1 == _LITTLE_AX:  # noqa: PLR1714 (numba: no set)
-                d1 = _GATED + g
-            if d2 == 0 or d2 == _LITTLE_STEER:  # noqa: PLR1714
-                d2 = _GATED + g
-        st[OBSERVED] += dt
-        if d1 == 0:
-            st[EXC1] += dt
-        else:
+        dt, d1, d2 = _supervise(st, p, t, gap[i], gate[i], ax, y[c[DELTA]], y[c[YAW]], v, y[c[SPEED]], y[c[WS_RL]],
+                                y[c[WS_RR]])  # fmt: skip
+        if d1 != 0:
             _blocked(blk, first, 0, d1, dt, i)
-        if d2 == 0:
-            st[EXC2] += dt
-        else:
+        if d2 != 0:
             _blocked(blk, first, 1, d2, dt, i)
         r1 = _MISSING if _missing(y, needs1) else d1
         if i < done_from:

@@ -27,7 +27,30 @@ from dataclasses import dataclass, field
 
 from .. import channels as ch
 from . import gates as gt
-from .passes import N_PARAMS, OPEN1, OPEN2, SINCE1, SINCE2, gate_params, hyst, new_state
+from .passes import (
+    AX_M,
+    AX_SQ,
+    D_M,
+    D_SQ,
+    EXC1,
+    EXC2,
+    K_DT,
+    K_STEER,
+    N_PARAMS,
+    OBSERVED,
+    OPEN1,
+    OPEN2,
+    RADIUS,
+    SINCE1,
+    SINCE2,
+    U_T,
+    YAW_SQ,
+    Entry,
+    gate_params,
+    hyst,
+    new_state,
+    supervise,
+)
 
 MAX_WINDOWS = 500  # windows kept for reports and the API
 
@@ -127,79 +150,51 @@ class Supervisor:
     stage2_needs: tuple[int, ...] = tuple(ch.INDEX[n] for n in ch.STAGE2_NEEDS)
     wheel_radius: float = 0.3
     gates_cfg: gt.GatesConfig = field(default_factory=gt.GatesConfig)
-    # the windows' hysteresis in entries OPEN1 to SINCE2 of a state list (core.passes, whose ``hyst`` is
-    # the step on both paths): the estimator's, or one of its own
+    # the excitation and the windows in entries U_T to K_STEER of a state list (core.passes, whose
+    # ``supervise`` and ``hyst`` are the steps on both paths): the estimator's, or one of its own
     st: list[float] = field(default_factory=new_state, repr=False, compare=False)
+
+    # how long the driving itself (channels and hand-over aside) met each stage's conditions
+    # (excited), and the moving statistics of a_x, delta and the yaw rate
+    _t, observed = Entry(U_T, none=True), Entry(OBSERVED)
+    _ax_m, _ax_sq, _d_m, _d_sq, _yaw_sq = Entry(AX_M), Entry(AX_SQ), Entry(D_M), Entry(D_SQ), Entry(YAW_SQ)
 
     def __post_init__(self):
         self._p = [math.nan] * N_PARAMS
         gate_params(self._p, self.cfg)
+        self._p[RADIUS] = self.wheel_radius
         # each code's reason, in this supervisor's limits, made once (the per-sample path hands them out)
         self._reasons = {code: Reason(code, text.format(v_min=self.cfg.v_min)) for code, text in REASONS.items()}
         self.gates = gt.Gates(self.gates_cfg, self.wheel_radius)
         self.reset()
 
     def reset(self) -> None:
-        self._t: float | None = None
-        # how long the driving itself (channels and hand-over aside) met each stage's
-        # conditions, and what most often stopped it: "no steering excitation" and the like
-        self.observed = 0.0
-        self.excited = {1: 0.0, 2: 0.0}
+        st = self.st
+        st[U_T : K_STEER + 1] = [0.0] * (K_STEER + 1 - U_T)
+        st[U_T] = st[SINCE1] = st[SINCE2] = st[K_DT] = math.nan  # (no sample yet, no gain for a step yet)
+        # what most often stopped each stage: "no steering excitation" and the like
         self.blockers: dict[int, dict[str, float]] = {1: {}, 2: {}}
-        self._ax_m = self._ax_sq = 0.0
-        self._d_m = self._d_sq = self._yaw_sq = 0.0
-        self.st[OPEN1] = self.st[OPEN2] = 0.0  # shut, neither condition changing
-        self.st[SINCE1] = self.st[SINCE2] = math.nan
         self.windows: deque[Window] = deque(maxlen=MAX_WINDOWS)  # the newest; memory stays flat
         self.window_count = 0
         self.active: int | None = None
         self._r1 = self._r2 = Reason(Code.NO_DATA, "no data yet")
-        self._dt, self._k = math.nan, (0.0, 0.0)  # the last step's EMA gains (_gains)
         self.gates.reset()
 
-    def _ema(self, dt: float, tau: float) -> float:
-        return 1.0 - math.exp(-dt / tau)
-
-    def _gains(self, dt: float) -> tuple[float, float]:
-        """(a_x's, the steering's) EMA gains for a step of ``dt``: nearly every step is one tick,
-        so the last pair is kept (two exp per sample were a tenth of the supervisor's cost)."""
-        if dt != self._dt:
-            self._dt = dt
-            self._k = (self._ema(dt, self.cfg.tau_ax), self._ema(dt, self.cfg.tau_steer))
-        return self._k
+    @property
+    def excited(self) -> dict[int, float]:
+        """Seconds the driving met each stage's conditions."""
+        return {1: self.st[EXC1], 2: self.st[EXC2]}
 
     def update(self, t: float, s, stage1_done: bool) -> int | None:
         """Feed one sample; return the stage whose window is open (1, 2 or None)."""
         y = s.values
-        dt = 0.01 if self._t is None or s.gap else min(max(t - self._t, 0.0), 0.1)
-        self._t = t
-        ax, d, yaw = y[ch.AX], y[ch.DELTA], y[ch.YAW]
-        k_ax, k_steer = self._gains(dt)
-        if math.isfinite(ax):
-            self._ax_m += k_ax * (ax - self._ax_m)
-            self._ax_sq += k_ax * (ax * ax - self._ax_sq)
-        if math.isfinite(d) and math.isfinite(yaw):
-            self._d_m += k_steer * (d - self._d_m)
-            self._d_sq += k_steer * (d * d - self._d_sq)
-            self._yaw_sq += k_steer * (yaw * yaw - self._yaw_sq)
-        c = self.cfg
-        speed = s.v_x if math.isfinite(s.v_x) else y[ch.SPEED]
-        if not math.isfinite(speed):
-            speed = 0.5 * (y[ch.WS_RL] + y[ch.WS_RR]) * self.wheel_radius
-
-        d1, d2 = self._drive1(y, speed, c), self._drive2(y, speed, c)
         g = self.gates.update(t, s.gap, y)
-        if 0 < g <= gt.SHUTS:  # a gate shuts both windows, unless the driving already does
-            why = self._reasons[GATED + g]
-            if d1 is None or d1.code == LITTLE_AX:
-                d1 = why
-            if d2 is None or d2.code == LITTLE_STEER:
-                d2 = why
-        self.observed += dt
+        dt, c1, c2 = supervise(self.st, self._p, t, s.gap, g, y[ch.AX], y[ch.DELTA], y[ch.YAW], s.v_x, y[ch.SPEED],
+                               y[ch.WS_RL], y[ch.WS_RR])  # fmt: skip
+        d1 = self._reasons[c1] if c1 else None
+        d2 = self._reasons[c2] if c2 else None
         for stage, d in ((1, d1), (2, d2)):
-            if d is None:
-                self.excited[stage] += dt
-            else:
+            if d is not None:
                 b = self.blockers[stage]
                 b[d] = b.get(d, 0.0) + dt
         r1 = self._missing(y, self.stage1_needs) or d1
@@ -235,31 +230,6 @@ class Supervisor:
             if not math.isfinite(y[i]):
                 bad = tuple(ch.NAMES[i] for i in needs if not math.isfinite(y[i]))
                 return Reason(MISSING, f"channels missing or stale: {', '.join(bad)}", bad)
-        return None
-
-    def _drive1(self, y, speed, c) -> Reason | None:
-        """Why the driving does not suit stage 1 (None: it does); a missing channel is not judged."""
-        if not speed > c.v_min:
-            return self._reasons[SPEED_LOW]
-        if abs(y[ch.DELTA]) >= c.delta_max_1:
-            return self._reasons[STEERING]
-        if abs(y[ch.YAW]) >= c.yaw_max_1:
-            return self._reasons[YAWING]
-        # the spread of a_x, not its RMS: a constant offset (grade, bias) excites nothing
-        if math.sqrt(max(self._ax_sq - self._ax_m * self._ax_m, 0.0)) < c.ax_std_min:
-            return self._reasons[LITTLE_AX]
-        return None
-
-    def _drive2(self, y, speed, c) -> Reason | None:
-        """Why the driving does not suit stage 2 (None: it does)."""
-        # steering first: it is what defines this stage, so it is the blocker worth naming
-        d_std = math.sqrt(max(self._d_sq - self._d_m * self._d_m, 0.0))
-        if d_std < c.delta_std_min_2 and math.sqrt(max(self._yaw_sq, 0.0)) < c.yaw_rms_min_2:
-            return self._reasons[LITTLE_STEER]
-        if not speed > c.v_min:
-            return self._reasons[SPEED_LOW]
-        if abs(self._ax_m) > c.ax_mean_max_2:
-            return self._reasons[NOT_CONSTANT]
         return None
 
     def excitation(self) -> dict:
