@@ -30,17 +30,8 @@ from __future__ import annotations
 import numpy as np
 
 from .. import channels as ch
+from . import passes as ps
 from . import supervisor as sup
-from .passes import (
-    BRAKE_MAX,
-    GYRO_TAU,
-    N_PARAMS,
-    RADIUS,
-    WHEEL_NOISE,
-    WHEEL_REF,
-    gate_params,
-    speed_params,
-)
 from .speed import SpeedFilter
 
 N_CODES = max(sup.REASONS) + 1  # reason codes 0 (none) to supervisor.WAITING, then the gates' (GATED + k)
@@ -63,11 +54,11 @@ def params(cfg, vehicle, gyro_tau: float) -> np.ndarray:
     """The parameters array of an EstimatorConfig (its speed and gate configs) for ``vehicle``."""
     s, g = cfg.speed, cfg.gate
     ref = {None: 0.0, "front": 1.0}.get(s.wheel_ref, 2.0)
-    p = np.zeros(N_PARAMS)
-    speed_params(p, s)
-    p[[WHEEL_REF, WHEEL_NOISE, BRAKE_MAX]] = ref, s.wheel_noise, s.brake_torque_max
-    p[RADIUS], p[GYRO_TAU] = vehicle.wheel_radius, gyro_tau
-    gate_params(p, g)
+    p = np.zeros(ps.N_PARAMS)
+    ps.speed_params(p, s)
+    p[[ps.WHEEL_REF, ps.WHEEL_NOISE, ps.BRAKE_MAX]] = ref, s.wheel_noise, s.brake_torque_max
+    p[ps.RADIUS], p[ps.GYRO_TAU] = vehicle.wheel_radius, gyro_tau
+    ps.gate_params(p, g)
     return p
 
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from .. import channels as ch
 from . import batched, steer
+from . import passes as ps
 from .compiled import kernel
 from .learn.base import LearnerConfig
 from .learn.stage1 import Stage1
@@ -27,7 +28,6 @@ from .mass import STAGE as MASS_STAGE
 from .mass import MassConfig, MassLearner, scaled, unscaled
 from .mass import off as mass_off
 from .params import MASS
-from .passes import G_N, G_ROLL, G_T, G_YAW, GYRO_TAU, N_PARAMS, Entry, gate_params, gyro_update, new_state
 from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
 from .road import RoadConfig, Tilt
 from .sample import Sample
@@ -69,28 +69,28 @@ class GyroBias:
     ``st``, the estimator's, or a list of its own.
     """
 
-    yaw, roll, t = Entry(G_YAW), Entry(G_ROLL), Entry(G_T, none=True)
+    yaw, roll, t = ps.Entry(ps.G_YAW), ps.Entry(ps.G_ROLL), ps.Entry(ps.G_T, none=True)
 
     def __init__(self, tau: float = 30.0, st: list[float] | None = None):
         self.tau = tau
-        self.st = new_state() if st is None else st
-        self.st[G_YAW] = self.st[G_ROLL] = self.st[G_N] = 0.0
-        self.st[G_T] = math.nan
+        self.st = ps.new_state() if st is None else st
+        self.st[ps.G_YAW] = self.st[ps.G_ROLL] = self.st[ps.G_N] = 0.0
+        self.st[ps.G_T] = math.nan
         self._gate: GateConfig | None = None
 
     @property
     def n(self) -> int:
-        return int(self.st[G_N])
+        return int(self.st[ps.G_N])
 
     def update(self, s, gate: GateConfig) -> tuple[float, float]:
         """Take one sample; return the (yaw, roll) offsets to remove from it."""
         if gate is not self._gate:  # (the parameters list made once: the estimator passes its one config)
-            self._gate, self._p = gate, [math.nan] * N_PARAMS
-            gate_params(self._p, gate)
-            self._p[GYRO_TAU] = self.tau
+            self._gate, self._p = gate, [math.nan] * ps.N_PARAMS
+            ps.gate_params(self._p, gate)
+            self._p[ps.GYRO_TAU] = self.tau
         y = s.values
-        gyro_update(self.st, self._p, s.t, y[ch.DELTA], y[ch.YAW], y[ch.ROLL])
-        return self.st[G_YAW], self.st[G_ROLL]
+        ps.gyro_update(self.st, self._p, s.t, y[ch.DELTA], y[ch.YAW], y[ch.ROLL])
+        return self.st[ps.G_YAW], self.st[ps.G_ROLL]
 
 
 def _close(a: float | None, b: float | None) -> bool:
@@ -122,7 +122,7 @@ class TwoStageEstimator:
         if self.cfg.speed.wheel_ref is not None:
             need1, need2 = (tuple(i for i in n if i != ch.SPEED) for n in (need1, need2))
         # the speed filter's, the gyro offsets' and the supervisor's state, laid out as the block pass's (core.passes)
-        self.state = new_state()
+        self.state = ps.new_state()
         self.supervisor = Supervisor(self.cfg.gate, need1, need2, wheel_radius=vehicle.wheel_radius, st=self.state)
         self.speed = speed_filter(self.cfg.speed, self.state)
         self.gyro_bias = GyroBias(st=self.state)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import types
 
-from . import passes
+from . import passes as ps
 from .batched import (
     AX,
     DELTA,
@@ -30,25 +30,6 @@ from .batched import (
     YAW,
 )
 from .jit import jit
-from .passes import (
-    _LITTLE_AX,
-    _LITTLE_STEER,
-    _MISSING,
-    _WAITING,
-    BIAS,
-    BRAKE_MAX,
-    G_ROLL,
-    G_YAW,
-    OPEN1,
-    OPEN2,
-    P_VV,
-    RADIUS,
-    SINCE1,
-    SINCE2,
-    WHEEL_NOISE,
-    WHEEL_REF,
-    V,
-)
 
 _inline = jit(inline="always")
 
@@ -59,11 +40,11 @@ def _calling(fn, **helpers):
     return types.FunctionType(fn.__code__, {**fn.__globals__, **helpers}, fn.__name__, fn.__defaults__, fn.__closure__)
 
 
-_speed_reset = _inline(passes.speed_reset)
-_speed_step = _inline(_calling(passes.speed_step, speed_reset=_speed_reset))
-_gyro_update = _inline(passes.gyro_update)
-_hyst = _inline(passes.hyst)
-_supervise = _inline(passes.supervise)
+_speed_reset = _inline(ps.speed_reset)
+_speed_step = _inline(_calling(ps.speed_step, speed_reset=_speed_reset))
+_gyro_update = _inline(ps.gyro_update)
+_hyst = _inline(ps.hyst)
+_supervise = _inline(ps.supervise)
 
 
 @_inline
@@ -77,7 +58,7 @@ def _missing(y, needs):
 @_inline
 def _hard(code):
     """A reason that shuts a window at once (not a little excitation, which the hysteresis waits out)."""
-    return code != 0 and code != _LITTLE_AX and code != _LITTLE_STEER  # noqa: PLR1714 (numba: no set)
+    return code != 0 and code != ps._LITTLE_AX and code != ps._LITTLE_STEER  # noqa: PLR1714 (numba: no set)
 
 
 @_inline
@@ -108,26 +89,26 @@ def prepass(T, Y, F, A, gap, gate, st, p, c, needs1, needs2, done_from, blk, fir
             has = True
             gnss = y[c[SPEED]] + (ax * A[i, c[SPEED]] if math.isfinite(ax) else 0.0)
         noise = math.nan
-        if not has and p[WHEEL_REF] != 0.0:
-            front = p[WHEEL_REF] == 1.0
+        if not has and p[ps.WHEEL_REF] != 0.0:
+            front = p[ps.WHEEL_REF] == 1.0
             left = y[c[WS_FL]] if front else y[c[WS_RL]]
             right = y[c[WS_FR]] if front else y[c[WS_RR]]
             tq = y[c[T_F]] if front else y[c[T_R]]
-            if math.isfinite(left) and math.isfinite(right) and not (math.isfinite(tq) and tq < -p[BRAKE_MAX]):
+            if math.isfinite(left) and math.isfinite(right) and not (math.isfinite(tq) and tq < -p[ps.BRAKE_MAX]):
                 has = True
-                gnss = 0.5 * (left + right) * p[RADIUS]
-            noise = p[WHEEL_NOISE]
+                gnss = 0.5 * (left + right) * p[ps.RADIUS]
+            noise = p[ps.WHEEL_NOISE]
         if gap[i]:
             _speed_reset(st)
         _speed_step(st, p, t, ax, gnss, has, noise)
-        v = st[V]
+        v = st[ps.V]
         out[i, 0] = v
-        out[i, 1] = math.sqrt(st[P_VV]) if math.isfinite(v) else math.nan
-        out[i, 2] = st[BIAS]
+        out[i, 1] = math.sqrt(st[ps.P_VV]) if math.isfinite(v) else math.nan
+        out[i, 2] = st[ps.BIAS]
         # -- GyroBias.update
         _gyro_update(st, p, t, y[c[DELTA]], y[c[YAW]], y[c[ROLL]])
-        out[i, 3] = st[G_YAW]
-        out[i, 4] = st[G_ROLL]
+        out[i, 3] = st[ps.G_YAW]
+        out[i, 4] = st[ps.G_ROLL]
         # -- Supervisor.update
         dt, d1, d2 = _supervise(st, p, t, gap[i], gate[i], ax, y[c[DELTA]], y[c[YAW]], v, y[c[SPEED]], y[c[WS_RL]],
                                 y[c[WS_RR]])  # fmt: skip
@@ -135,12 +116,12 @@ def prepass(T, Y, F, A, gap, gate, st, p, c, needs1, needs2, done_from, blk, fir
             _blocked(blk, first, 0, d1, dt, i)
         if d2 != 0:
             _blocked(blk, first, 1, d2, dt, i)
-        r1 = _MISSING if _missing(y, needs1) else d1
+        r1 = ps._MISSING if _missing(y, needs1) else d1
         if i < done_from:
-            r2 = _WAITING
+            r2 = ps._WAITING
         else:
-            r2 = _MISSING if _missing(y, needs2) else d2
-        o1 = _hyst(st, OPEN1, SINCE1, t, r1 == 0, _hard(r1), p)
-        o2 = _hyst(st, OPEN2, SINCE2, t, r2 == 0, _hard(r2), p)
+            r2 = ps._MISSING if _missing(y, needs2) else d2
+        o1 = _hyst(st, ps.OPEN1, ps.SINCE1, t, r1 == 0, _hard(r1), p)
+        o2 = _hyst(st, ps.OPEN2, ps.SINCE2, t, r2 == 0, _hard(r2), p)
         stage[i] = 2 if o2 else 1 if o1 else 0
     return r1, r2

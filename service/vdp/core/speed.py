@@ -31,21 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .passes import (
-    A_PREV,
-    BIAS,
-    N_PARAMS,
-    P_BB,
-    P_VB,
-    P_VV,
-    S_T,
-    Entry,
-    V,
-    new_state,
-    speed_params,
-    speed_reset,
-    speed_step,
-)
+from . import passes as ps
 
 
 @dataclass(frozen=True)
@@ -101,11 +87,11 @@ class SpeedFilter:
     :func:`~vdp.core.passes.speed_step` is its step here and in the compiled block pass): ``st``,
     one the estimator shares with its other parts, or a list of its own."""
 
-    v, p_vv, p_vb, p_bb, bias = Entry(V), Entry(P_VV), Entry(P_VB), Entry(P_BB), Entry(BIAS)
-    t, a_prev = Entry(S_T, none=True), Entry(A_PREV)
+    v, p_vv, p_vb, p_bb, bias = (ps.Entry(i) for i in (ps.V, ps.P_VV, ps.P_VB, ps.P_BB, ps.BIAS))
+    t, a_prev = ps.Entry(ps.S_T, none=True), ps.Entry(ps.A_PREV)
 
     def __init__(self, cfg: SpeedConfig | None = None, st: list[float] | None = None):
-        self.st = new_state() if st is None else st
+        self.st = ps.new_state() if st is None else st
         self.cfg = cfg or SpeedConfig()
         self.bias = 0.0
         self.p_bb = 0.05**2
@@ -118,16 +104,16 @@ class SpeedFilter:
     @cfg.setter
     def cfg(self, cfg: SpeedConfig) -> None:  # (the estimator changes bias_walk with the road's grade)
         self._cfg = cfg
-        self._p = [math.nan] * N_PARAMS
-        speed_params(self._p, cfg)
+        self._p = [math.nan] * ps.N_PARAMS
+        ps.speed_params(self._p, cfg)
 
     def reset(self) -> None:
         """Forget the speed (not the bias, which outlives gaps)."""
-        speed_reset(self.st)
+        ps.speed_reset(self.st)
 
     @property
     def ready(self) -> bool:
-        return math.isfinite(self.st[V])
+        return math.isfinite(self.st[ps.V])
 
     @property
     def std(self) -> float:
@@ -141,7 +127,7 @@ class SpeedFilter:
         """Advance to ``t`` with the measured a_x; correct with a speed measured at ``t``
         (GNSS, or the free-rolling axle), of std ``noise`` (default: ``gnss_noise``)."""
         has = gnss is not None
-        speed_step(self.st, self._p, t, a_x, gnss if has else 0.0, has, math.nan if noise is None else noise)
+        ps.speed_step(self.st, self._p, t, a_x, gnss if has else 0.0, has, math.nan if noise is None else noise)
 
 
 class RoundedSpeedFilter(SpeedFilter):

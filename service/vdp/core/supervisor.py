@@ -27,30 +27,7 @@ from dataclasses import dataclass, field
 
 from .. import channels as ch
 from . import gates as gt
-from .passes import (
-    AX_M,
-    AX_SQ,
-    D_M,
-    D_SQ,
-    EXC1,
-    EXC2,
-    K_DT,
-    K_STEER,
-    N_PARAMS,
-    OBSERVED,
-    OPEN1,
-    OPEN2,
-    RADIUS,
-    SINCE1,
-    SINCE2,
-    U_T,
-    YAW_SQ,
-    Entry,
-    gate_params,
-    hyst,
-    new_state,
-    supervise,
-)
+from . import passes as ps
 
 MAX_WINDOWS = 500  # windows kept for reports and the API
 
@@ -152,17 +129,17 @@ class Supervisor:
     gates_cfg: gt.GatesConfig = field(default_factory=gt.GatesConfig)
     # the excitation and the windows in entries U_T to K_STEER of a state list (core.passes, whose
     # ``supervise`` and ``hyst`` are the steps on both paths): the estimator's, or one of its own
-    st: list[float] = field(default_factory=new_state, repr=False, compare=False)
+    st: list[float] = field(default_factory=ps.new_state, repr=False, compare=False)
 
     # how long the driving itself (channels and hand-over aside) met each stage's conditions
     # (excited), and the moving statistics of a_x, delta and the yaw rate
-    _t, observed = Entry(U_T, none=True), Entry(OBSERVED)
-    _ax_m, _ax_sq, _d_m, _d_sq, _yaw_sq = Entry(AX_M), Entry(AX_SQ), Entry(D_M), Entry(D_SQ), Entry(YAW_SQ)
+    _t, observed = ps.Entry(ps.U_T, none=True), ps.Entry(ps.OBSERVED)
+    _ax_m, _ax_sq, _d_m, _d_sq, _yaw_sq = (ps.Entry(i) for i in (ps.AX_M, ps.AX_SQ, ps.D_M, ps.D_SQ, ps.YAW_SQ))
 
     def __post_init__(self):
-        self._p = [math.nan] * N_PARAMS
-        gate_params(self._p, self.cfg)
-        self._p[RADIUS] = self.wheel_radius
+        self._p = [math.nan] * ps.N_PARAMS
+        ps.gate_params(self._p, self.cfg)
+        self._p[ps.RADIUS] = self.wheel_radius
         # each code's reason, in this supervisor's limits, made once (the per-sample path hands them out)
         self._reasons = {code: Reason(code, text.format(v_min=self.cfg.v_min)) for code, text in REASONS.items()}
         self.gates = gt.Gates(self.gates_cfg, self.wheel_radius)
@@ -170,8 +147,8 @@ class Supervisor:
 
     def reset(self) -> None:
         st = self.st
-        st[U_T : K_STEER + 1] = [0.0] * (K_STEER + 1 - U_T)
-        st[U_T] = st[SINCE1] = st[SINCE2] = st[K_DT] = math.nan  # (no sample yet, no gain for a step yet)
+        st[ps.U_T : ps.K_STEER + 1] = [0.0] * (ps.K_STEER + 1 - ps.U_T)
+        st[ps.U_T] = st[ps.SINCE1] = st[ps.SINCE2] = st[ps.K_DT] = math.nan  # (no sample yet, no gain for a step yet)
         # what most often stopped each stage: "no steering excitation" and the like
         self.blockers: dict[int, dict[str, float]] = {1: {}, 2: {}}
         self.windows: deque[Window] = deque(maxlen=MAX_WINDOWS)  # the newest; memory stays flat
@@ -183,14 +160,14 @@ class Supervisor:
     @property
     def excited(self) -> dict[int, float]:
         """Seconds the driving met each stage's conditions."""
-        return {1: self.st[EXC1], 2: self.st[EXC2]}
+        return {1: self.st[ps.EXC1], 2: self.st[ps.EXC2]}
 
     def update(self, t: float, s, stage1_done: bool) -> int | None:
         """Feed one sample; return the stage whose window is open (1, 2 or None)."""
         y = s.values
         g = self.gates.update(t, s.gap, y)
-        dt, c1, c2 = supervise(self.st, self._p, t, s.gap, g, y[ch.AX], y[ch.DELTA], y[ch.YAW], s.v_x, y[ch.SPEED],
-                               y[ch.WS_RL], y[ch.WS_RR])  # fmt: skip
+        dt, c1, c2 = ps.supervise(self.st, self._p, t, s.gap, g, y[ch.AX], y[ch.DELTA], y[ch.YAW], s.v_x, y[ch.SPEED],
+                                  y[ch.WS_RL], y[ch.WS_RR])  # fmt: skip
         d1 = self._reasons[c1] if c1 else None
         d2 = self._reasons[c2] if c2 else None
         for stage, d in ((1, d1), (2, d2)):
@@ -202,8 +179,8 @@ class Supervisor:
         self._r1, self._r2 = r1, r2
         hard1 = r1 is not None and r1.hard
         hard2 = r2 is not None and r2.hard
-        o1 = hyst(self.st, OPEN1, SINCE1, t, r1 is None, hard1, self._p)
-        o2 = hyst(self.st, OPEN2, SINCE2, t, r2 is None, hard2, self._p)
+        o1 = ps.hyst(self.st, ps.OPEN1, ps.SINCE1, t, r1 is None, hard1, self._p)
+        o2 = ps.hyst(self.st, ps.OPEN2, ps.SINCE2, t, r2 is None, hard2, self._p)
         stage = 2 if o2 else 1 if o1 else None  # the conditions exclude each other; 2 wins a tie
         if stage != self.active:
             if self.active is not None:
