@@ -172,17 +172,25 @@ def no_gnss(tmp_path, driven: str):
 
 
 def test_free_rolling_axle_is_the_speed_reference(tmp_path):
-    from vdp.core.speed import SpeedConfig, wheel_reference
+    from vdp.core import passes as ps
 
     rwd = no_gnss(tmp_path, "rear")
     assert rwd.speed_reference == "wheels" and not Pipeline(rwd).capabilities()["1"]
-    assert Pipeline(rwd).estimator.cfg.speed.wheel_ref == "front"
+    est = Pipeline(rwd).estimator
+    assert est.cfg.speed.wheel_ref == "front"
     awd = no_gnss(tmp_path, "all")
     assert awd.speed_reference is None and "speed" in Pipeline(awd).capabilities()["1"]
-    cfg = SpeedConfig(wheel_ref="front")
-    assert wheel_reference(cfg, 30.0, 32.0, 0.0, 0.3) == pytest.approx(9.3)
-    assert wheel_reference(cfg, 30.0, 32.0, -500.0, 0.3) is None  # braked: no reference
-    assert wheel_reference(SpeedConfig(), 30.0, 32.0, 0.0, 0.3) is None
+    y = [float("nan")] * channels.N
+    y[channels.WS_FL], y[channels.WS_FR] = 30.0, 32.0  # rad/s
+
+    def measured(p, torque):
+        y[channels.T_F] = torque
+        return ps.speed_measured(p, ps.CHANNELS, y, (False,) * channels.N, (0.0,) * channels.N)  # (no GNSS)
+
+    r, noise = rwd.vehicle.wheel_radius, est.cfg.speed.wheel_noise
+    assert measured(est._p, 0.0) == (pytest.approx(31.0 * r), True, noise)
+    assert measured(est._p, -500.0)[1] is False  # braked: no reference
+    assert measured(Pipeline(awd).estimator._p, 0.0)[1] is False
 
 
 def test_coarse_gnss_speed_gets_its_rounding_state(tmp_path):

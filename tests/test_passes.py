@@ -183,3 +183,26 @@ def test_the_supervisors_excitation_compiled_is_the_python_one():
         assert a == b and same(py, jit), k
         seen.update(a[1:])
     assert seen == {0, *range(1, 7), *range(passes._GATED + 1, passes._GATED + passes._SHUTS + 1)}
+
+
+def test_the_speed_measured_compiled_is_the_python_one():
+    """GNSS fresh or stale or missing, a_x missing, each wheel reference, an axle braked or a wheel missing."""
+    assert prepass._speed_measured.py_func is passes.speed_measured
+    rng = np.random.default_rng(4)
+    c = np.array(passes.CHANNELS)
+    n = max(passes.CHANNELS) + 1
+    seen = set()
+    for k in range(3000):
+        p = params()
+        p[passes.WHEEL_REF], p[passes.BRAKE_MAX] = float(k % 3), 20.0
+        p[passes.RADIUS], p[passes.WHEEL_NOISE] = 0.31, 0.07
+        y = 20.0 + rng.standard_normal(n)
+        y[c[passes.T_F]], y[c[passes.T_R]] = rng.uniform(-40.0, 40.0, 2)
+        y[rng.random(n) < 0.1] = math.nan
+        fresh, age = rng.random(n) < 0.3, rng.uniform(0.0, 0.1, n)
+        a = passes.speed_measured(p, passes.CHANNELS, tuple(y.tolist()), tuple(fresh.tolist()), tuple(age.tolist()))
+        b = prepass._speed_measured(np.array(p), c, y, fresh, age)
+        assert a[1] == b[1] and same(a[0::2], b[0::2]), k
+        seen.add((k % 3, a[1], a[2] == 0.07))
+    # GNSS (no noise given), the wheels (theirs), nothing: for each reference
+    assert seen >= {(0, True, False), (0, False, False), (1, True, True), (1, False, True), (2, True, True)}

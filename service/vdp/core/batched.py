@@ -8,7 +8,7 @@ can run them over a whole block in one compiled loop (core.prepass) and visit in
 only the samples a learner takes.  Their steps are written once (core.passes): the classes
 call them per sample on the estimator's state list, the loop compiles them, so both paths give
 the same numbers to the last bit.  The loop adds only what the classes hold in Python form (the
-speed measurement, the supervisor's blockers and missing channels); ``tests/test_batched.py``
+supervisor's blockers and missing channels); ``tests/test_batched.py``
 holds the two paths to the same estimates, supervisor state and windows.  This module makes
 the loop's parameters and turns what it counts back into the supervisor's, without numba.
 
@@ -29,17 +29,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import channels as ch
 from . import passes as ps
 from . import supervisor as sup
 from .speed import SpeedFilter
 
 N_CODES = max(sup.REASONS) + 1  # reason codes 0 (none) to supervisor.WAITING, then the gates' (GATED + k)
-# channel indices, passed in (numba would freeze module globals into its cache)
-CHANNELS = np.array(
-    [ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR, ch.T_F, ch.T_R, ch.DELTA, ch.AX, ch.YAW, ch.ROLL, ch.SPEED]
-)
-WS_FL, WS_FR, WS_RL, WS_RR, T_F, T_R, DELTA, AX, YAW, ROLL, SPEED = range(11)
+CHANNELS = np.array(ps.CHANNELS)  # the channels the pass reads (core.passes)
 
 
 # -- the parameters, and what the pass counts back into the supervisor ------------------

@@ -32,7 +32,7 @@ from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, 
 from .road import RoadConfig, Tilt
 from .sample import Sample
 from .sample import block as sample_block
-from .speed import SpeedConfig, speed_filter, wheel_reference
+from .speed import SpeedConfig, speed_filter
 from .supervisor import GateConfig, Supervisor
 
 log = logging.getLogger(__name__)
@@ -132,7 +132,10 @@ class TwoStageEstimator:
         self._stage = None  # the supervisor's stage at the last sample
         self.handover_t: float | None = None
         self.t: float | None = None
-        self._pass_params: np.ndarray | None = None  # core.batched's, made at the first block
+        # the parameters of the speed measurement, the gyro offsets and the supervisor (core.passes'): an
+        # array for the compiled block pass, a list for the per-sample path
+        self._pass_params = batched.params(self.cfg, vehicle, self.gyro_bias.tau)
+        self._p = self._pass_params.tolist()
         self._needs = tuple(np.array(n, dtype=np.int64) for n in (need1, need2))  # (the supervisor's)
         m = self.cfg.mass  # issue 28 (core.mass, core.road)
         self.tilt = Tilt(vehicle, priors["h"].value, self.cfg.road) if self.cfg.road.on else None
@@ -228,8 +231,6 @@ class TwoStageEstimator:
         gaps = np.zeros(n, dtype=bool)
         gaps[0] = gap
         done_from = 0 if self.handover_t is not None else n
-        if self._pass_params is None:
-            self._pass_params = batched.params(self.cfg, self.vehicle, self.gyro_bias.tau)
         kern = kernel("prepass")
         gate = su.gates.block(T, Y, gaps)  # core.gates: what the model does not cover, per sample
         i0 = 0
@@ -308,20 +309,10 @@ class TwoStageEstimator:
     def _speed(self, t: float, s) -> tuple[float, float, float]:
         """Run the GNSS + IMU speed filter; return v_x, its std and the a_x bias."""
         y = s.values
-        ax = y[ch.AX]
-        gnss = None
-        if s.fresh[ch.SPEED] and math.isfinite(y[ch.SPEED]):
-            # the GNSS speed belongs to its own time: carry it to the tick with a_x
-            gnss = y[ch.SPEED] + (ax * s.age[ch.SPEED] if math.isfinite(ax) else 0.0)
-        noise = None
-        if gnss is None and self.cfg.speed.wheel_ref is not None:  # no GNSS: the free-rolling axle
-            f = self.cfg.speed.wheel_ref == "front"
-            left, right, tq = (ch.WS_FL, ch.WS_FR, ch.T_F) if f else (ch.WS_RL, ch.WS_RR, ch.T_R)
-            gnss = wheel_reference(self.cfg.speed, y[left], y[right], y[tq], self.vehicle.wheel_radius)
-            noise = self.cfg.speed.wheel_noise
+        gnss, has, noise = ps.speed_measured(self._p, ps.CHANNELS, y, s.fresh, s.age)
         if s.gap:
             self.speed.reset()
-        self.speed.step(t, ax, gnss, noise)
+        self.speed.step(t, y[ch.AX], gnss if has else None, None if math.isnan(noise) else noise)
         std = self.speed.std
         # stage 1 takes the speed's error as correlated over speed_corr^2 x 10 ms (4 s); one
         # that stays longer (a coarse 1 Hz GNSS: about 10 s) counts for less: its std widens by

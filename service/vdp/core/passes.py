@@ -2,12 +2,13 @@
 
 The speed filter (core.speed.SpeedFilter), the gyro offsets (estimator.GyroBias) and the
 gating supervisor (core.supervisor.Supervisor) keep their state in one array laid out by the
-named indices below (NaN stands for None).  Each step is a plain function of that array: the
-classes call it per sample on a list (Python floats: a list is the fast container for them),
-and core.prepass compiles the same function, inlined into its pass over a block, on a numpy
-array.  So each algorithm has one implementation, and the two paths agree to the last bit
-(tests/test_passes.py holds each compiled step to the Python one).  No numba here: the
-per-sample path (a live service, a short log) must never import it (core.compiled).
+named indices below (NaN stands for None); the speed measured at a sample is chosen here too
+(TwoStageEstimator._speed).  Each step is a plain function of that array: the classes call it
+per sample on a list (Python floats: a list is the fast container for them), and core.prepass
+compiles the same function, inlined into its pass over a block, on a numpy array.  So each
+algorithm has one implementation, and the two paths agree to the last bit (tests/test_passes.py
+holds each compiled step to the Python one).  No numba here: the per-sample path (a live
+service, a short log) must never import it (core.compiled).
 
 numba cannot call a Python function: where a step calls another (speed_step, speed_reset),
 core.prepass compiles the callee too and gives the caller's compiled copy the compiled one.
@@ -19,6 +20,8 @@ from __future__ import annotations
 
 import math
 
+from .. import channels as ch
+
 # the state array: the speed filter, the gyro offsets, the supervisor (NaN stands for None)
 (V, P_VV, P_VB, P_BB, BIAS, S_T, A_PREV, G_YAW, G_ROLL, G_N, G_T, U_T, OBSERVED, EXC1, EXC2, AX_M, AX_SQ, D_M, D_SQ,
  YAW_SQ, OPEN1, SINCE1, OPEN2, SINCE2, K_DT, K_AX, K_STEER) = range(27)  # fmt: skip
@@ -28,6 +31,10 @@ N_STATE = 27
  DELTA_MAX_1, YAW_MAX_1, AX_STD_MIN, AX_MEAN_MAX_2, DELTA_STD_MIN_2, YAW_RMS_MIN_2, TAU_AX, TAU_STEER, T_ON,
  T_OFF) = range(20)  # fmt: skip
 N_PARAMS = 20
+# the channels the steps read, passed in as ``c`` (numba would freeze module globals into its cache), and
+# their positions in it
+CHANNELS = (ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR, ch.T_F, ch.T_R, ch.DELTA, ch.AX, ch.YAW, ch.ROLL, ch.SPEED)
+WS_FL, WS_FR, WS_RL, WS_RR, T_F, T_R, DELTA, AX, YAW, ROLL, SPEED = range(11)
 # the supervisor's reason codes, as copies: numba freezes a global into the cached code and invalidates
 # that cache only when this file changes (tests/test_batched.py holds them equal)
 _SPEED_LOW, _STEERING, _YAWING, _LITTLE_AX, _LITTLE_STEER, _NOT_CONSTANT, _MISSING, _WAITING = range(1, 9)
@@ -69,6 +76,27 @@ def speed_params(p, cfg) -> None:
     """Set the speed filter's entries of a parameters array (or list) from its SpeedConfig."""
     p[ACCEL_NOISE], p[BIAS_WALK], p[GNSS_NOISE] = cfg.accel_noise, cfg.bias_walk, cfg.gnss_noise
     p[MAX_GAP] = cfg.max_gap
+
+
+def speed_measured(p, c, y, fresh, age):
+    """The speed measured at a sample (channel values ``y``, their ``fresh`` flags and ``age``):
+    the GNSS speed where it is fresh; else the free-rolling axle's (WHEEL_REF: 1 front, 2 rear,
+    0 none) while it is not braked.  Returns (speed, whether there is one, its std: NaN for
+    GNSS_NOISE), as :func:`speed_step` takes them."""
+    ax = y[c[AX]]
+    if fresh[c[SPEED]] and math.isfinite(y[c[SPEED]]):
+        # the GNSS speed belongs to its own time: carried to the tick with a_x
+        return y[c[SPEED]] + (ax * age[c[SPEED]] if math.isfinite(ax) else 0.0), True, math.nan
+    if p[WHEEL_REF] == 0.0:
+        return 0.0, False, math.nan
+    front = p[WHEEL_REF] == 1.0
+    left = y[c[WS_FL]] if front else y[c[WS_RL]]
+    right = y[c[WS_FR]] if front else y[c[WS_RR]]
+    tq = y[c[T_F]] if front else y[c[T_R]]
+    # braked (its torque below -BRAKE_MAX), the axle's wheels slip: no reference then
+    if math.isfinite(left) and math.isfinite(right) and not (math.isfinite(tq) and tq < -p[BRAKE_MAX]):
+        return 0.5 * (left + right) * p[RADIUS], True, p[WHEEL_NOISE]
+    return 0.0, False, p[WHEEL_NOISE]
 
 
 def speed_reset(st):

@@ -2,10 +2,10 @@
 
 The speed filter (core.speed.SpeedFilter), the gyro offsets (estimator.GyroBias) and the
 gating supervisor (core.supervisor.Supervisor) over a block of samples in one loop, on the
-state array core.passes lays out.  Their steps are core.passes', compiled here; the loop adds
-what the classes hold in Python form: the speed measurement of each sample
-(TwoStageEstimator._speed), the supervisor's blockers (seconds per reason code, where the class
-keys a dict by its reasons) and its test for missing channels.  The helpers are compiled
+state array core.passes lays out.  Their steps, and the speed measured at each sample
+(TwoStageEstimator._speed), are core.passes', compiled here; the loop adds what the classes
+hold in Python form: the supervisor's blockers (seconds per reason code, where the class keys
+a dict by its reasons) and its test for missing channels.  The helpers are compiled
 inlined into the pass (a call per sample cost too much).  Cached by core.jit;
 ``NUMBA_DISABLE_JIT=1`` runs this same source as Python.
 """
@@ -16,19 +16,6 @@ import math
 import types
 
 from . import passes as ps
-from .batched import (
-    AX,
-    DELTA,
-    ROLL,
-    SPEED,
-    T_F,
-    T_R,
-    WS_FL,
-    WS_FR,
-    WS_RL,
-    WS_RR,
-    YAW,
-)
 from .jit import jit
 
 _inline = jit(inline="always")
@@ -40,6 +27,7 @@ def _calling(fn, **helpers):
     return types.FunctionType(fn.__code__, {**fn.__globals__, **helpers}, fn.__name__, fn.__defaults__, fn.__closure__)
 
 
+_speed_measured = _inline(ps.speed_measured)
 _speed_reset = _inline(ps.speed_reset)
 _speed_step = _inline(_calling(ps.speed_step, speed_reset=_speed_reset))
 _gyro_update = _inline(ps.gyro_update)
@@ -82,22 +70,8 @@ def prepass(T, Y, F, A, gap, gate, st, p, c, needs1, needs2, done_from, blk, fir
         t = T[i]
         y = Y[i]
         # -- TwoStageEstimator._speed
-        ax = y[c[AX]]
-        has = False
-        gnss = 0.0
-        if F[i, c[SPEED]] and math.isfinite(y[c[SPEED]]):
-            has = True
-            gnss = y[c[SPEED]] + (ax * A[i, c[SPEED]] if math.isfinite(ax) else 0.0)
-        noise = math.nan
-        if not has and p[ps.WHEEL_REF] != 0.0:
-            front = p[ps.WHEEL_REF] == 1.0
-            left = y[c[WS_FL]] if front else y[c[WS_RL]]
-            right = y[c[WS_FR]] if front else y[c[WS_RR]]
-            tq = y[c[T_F]] if front else y[c[T_R]]
-            if math.isfinite(left) and math.isfinite(right) and not (math.isfinite(tq) and tq < -p[ps.BRAKE_MAX]):
-                has = True
-                gnss = 0.5 * (left + right) * p[ps.RADIUS]
-            noise = p[ps.WHEEL_NOISE]
+        ax = y[c[ps.AX]]
+        gnss, has, noise = _speed_measured(p, c, y, F[i], A[i])
         if gap[i]:
             _speed_reset(st)
         _speed_step(st, p, t, ax, gnss, has, noise)
@@ -106,12 +80,12 @@ def prepass(T, Y, F, A, gap, gate, st, p, c, needs1, needs2, done_from, blk, fir
         out[i, 1] = math.sqrt(st[ps.P_VV]) if math.isfinite(v) else math.nan
         out[i, 2] = st[ps.BIAS]
         # -- GyroBias.update
-        _gyro_update(st, p, t, y[c[DELTA]], y[c[YAW]], y[c[ROLL]])
+        _gyro_update(st, p, t, y[c[ps.DELTA]], y[c[ps.YAW]], y[c[ps.ROLL]])
         out[i, 3] = st[ps.G_YAW]
         out[i, 4] = st[ps.G_ROLL]
         # -- Supervisor.update
-        dt, d1, d2 = _supervise(st, p, t, gap[i], gate[i], ax, y[c[DELTA]], y[c[YAW]], v, y[c[SPEED]], y[c[WS_RL]],
-                                y[c[WS_RR]])  # fmt: skip
+        dt, d1, d2 = _supervise(st, p, t, gap[i], gate[i], ax, y[c[ps.DELTA]], y[c[ps.YAW]], v, y[c[ps.SPEED]],
+                                y[c[ps.WS_RL]], y[c[ps.WS_RR]])  # fmt: skip
         if d1 != 0:
             _blocked(blk, first, 0, d1, dt, i)
         if d2 != 0:

@@ -9,7 +9,7 @@ the torque noise back into the slip (see :mod:`vdp.core.longitudinal`).
 Without GNSS, a car with one driven axle has a reference all the same: the
 free-rolling axle carries no torque while it is not braked, so its wheels turn
 at the ground speed (no slip, eq 14 with F_x = 0) up to the tyre's rolling radius.
-:func:`wheel_reference` gives that speed when it applies; the filter takes it as
+core.passes.speed_measured gives that speed when it applies; the filter takes it as
 the measurement (``wheel_noise``), and while the free axle is braked the IMU
 carries the speed alone, with the bias learnt before.
 
@@ -61,20 +61,6 @@ def gnss_noise(base: float, step: float) -> float:
     error's largest value, is taken as a white noise's std.
     """
     return math.sqrt(base * base + 0.25 * step * step)
-
-
-def wheel_reference(
-    cfg: SpeedConfig, ws_left: float, ws_right: float, axle_torque: float, wheel_radius: float
-) -> float | None:
-    """Ground speed from the free-rolling axle's wheel speeds [rad/s], or None while it is braked
-    (or a value is missing)."""
-    if cfg.wheel_ref is None:
-        return None
-    if not (math.isfinite(ws_left) and math.isfinite(ws_right)):
-        return None
-    if math.isfinite(axle_torque) and axle_torque < -cfg.brake_torque_max:
-        return None  # braked: the wheels slip, they are no reference now
-    return 0.5 * (ws_left + ws_right) * wheel_radius
 
 
 def speed_filter(cfg: SpeedConfig, st: list[float] | None = None) -> SpeedFilter:
