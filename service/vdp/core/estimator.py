@@ -320,7 +320,7 @@ class TwoStageEstimator:
         assumed = self.cfg.learner.speed_corr**2 * 0.01
         if 2.0 * self.speed.corr_time > assumed:
             std *= math.sqrt(2.0 * self.speed.corr_time / assumed)
-        return self.speed.v, std, self.speed.bias
+        return self.state[ps.V], std, self.state[ps.BIAS]  # (the filter's v and bias, read without its attributes)
 
     def reset(self, stage: int | None = None) -> None:
         """Clear one stage (1 or 2), the mass (core.mass.STAGE: a mass step named between drives), or all (None)."""

@@ -103,7 +103,8 @@ class SpeedFilter:
 
     @property
     def std(self) -> float:
-        return math.sqrt(self.p_vv) if self.ready else math.nan
+        st = self.st  # (read here, not through the attributes: this is read every sample)
+        return math.sqrt(st[ps.P_VV]) if math.isfinite(st[ps.V]) else math.nan
 
     # a fine GNSS (or the wheels) decorrelates the speed's error within stage 1's assumed
     # time (LearnerConfig.speed_corr): not tracked here
@@ -138,6 +139,10 @@ class RoundedSpeedFilter(SpeedFilter):
     @property
     def p_vv(self) -> float:
         return float(self.P[0, 0])
+
+    @property
+    def std(self) -> float:
+        return math.sqrt(self.p_vv) if self.ready else math.nan
 
     @property
     def corr_time(self) -> float:
