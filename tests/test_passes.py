@@ -206,3 +206,14 @@ def test_the_speed_measured_compiled_is_the_python_one():
         seen.add((k % 3, a[1], a[2] == 0.07))
     # GNSS (no noise given), the wheels (theirs), nothing: for each reference
     assert seen >= {(0, True, False), (0, False, False), (1, True, True), (1, False, True), (2, True, True)}
+
+
+def test_which_reasons_shut_a_window_at_once():
+    from vdp.core.supervisor import REASONS, Supervisor
+
+    assert prepass._hard.py_func is passes.is_hard
+    codes = range(max(REASONS) + 2)
+    assert [prepass._hard(k) for k in codes] == [passes.is_hard(k) for k in codes]
+    why = Supervisor().why
+    little = [k for k in REASONS if not why(k).hard]
+    assert little == [passes._LITTLE_AX, passes._LITTLE_STEER] and not passes.is_hard(0)

@@ -171,6 +171,12 @@ def gyro_update(st, p, t, d, yaw, roll):
 # -- the gating supervisor (core.supervisor.Supervisor) --------------------------------
 
 
+def is_hard(code):
+    """Whether a reason code shuts an open window at once (not a little excitation, which the
+    hysteresis waits out)."""
+    return code != 0 and code != _LITTLE_AX and code != _LITTLE_STEER  # noqa: PLR1714 (numba: no set)
+
+
 def hyst(st, i_open, i_since, t, ok, hard, p):
     """A stage's window with hysteresis (its entries ``i_open``, 0 or 1, and ``i_since``, when the
     condition last changed): it opens once ``ok`` has held for T_ON and closes once it has

@@ -32,6 +32,7 @@ _speed_reset = _inline(ps.speed_reset)
 _speed_step = _inline(_calling(ps.speed_step, speed_reset=_speed_reset))
 _gyro_update = _inline(ps.gyro_update)
 _hyst = _inline(ps.hyst)
+_hard = _inline(ps.is_hard)
 _supervise = _inline(ps.supervise)
 
 
@@ -41,12 +42,6 @@ def _missing(y, needs):
         if not math.isfinite(y[i]):
             return True
     return False
-
-
-@_inline
-def _hard(code):
-    """A reason that shuts a window at once (not a little excitation, which the hysteresis waits out)."""
-    return code != 0 and code != ps._LITTLE_AX and code != ps._LITTLE_STEER  # noqa: PLR1714 (numba: no set)
 
 
 @_inline

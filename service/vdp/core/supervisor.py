@@ -55,7 +55,6 @@ class Code(enum.IntEnum):
 
 
 SPEED_LOW, STEERING, YAWING, LITTLE_AX, LITTLE_STEER, NOT_CONSTANT, MISSING, WAITING = tuple(Code)[:8]
-SOFT = (LITTLE_AX, LITTLE_STEER)  # a little excitation: the hysteresis waits it out (the others shut at once)
 
 
 class Reason(str):
@@ -77,7 +76,7 @@ class Reason(str):
     @property
     def hard(self) -> bool:
         """Whether it shuts an open window at once (not a little excitation, which the hysteresis waits out)."""
-        return self.code not in SOFT
+        return ps.is_hard(self.code)
 
 
 REASONS = {
