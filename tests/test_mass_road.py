@@ -58,7 +58,7 @@ def _drive(m: float, seconds: float, grade=lambda s: 0.0, kappa: float = 0.0, se
 
 
 def _learn(samples, tilt: Tilt | None = None) -> MassLearner:
-    ml = MassLearner(VEH, MassConfig(report=True), tilt)
+    ml = MassLearner(VEH, MassConfig("report"), tilt)
     for smp in samples:
         if tilt is not None:
             smp = tilt.correct(smp)
@@ -226,7 +226,7 @@ def test_the_mass_learners_state_carries_it_on_exactly():
 
     samples = _drive(1900.0, 80.0)
     a = _learn(samples[:2000])
-    b = MassLearner(VEH, MassConfig(report=True))
+    b = MassLearner(VEH, MassConfig("report"))
     assert b.load(json.loads(json.dumps(a.state()))) and b.snapshot() == a.snapshot()
     for smp in samples[2000:]:
         a.handle(smp.t, smp)
@@ -234,10 +234,10 @@ def test_the_mass_learners_state_carries_it_on_exactly():
     # (only the row open at the restart is not carried: the rest of the drive moves both alike)
     ea, eb = a.snapshot(), b.snapshot()
     assert eb.valid and abs(eb.value - ea.value) < 0.01 * ea.std and eb.std == pytest.approx(ea.std, rel=0.01)
-    fresh = MassLearner(VEH, MassConfig(report=True))
-    other = MassLearner(replace(VEH, mass=1400.0), MassConfig(report=True))
+    fresh = MassLearner(VEH, MassConfig("report"))
+    other = MassLearner(replace(VEH, mass=1400.0), MassConfig("report"))
     for bad in ({**a.state(), "x": [math.nan, 0.0, 0.0]}, {"x": [1.0]}, "junk", {**a.state(), "P": [[1.0]]}):
-        assert not fresh.load(bad) and fresh.snapshot() == MassLearner(VEH, MassConfig(report=True)).snapshot()
+        assert not fresh.load(bad) and fresh.snapshot() == MassLearner(VEH, MassConfig("report")).snapshot()
     assert not other.load(a.state())  # learnt with another prior: another profile's
 
 
@@ -251,7 +251,7 @@ def test_the_estimator_hooks_are_off_by_default_and_on_by_config():
     assert (off.value, off.std, off.status, off.valid) == (VEH.mass, PRIOR_REL * VEH.mass, NOT_RUN, False)
     assert "mass estimation is off" in off.reason and "--mass" in off.reason
     assert list(est.parameters())[-1] == "mass"
-    est = TwoStageEstimator(VEH, PROF.priors, EstimatorConfig(mass=MassConfig(report=True), road=RoadConfig(on=True)))
+    est = TwoStageEstimator(VEH, PROF.priors, EstimatorConfig(mass=MassConfig("report"), road=RoadConfig(on=True)))
     for smp in _drive(1750.0, 200.0):
         est.handle(smp.t, smp)
     e = est.parameters()["mass"]

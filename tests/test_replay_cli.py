@@ -42,12 +42,10 @@ def test_replay_writes_the_documented_json_and_a_plot(drive, repo_root, capsys):
     res = json.loads(out.read_text())
     for key in ("parameters", "baseline_ekf", "windows", "log"):
         assert key in res
-    # the six and the mass after them (said to be off: core.mass); the EKF baseline is of the six
+    # the six and the mass after them (learnt by default: core.mass); the EKF baseline is of the six
     assert list(res["parameters"]) == [*NAMES, "mass"] and list(res["baseline_ekf"]) == list(NAMES)
-    assert (
-        res["parameters"]["mass"]["status"] == "not_run"
-        and "mass estimation is off" in res["parameters"]["mass"]["reason"]
-    )
+    m = res["parameters"]["mass"]
+    assert m["status"] != "not_run" and m["extra"]["profile_mass"] == 1600.0 and m["extra"]["rows"] > 0
     for kind in ("parameters", "baseline_ekf"):
         for p in res[kind].values():
             assert {"value", "std", "unit", "valid", "stage"} <= set(p)

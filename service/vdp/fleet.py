@@ -94,10 +94,12 @@ RUN_COLUMNS = {
     # creep) and the sentence that splits it by gate; null for a result made before the gates
     "gated": float,
     "gated_by": str,
-    # whether the run learnt the mass (vdp batch --mass: its row the learnt mass, and C_K, C_alpha, I_z
-    # and I_x with it put in, as vdp replay --mass); null for a result made before the switch
+    # whether the run put the learnt mass into C_K, C_alpha, I_z and I_x (vdp batch --mass auto or on,
+    # as vdp replay), and the mode it ran with (core.mass.MassConfig); null for a result made before
     "mass_learnt": bool,
+    "mass_mode": str,
 }
+PUT = ("auto", "on")  # the mass modes that put the learnt mass into the six (core.mass.MassConfig.put)
 AXLE_COLUMNS = ("C_alpha_front", "C_alpha_front_std", "C_alpha_rear", "C_alpha_rear_std")
 
 
@@ -106,7 +108,7 @@ class Task:
     log: str
     vehicle: str
     profile: str
-    mass: bool = False  # learn the mass (vdp batch --mass); a result made the other way is run again
+    mass: str = "auto"  # the mass mode (vdp batch --mass, core.mass.MassConfig); another mode runs again
 
     @property
     def key(self) -> str:
@@ -180,9 +182,9 @@ def _profile(path: str) -> tuple[Any, str | None]:
     return got
 
 
-def replay_log(path: str, profile_path: str, mass: bool = False) -> Any:
+def replay_log(path: str, profile_path: str, mass: str = "auto") -> Any:
     """The RunResult of ``vdp replay PATH --profile PROFILE --no-ekf`` (the UKF's
-    numbers do not depend on the EKF baseline running beside it); ``mass``: with ``--mass``."""
+    numbers do not depend on the EKF baseline running beside it); ``mass``: ``--mass MODE``."""
     from .core.estimator import EstimatorConfig
     from .core.learner import LearnerConfig
     from .core.mass import MassConfig
@@ -197,7 +199,7 @@ def replay_log(path: str, profile_path: str, mass: bool = False) -> Any:
         learner=LearnerConfig(compiled=compiled_pays(path)),  # as vdp replay: the same numbers
         baseline=False,
         trace_len=0,
-        mass=MassConfig(report=mass, use=mass),
+        mass=MassConfig(mass),
     )
     result, _ = replay_file(path, lambda: Pipeline(profile, cfg), channel=profile.bus_channel)
     return result
@@ -272,7 +274,7 @@ def _run(task: Task) -> list[dict]:
 def error_row(task: Task, error: str, key: dict[str, Any] | None) -> dict:
     row: dict[str, Any] = dict.fromkeys(RUN_COLUMNS)
     row.update(log=task.log, vehicle=task.vehicle, profile=task.profile, status="error", error=error, valid=False)
-    row.update(mass_learnt=task.mass)
+    row.update(mass_learnt=task.mass in PUT, mass_mode=task.mass)
     row.update(key or {})
     return row
 
@@ -320,7 +322,8 @@ def rows_from_result(res: Any, task: Task, key: dict[str, Any] | None = None) ->
             bad_lines=int(src.get("bad_lines") or 0),
             damage=(src.get("damage") or {}).get("summary") or None,
             wall_s=float(lg.wall_s if lg is not None else 0.0),
-            mass_learnt=task.mass,
+            mass_learnt=task.mass in PUT,
+            mass_mode=task.mass,
         )
         g = (getattr(res, "supervisor", None) or {}).get("gated") or {}
         if g.get("of"):

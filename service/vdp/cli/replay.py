@@ -12,6 +12,7 @@ from pathlib import Path
 
 from ..core.result import CONVERGED
 from ..errors import ConfigError, ProfileError
+from .options import mass_option
 from .paths import check_apart, check_output, profile_inputs
 
 PLOT_ROWS = 20_000  # trace rows kept for --plot: a 4-hour log's 144,000 rows took ~140 MB
@@ -64,9 +65,11 @@ def add_parser(sub):
     )
     p.add_argument(
         "--mass",
-        action="store_true",
-        help="learn the mass from the drive, report it beside the six and use it in them (issue 28; "
-        "default: the profile's mass, as before)",
+        **mass_option(),
+        help="the mass (issue 28): auto (the default) learns it from the drive and puts it into C_K, C_alpha "
+        "and I_z once it is known to 1.5 %%, widening their stds before that where it already reads off the "
+        "profile's; on (--mass alone) puts it in from the start; report learns it only; off takes the "
+        "profile's vehicle.mass as weighed as driven",
     )
     p.add_argument(
         "--road",
@@ -202,7 +205,7 @@ def run(args) -> int:
         ) from None
     if cov.missing:  # fewer than half seen stopped check_log; a few missing still cost their channels
         print(f"profile check: {args.log}: {cov.message()}")
-    for line in profilecheck.lines(check, mass_on=args.mass):
+    for line in profilecheck.lines(check, mass_on=args.mass in ("auto", "on")):
         print(line)
     truth = report.load_truth(args.truth) if args.truth else None
     # the estimates' history is kept only for the plot: without one, memory stays flat on long logs
@@ -213,7 +216,7 @@ def run(args) -> int:
         baseline=args.baseline == "ekf",
         trace_len=None if args.plot else 0,
         trace_max=PLOT_ROWS if args.plot else None,
-        mass=MassConfig(report=args.mass, use=args.mass),
+        mass=MassConfig(args.mass),
         road=RoadConfig(on=args.road),
     )
     if compiled:

@@ -53,7 +53,8 @@ class EstimatorConfig:
     # None: a row every trace_every; else once the trace holds this many rows, every other row
     # is dropped and the spacing doubles, so a long log's trace (replay --plot) stays this small
     trace_max: int | None = None
-    # issue 28: the mass learnt (reported, and put into the results) and the road's grade and tilt; off by default
+    # issue 28: the mass learnt and put into the results once valid (MassConfig: auto), and the road's
+    # grade and tilt (off by default)
     mass: MassConfig = field(default_factory=MassConfig)
     road: RoadConfig = field(default_factory=RoadConfig)
 
@@ -129,7 +130,7 @@ class TwoStageEstimator:
         self._needs = tuple(np.array(n, dtype=np.int64) for n in (need1, need2))  # (the supervisor's)
         m = self.cfg.mass  # issue 28 (core.mass, core.road)
         self.tilt = Tilt(vehicle, priors["h"].value, self.cfg.road) if self.cfg.road.on else None
-        self.mass = MassLearner(vehicle, m, self.tilt) if m.report or m.use else None
+        self.mass = MassLearner(vehicle, m, self.tilt) if m.learn else None
         # the front wheels' compliance and roll steer a profile declares (core.steer; 0: none)
         lf = vehicle.l_f if vehicle.l_f is not None else priors["l_f"].value
         self.steer_k = steer.gain(vehicle, lf, priors["h"].value)
@@ -438,8 +439,8 @@ class TwoStageEstimator:
                 f"l_f = {l_f:.3g} ± {sd:.2g} m ([vehicle] l_f)"
             )
             out["l_f"] = replace(e, reason=why)
-        if self.cfg.mass.use:  # the learnt mass into the six, its std carried (core.mass.scaled)
-            out = scaled(out, self.mass.snapshot(), self.vehicle.mass)
+        if self.cfg.mass.put:  # the learnt mass into the six, its std carried (core.mass.scaled)
+            out = scaled(out, self.mass.snapshot(), self.vehicle.mass, self.cfg.mass.auto)
         if kind == "ukf":  # the mass after the six: learnt (core.mass), or said to be off (never left out)
             # (one learner, not a filter kind's: the EKF baseline's six are scaled by it, not given it again)
             out[MASS] = self.mass.snapshot() if self.mass is not None else mass_off(self.vehicle.mass)
@@ -457,11 +458,11 @@ class TwoStageEstimator:
 
     def restore(self, params: Mapping[str, Estimate]) -> None:
         """Start from stored estimates (value, std, samples) instead of the priors.  ``params`` are
-        as :meth:`parameters` publishes them: with the learnt mass put in (cfg.mass.use), they are
+        as :meth:`parameters` publishes them: with the learnt mass put in (cfg.mass.put), they are
         taken out of it first (core.mass.unscaled, with the mass as the learner has it now: resumed
         first at a restart, :meth:`resume`), as the filters run with the profile's mass."""
-        if self.cfg.mass.use and self.mass is not None:
-            params = unscaled(dict(params), self.mass.snapshot(), self.vehicle.mass)
+        if self.cfg.mass.put and self.mass is not None:
+            params = unscaled(dict(params), self.mass.snapshot(), self.vehicle.mass, self.cfg.mass.auto)
         for kind in self.s1:
             for learner in (self.s1[kind], self.s2[kind]):
                 snap = learner.snapshot()
@@ -516,7 +517,7 @@ class TwoStageEstimator:
         done = []
         if self.mass is not None and learnt.get(MASS) and self._resume_mass(learnt[MASS], params.get(MASS)):
             done.append(MASS)
-            if self.cfg.mass.use:  # restore()'s values, taken out of the mass they were published with
+            if self.cfg.mass.put:  # restore()'s values, taken out of the mass they were published with
                 self.restore({k: v for k, v in params.items() if k != MASS})
         for kind in self.s1:
             for learner in (self.s1[kind], self.s2[kind]):
@@ -530,8 +531,8 @@ class TwoStageEstimator:
                 learner.set_params(st["value"], cov, 0)  # 0: the covariance holds no floor to take out
                 learner.samples = max(keep[2], int(st["samples"]))
                 snap = learner.snapshot()
-                if self.cfg.mass.use:  # compared as published: with the mass put in
-                    snap = scaled(snap, self.mass.snapshot(), self.vehicle.mass)
+                if self.cfg.mass.put:  # compared as published: with the mass put in
+                    snap = scaled(snap, self.mass.snapshot(), self.vehicle.mass, self.cfg.mass.auto)
                 same = all(
                     params.get(n) is not None
                     and _close(snap[n].value, params[n].value)

@@ -79,8 +79,38 @@ STAGE = 0  # not a stage of the paper's: every sample, before both
 
 @dataclass(frozen=True)
 class MassConfig:
-    report: bool = False  # learn the mass and publish it (off: the mass is published as not_run, mass.off)
-    use: bool = False  # put the learnt mass into stage 1's and 2's results (scaled); off: report it only
+    """How the six take the mass (``mode``, one of MODES):
+
+    - ``auto`` (the default): learnt, and put into the six once it is valid; until then the profile's
+      mass is used and the six's stds widen by how far the drive's mass already reads beyond two of its
+      stds from it (:func:`scaled`): an undeclared load shows before the mass is known to 1.5 %, never
+      as a confident wrong C_K, C_alpha or I_z;
+    - ``on``: put in from the first sample: the six carry the prior's 12 % until the mass is valid;
+    - ``report``: learnt and published, never put in (the profile's mass taken as known);
+    - ``off``: neither learnt nor put in: the profile's mass is taken as weighed as driven.
+    """
+
+    mode: str = "auto"
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise ValueError(f"mass mode {self.mode!r}: one of {', '.join(MODES)}")
+
+    @property
+    def learn(self) -> bool:
+        return self.mode != "off"
+
+    @property
+    def put(self) -> bool:
+        """Whether the learnt mass goes into the six (scaled, unscaled)."""
+        return self.mode in ("auto", "on")
+
+    @property
+    def auto(self) -> bool:
+        return self.mode == "auto"
+
+
+MODES = ("auto", "on", "report", "off")
 
 
 class MassLearner:
@@ -266,7 +296,7 @@ class MassLearner:
 
 OFF_REASON = (
     "not estimated: mass estimation is off, so the profile's vehicle.mass ({m:g} kg) is taken as known and a load "
-    "is not seen; turn it on to learn the mass as driven (vdp replay --mass; vdp serve: [service] mass = true)"
+    'is not seen; turn it on to learn the mass as driven (vdp replay --mass auto; vdp serve: [service] mass = "auto")'
 )
 
 
@@ -284,16 +314,35 @@ SCALE = {"C_K": -1, "C_alpha": 1, "I_z": 1}  # the power of m each parameter sca
 USEFUL = {"l_f": 0.02, "h": 0.05, "C_K": 0.05, "C_alpha": 0.05, "I_z": 0.05, "I_x": 0.10}  # params.SPECS' useful_rel
 
 
-def scaled(params: dict, mass: Estimate, m_used: float) -> dict:
+def _put(mass: Estimate, m_used: float, auto: bool) -> tuple[float, float, str]:
+    """(mass ratio, relative std, what it is) that the six are published with.
+
+    A valid mass: its own.  Before (``auto`` off): the profile's mass, with the prior's std.  Before
+    (``auto``): the profile's mass, and as std only how far the drive's mass already reads beyond two
+    of its stds from it (0 while they agree): a mass not yet known to 1.5 % that already says the car
+    is 300 kg heavier than its profile must not leave C_K +18 % "valid" (BENCHMARKS.md, load).
+    """
+    if mass.valid and mass.value is not None and mass.std is not None and mass.value > 0:
+        return mass.value / m_used, mass.std / mass.value, "learnt"
+    if not auto:
+        return 1.0, PRIOR_REL, "the prior"
+    m, sd = mass.value, mass.std
+    if mass.status == NOT_RUN or m is None or sd is None or not (m > 0 and math.isfinite(m) and math.isfinite(sd)):
+        return 1.0, 0.0, "the profile's"
+    return 1.0, max(0.0, abs(m / m_used - 1.0) - 2.0 * sd / m), "the profile's"
+
+
+def scaled(params: dict, mass: Estimate, m_used: float, auto: bool = False) -> dict:
     """The six estimates with the learnt mass put in (see the module), and its std carried.
 
     Before the mass is valid the profile's is kept, and its std is the prior's: every scaled
-    parameter then carries the prior's 12 %, which is what an undeclared load does to it.
+    parameter then carries the prior's 12 %, which is what an undeclared load does to it; with
+    ``auto`` (MassConfig), only the drive's mass's departure from it beyond two stds (:func:`_put`).
     """
-    m, sd = (mass.value, mass.std) if mass.valid else (m_used, PRIOR_REL * m_used)
-    if m is None or sd is None or not m > 0:
+    ratio, rel_m, what = _put(mass, m_used, auto)
+    if not m_used > 0 or (ratio == 1.0 and rel_m == 0.0):  # (auto, the mass agreeing: the six as learnt)
         return params
-    ratio, rel_m = m / m_used, sd / m
+    m = m_used * ratio
     out = dict(params)
     for name, e in params.items():
         if e.value is None or e.std is None or e.status == NOT_RUN:
@@ -309,7 +358,12 @@ def scaled(params: dict, mass: Estimate, m_used: float) -> dict:
         valid = e.valid and rel <= USEFUL.get(name, 0.05)
         why = e.reason
         if e.valid and not valid:
-            why = f"the mass is known to +-{100 * rel_m:.1f} % only ({'learnt' if mass.valid else 'the prior'})"
+            if what == "the profile's":
+                why = (f"the drive's mass reads {mass.value:.0f} ± {mass.std:.0f} kg against the profile's "
+                       f"{m_used:.0f} kg (not yet known to {100 * USEFUL_REL:g} %): {100 * rel_m:.1f} % carried "
+                       f"until it is, then put in")  # fmt: skip
+            else:
+                why = f"the mass is known to +-{100 * rel_m:.1f} % only ({what})"
         extra = {**e.extra, "mass_used": round(m, 1), "mass_ratio": round(ratio, 4)}
         if name == "C_alpha":
             extra.update(_axles(e.extra, ratio, rel_m))
@@ -334,16 +388,15 @@ def _axles(extra: dict, ratio: float, rel_m: float) -> dict:
     return out
 
 
-def unscaled(params: dict, mass: Estimate, m_used: float) -> dict:
+def unscaled(params: dict, mass: Estimate, m_used: float, auto: bool = False) -> dict:
     """The inverse of :func:`scaled`: the six as their learners hold them, from the six published
     with ``mass`` (a restore takes published values back into the filters, which run with the
     profile's mass).  A relative std narrower than the mass's share (values published without the
     mass: a store written with mass estimation off) keeps its own: the mass's is added again when
     published, never taken out twice."""
-    m, sd = (mass.value, mass.std) if mass.valid else (m_used, PRIOR_REL * m_used)
-    if m is None or sd is None or not m > 0:
+    ratio, rel_m, _ = _put(mass, m_used, auto)
+    if not m_used > 0 or (ratio == 1.0 and rel_m == 0.0):
         return params
-    ratio, rel_m = m / m_used, sd / m
     out = dict(params)
     for name, e in params.items():
         if e.value is None or e.std is None or e.status == NOT_RUN or not e.value:
