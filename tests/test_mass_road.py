@@ -1,5 +1,6 @@
 """Issue 28: the mass as an estimate (core.mass) and the road's grade and tilt (core.road), on
-synthetic samples whose physics is written here, and the estimator's hooks off by default."""
+synthetic samples whose physics is written here, and the estimator's hooks (the mass learnt by
+default, the road by config)."""
 
 from __future__ import annotations
 
@@ -184,6 +185,35 @@ def test_scaled_puts_the_learnt_mass_into_the_six_and_carries_its_std():
     assert out["l_f"].valid
 
 
+def test_auto_keeps_the_six_as_learnt_until_the_drives_mass_reads_off_the_profiles():
+    """MassConfig auto, the mass not yet valid: the profile's mass, and the six untouched while the
+    drive's mass agrees with it within 2 of its stds (or has no row yet); beyond, their relative stds
+    take the excess in quadrature, so a load that shows early leaves no confident wrong C_K; valid,
+    the learnt mass is put in as with ``on``."""
+    params = {n: _est(n, v, 0.02) for n, v in (("l_f", 1.4), ("C_K", 11.875), ("C_alpha", 56337.0),
+                                              ("I_z", 1684.0), ("I_x", 500.0))}  # fmt: skip
+    first = Estimate("mass", 1600.0, 192.0, "kg", NOT_RUN, False, 0, 0)
+    agree = Estimate("mass", 1690.0, 60.0, "kg", UNCERTAIN, False, 0, 30)  # 1.5 sd above the profile's
+    assert scaled(params, first, 1600.0, auto=True) is params
+    assert scaled(params, agree, 1600.0, auto=True) is params
+    off = Estimate("mass", 1900.0, 50.0, "kg", UNCERTAIN, False, 0, 30)  # +18.75 %, 2 sd = 5.3 %
+    out = scaled(params, off, 1600.0, auto=True)
+    excess = 300.0 / 1600.0 - 2.0 * 50.0 / 1900.0
+    for n in ("C_K", "C_alpha", "I_z", "I_x"):
+        assert out[n].value == params[n].value, n  # the profile's mass still: not yet known
+        assert out[n].std / out[n].value == pytest.approx(math.hypot(0.02, excess), rel=1e-12), n
+        assert not out[n].valid and "reads 1900" in out[n].reason and "1600" in out[n].reason, n
+    assert out["l_f"] == params["l_f"]
+    back = unscaled(out, off, 1600.0, auto=True)  # what a restore takes back into the filters
+    assert all(back[n].std == pytest.approx(params[n].std, rel=1e-9) for n in params)
+    # the mass valid: as with on (auto=False)
+    valid = replace(off, std=19.0, valid=True)
+    assert scaled(params, valid, 1600.0, auto=True) == scaled(params, valid, 1600.0)
+    # a sign-flipped a_x's negative mass: no car's (invalid), every scaled parameter not valid
+    neg = Estimate("mass", -900.0, 40.0, "kg", "invalid", False, 0, 30)
+    assert not any(scaled(params, neg, 1600.0, auto=True)[n].valid for n in ("C_K", "C_alpha", "I_z"))
+
+
 def test_scaled_scales_c_alphas_axles_as_their_mean():
     """The per-axle numbers beside C_alpha (learn.axles) take the mass as C_alpha does: their mean
     stays the published value, and each std carries the mass's (a new user saw the axles at the
@@ -241,11 +271,13 @@ def test_the_mass_learners_state_carries_it_on_exactly():
     assert not other.load(a.state())  # learnt with another prior: another profile's
 
 
-def test_the_estimator_hooks_are_off_by_default_and_on_by_config():
+def test_the_mass_is_learnt_by_default_the_road_on_by_config_and_mass_off_says_so():
     from vdp.core.estimator import EstimatorConfig, TwoStageEstimator
 
     est = TwoStageEstimator(VEH, PROF.priors)
-    assert est.mass is None and est.tilt is None
+    assert est.mass is not None and est.cfg.mass.auto and est.tilt is None
+    est = TwoStageEstimator(VEH, PROF.priors, EstimatorConfig(mass=MassConfig("off")))
+    assert est.mass is None
     # off, the mass is said to be off (not left out): the profile's, not run, and why
     off = est.parameters()["mass"]
     assert (off.value, off.std, off.status, off.valid) == (VEH.mass, PRIOR_REL * VEH.mass, NOT_RUN, False)

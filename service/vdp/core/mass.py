@@ -327,9 +327,10 @@ def _put(mass: Estimate, m_used: float, auto: bool) -> tuple[float, float, str]:
     if not auto:
         return 1.0, PRIOR_REL, "the prior"
     m, sd = mass.value, mass.std
-    if mass.status == NOT_RUN or m is None or sd is None or not (m > 0 and math.isfinite(m) and math.isfinite(sd)):
+    if mass.status == NOT_RUN or m is None or sd is None or not (m != 0 and math.isfinite(m) and math.isfinite(sd)):
         return 1.0, 0.0, "the profile's"
-    return 1.0, max(0.0, abs(m / m_used - 1.0) - 2.0 * sd / m), "the profile's"
+    # (a mass of no car's, negative from a sign-flipped a_x or tiny from a torque's scale, departs the most)
+    return 1.0, max(0.0, abs(m / m_used - 1.0) - 2.0 * sd / abs(m)), "the profile's"
 
 
 def scaled(params: dict, mass: Estimate, m_used: float, auto: bool = False) -> dict:
