@@ -67,6 +67,39 @@ def _learn(samples, tilt: Tilt | None = None) -> MassLearner:
     return ml
 
 
+def test_a_block_of_samples_teaches_the_mass_what_each_sample_does():
+    """MassLearner.handle_block (a replay's blocks, with the speed filter's v_x and the gyro's offset
+    per sample) and handle (the live service's samples) run one step: the same state, bit for bit,
+    whatever the blocks' bounds; GNSS speed missing, the speed filter's v_x stands in."""
+    raw = _drive(1900.0, 150.0, seed=3)
+    rng = np.random.default_rng(4)
+    samples = []
+    for i, smp in enumerate(raw):
+        y = list(smp.values)
+        y[ch.YAW] = 0.01 * math.sin(0.05 * i)
+        if i % 7 == 0:
+            y[ch.SPEED] = math.nan  # the speed filter's v_x is taken instead
+        if 3000 <= i < 3010:
+            y[ch.T_F] = math.nan  # a row with a missing torque
+        smp = smp._replace(values=tuple(y), gap=i == 5000)
+        samples.append(smp.derived(float(rng.normal(15.0, 3.0)), 0.1, 0.0, 0.002, 0.0))
+    one = MassLearner(VEH, MassConfig("report"))
+    for smp in samples:
+        one.handle(smp.t, smp)
+    T = np.array([smp.t for smp in samples])
+    Y = np.array([smp.values for smp in samples])
+    v_x = np.array([smp.v_x for smp in samples])
+    bias = np.array([smp.yaw_bias for smp in samples])
+    n = len(samples)
+    for size in (1, 137, 4000, n):
+        blk = MassLearner(VEH, MassConfig("report"))
+        cuts = sorted({*range(0, n, size), 5000, n})  # a gap begins a block (the aligner's blocks)
+        for i, j in zip(cuts[:-1], cuts[1:]):
+            blk.handle_block(T[i:j], Y[i:j], samples[i].gap, v_x[i:j], bias[i:j])
+        assert blk.state() == one.state() and blk.snapshot() == one.snapshot(), size
+    assert one.snapshot().valid and one.skipped.get("missing torque or a_x", 0) >= 1
+
+
 @pytest.mark.parametrize("load", [0.0, 150.0, 300.0])
 def test_mass_is_learnt_from_the_longitudinal_balance(load):
     ml = _learn(_drive(1600.0 + load, 240.0))

@@ -30,7 +30,6 @@ from .params import MASS
 from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
 from .road import RoadConfig, Tilt
 from .sample import Sample
-from .sample import block as sample_block
 from .speed import SpeedConfig, speed_filter, wheel_reference
 from .supervisor import GateConfig, Supervisor
 
@@ -212,9 +211,6 @@ class TwoStageEstimator:
             return
         if self.steer_k:
             Y = steer.block(Y, self.steer_k)
-        if self.mass is not None:  # the mass sees every sample (core.mass)
-            for smp in sample_block(T, Y, F, A, gap):
-                self.mass.handle(smp.t, smp)
         su = self.supervisor
         st0 = batched.pack(self.speed, self.gyro_bias, su)
         blk0, first0 = batched.blockers(su)
@@ -238,6 +234,8 @@ class TwoStageEstimator:
                 break
             # l_f became known at sample ``handed``: the supervisor sees it from the next on
             done_from = i0 = handed + 1
+        if self.mass is not None:  # the mass sees every sample, with the speed filter's v_x and the gyro's offset
+            self.mass.handle_block(T, Y, gap, out[:, 0], out[:, 3])
         batched.unpack(st, self.speed, self.gyro_bias, su)
         batched.set_blockers(su, blk, first)
         batched.windows(su, T, stage)

@@ -44,7 +44,8 @@ restart carries on from the mass learnt, its std and its residual statistics, no
 A restore takes published values back into the filters through :func:`unscaled`, the inverse
 of :func:`scaled`.
 
-Pure: ``handle(t, sample)``, ``snapshot()``, ``reset()``, ``state()``, ``load(state)``.
+Pure: ``handle(t, sample)`` (and ``handle_block``, by the same step), ``snapshot()``, ``reset()``,
+``state()``, ``load(state)``.
 """
 
 from __future__ import annotations
@@ -178,13 +179,30 @@ class MassLearner:
 
     # -- samples ---------------------------------------------------------------
     def handle(self, t: float, s) -> None:
+        """One sample (derived: its ``v_x`` and ``yaw_bias`` set by the estimator)."""
         y = s.values
-        tf, tr, ax, v = y[ch.T_F], y[ch.T_R], y[ch.AX], y[ch.SPEED]
-        if not math.isfinite(v):
-            v = s.v_x
+        v = y[ch.SPEED]
+        self._add(t, y[ch.T_F], y[ch.T_R], y[ch.AX], v if math.isfinite(v) else s.v_x, y[ch.YAW] - s.yaw_bias, s.gap)
+
+    def handle_block(self, T: np.ndarray, Y: np.ndarray, gap: bool, v_x: np.ndarray, yaw_bias: np.ndarray) -> None:
+        """A block of samples (TwoStageEstimator.handle_block's, with the speed filter's ``v_x`` and the
+        gyro's ``yaw_bias`` per sample): what :meth:`handle` on each does, by the same step."""
+        if not len(T):
+            return
+        v = Y[:, ch.SPEED]
+        v = np.where(np.isfinite(v), v, v_x)
+        wz = Y[:, ch.YAW] - yaw_bias
+        add = self._add
+        cols = (T, Y[:, ch.T_F], Y[:, ch.T_R], Y[:, ch.AX], v, wz)
+        for k, (t, tf, tr, ax, vk, w) in enumerate(zip(*(c.tolist() for c in cols))):
+            add(t, tf, tr, ax, vk, w, gap and k == 0)
+
+    def _add(self, t: float, tf: float, tr: float, ax: float, v: float, wz: float, gap: bool) -> None:
+        """A sample into the open row (rows of ROW seconds from their first sample; a gap drops the
+        open row unclosed; a row with a missing torque or a_x is skipped as a whole)."""
         r = self._row
-        if s.gap or r is None or t - r[0] >= ROW:
-            if r is not None and not s.gap:
+        if gap or r is None or t - r[0] >= ROW:
+            if r is not None and not gap:
                 self._close(r)
             r = self._row = [t, 0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0.0, 0.0, 0.0]
         if not (math.isfinite(tf) and math.isfinite(tr) and math.isfinite(ax)):
@@ -193,9 +211,8 @@ class MassLearner:
         r[1] += 1
         r[2] += (tf + tr) / self.vehicle.wheel_radius
         r[3] += ax
-        wz = y[ch.YAW] - s.yaw_bias
-        r[4] += abs(wz * v) if math.isfinite(wz) and math.isfinite(v) else 0.0  # turning, by the yaw rate: a bank
-        # reads in a_y, not in it
+        # turning, by the yaw rate (a bank reads in a_y, not in it)
+        r[4] += abs(wz * v) if math.isfinite(wz) and math.isfinite(v) else 0.0
         if math.isfinite(v):
             dt = t - r[0]
             r[5] += v * v
