@@ -78,8 +78,8 @@ def simulation(case: str, scenario: str, cond: str, seed: int):
 
 
 def run_one(job) -> dict:
-    case, scenario, cond, seed, est, *rest = job
-    on = est == "on"
+    case, scenario, cond, seed, mode, *rest = job
+    on = mode == "on"
     import logging
 
     from vdp.core.estimator import EstimatorConfig
@@ -98,7 +98,7 @@ def run_one(job) -> dict:
     # road-aligned one is vdp's old assumption): only the roll's part of a_y depends on it
     body = _world(cond)[2] is not None
     road = RoadConfig(on=on, **{"body_imu": body, **(rest[0] if rest else {})})
-    cfg = EstimatorConfig(mass=MassConfig({"off": "report"}.get(est, est)), road=road)
+    cfg = EstimatorConfig(mass=MassConfig({"off": "report"}.get(mode, mode)), road=road)
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "drive.log"
         write_log(sim.frames(), log, sim.bus_channel)
@@ -115,7 +115,7 @@ def run_one(job) -> dict:
             d["z"] = abs(v - tv) / sd if sd else math.inf
         rows[name] = d
     est = pipe.estimator
-    out = {"case": case, "scenario": scenario, "cond": cond, "seed": seed, "on": est, "params": rows}
+    out = {"case": case, "scenario": scenario, "cond": cond, "seed": seed, "on": mode, "params": rows}
     out["wall"] = round(time.perf_counter() - t0, 1)
     out["tilt"] = est.tilt.state() if est.tilt is not None else None
     return out
