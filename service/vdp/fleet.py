@@ -185,22 +185,13 @@ def _profile(path: str) -> tuple[Any, str | None]:
 def replay_log(path: str, profile_path: str, mass: str = "auto") -> Any:
     """The RunResult of ``vdp replay PATH --profile PROFILE --no-ekf`` (the UKF's
     numbers do not depend on the EKF baseline running beside it); ``mass``: ``--mass MODE``."""
-    from .core.estimator import EstimatorConfig
-    from .core.learner import LearnerConfig
-    from .core.mass import MassConfig
     from .io.bulk import replay_log as replay_file
-    from .pipeline import Pipeline
+    from .pipeline import Pipeline, run_config
     from .replay import compiled_pays
 
     profile, _ = _profile(profile_path)
-    # no EKF baseline (the UKF's numbers do not depend on it) and no trace: a plot's
-    # history grows with the log (310 MB peak at 4 h against 200 MB at 1 h), and batch draws no plots
-    cfg = EstimatorConfig(
-        learner=LearnerConfig(compiled=compiled_pays(path)),  # as vdp replay: the same numbers
-        baseline=False,
-        trace_len=0,
-        mass=MassConfig(mass),
-    )
+    # as vdp replay (the same numbers), without the EKF baseline (the UKF's do not depend on it)
+    cfg = run_config("batch", compiled=compiled_pays(path), mass=mass)
     result, _ = replay_file(path, lambda: Pipeline(profile, cfg), channel=profile.bus_channel)
     return result
 

@@ -15,8 +15,6 @@ from ..errors import ConfigError, ProfileError
 from .options import mass_option
 from .paths import check_apart, check_output, profile_inputs
 
-PLOT_ROWS = 20_000  # trace rows kept for --plot: a 4-hour log's 144,000 rows took ~140 MB
-
 
 def add_parser(sub):
     p = sub.add_parser(
@@ -162,12 +160,8 @@ class Progress:
 
 def run(args) -> int:
     from .. import profilecheck, report
-    from ..core.estimator import EstimatorConfig
-    from ..core.learner import LearnerConfig
-    from ..core.mass import MassConfig
-    from ..core.road import RoadConfig
     from ..io.bulk import replay_log
-    from ..pipeline import Pipeline
+    from ..pipeline import Pipeline, run_config
     from ..profile import load_profile
     from ..replay import compiled_pays
     from ..series import SUFFIXES, ChannelTap, SeriesRecorder, write_table
@@ -208,16 +202,15 @@ def run(args) -> int:
     for line in profilecheck.lines(check, mass_on=args.mass in ("auto", "on")):
         print(line)
     truth = report.load_truth(args.truth) if args.truth else None
-    # the estimates' history is kept only for the plot: without one, memory stays flat on long logs
-    # (at most PLOT_ROWS rows, thinned as the log goes on: ~1.5 KB each, and a plot has ~600 px per panel)
     compiled = compiled_pays(args.log)  # a short log never loads numba (vdp.replay.COMPILED_FROM)
-    cfg = EstimatorConfig(
-        learner=LearnerConfig(per_axle=not args.one_c, compiled=compiled),
-        baseline=args.baseline == "ekf",
-        trace_len=None if args.plot else 0,
-        trace_max=PLOT_ROWS if args.plot else None,
-        mass=MassConfig(args.mass),
-        road=RoadConfig(on=args.road),
+    cfg = run_config(
+        "replay",
+        compiled=compiled,
+        per_axle=not args.one_c,
+        mass=args.mass,
+        road=args.road,
+        ekf=args.baseline == "ekf",
+        plot=bool(args.plot),
     )
     if compiled:
         compile_note()
