@@ -17,9 +17,9 @@ from vdp.core.estimator import EstimatorConfig, TwoStageEstimator
 from vdp.core.learner import Stage1, Stage2
 from vdp.core.sample import Sample
 from vdp.io import bulk
-from vdp.io.bulk import replay_log
 from vdp.pipeline import Pipeline
 from vdp.profile import load_profile
+from vdp.replay import replay_log
 from vdp.sim.run import simulate, write_log
 
 pytestmark = [

@@ -219,8 +219,8 @@ def test_values_beyond_the_limits_are_dropped_and_counted_on_both_replay_paths(t
     import math
 
     from vdp.channels import AY
-    from vdp.io.bulk import replay_log
     from vdp.pipeline import Pipeline
+    from vdp.replay import replay_log
 
     low = chan(PAPER, "accel_y", offset=-500.0)
     seen = []
@@ -303,8 +303,8 @@ def test_a_check_whose_channel_lost_its_message_says_so(drive):
 def test_a_stage_whose_messages_never_came_cannot_run_and_names_them(tmp_path):
     """A bus with no wheel-speed message at all (nor the gear, on the Hyundai) had said both
     stages can run: the profile maps the channels, but the log never carried them."""
-    from vdp.io.bulk import replay_log
     from vdp.pipeline import Pipeline
+    from vdp.replay import replay_log
 
     sim = Simulation(PAPER, "paper", seed=2, duration=15.0)
     gone = ("WHEEL_SPEEDS_FRONT", "WHEEL_SPEEDS_REAR", "GNSS_VELOCITY")

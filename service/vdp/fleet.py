@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from . import __version__
-from .across import changes, drive_measures, since_changes, usable  # noqa: F401 (batch's, and scripts')
+from .across import changes, drive_measures, measures_of, since_changes, usable  # noqa: F401 (batch's, scripts')
 from .core.params import PUBLISHED
 from .core.result import CONVERGED, INVALID, NOT_IDENTIFIABLE, NOT_RUN, UNCERTAIN
 from .errors import VdpError
@@ -183,17 +183,23 @@ def _profile(path: str) -> tuple[Any, str | None]:
 
 
 def replay_log(path: str, profile_path: str, mass: str = "auto") -> Any:
-    """The RunResult of ``vdp replay PATH --profile PROFILE --no-ekf`` (the UKF's
-    numbers do not depend on the EKF baseline running beside it); ``mass``: ``--mass MODE``."""
-    from .io.bulk import replay_log as replay_file
-    from .pipeline import Pipeline, run_config
-    from .replay import compiled_pays
+    """The RunResult of ``vdp replay PATH --profile PROFILE --no-ekf --mass MASS`` (vdp.replay's use
+    case: the same check, the same marks, the same numbers), and the log's own measures from the
+    minutes the check read (across.measures_of): (result, measures)."""
+    from .pipeline import run_config
+    from .replay import check, compiled_pays, replay_file
 
     profile, _ = _profile(profile_path)
-    # as vdp replay (the same numbers), without the EKF baseline (the UKF's do not depend on it)
+    checked = check(path, profile)
+    # as vdp replay, without the EKF baseline (the UKF's numbers do not depend on it)
     cfg = run_config("batch", compiled=compiled_pays(path), mass=mass)
-    result, _ = replay_file(path, lambda: Pipeline(profile, cfg), channel=profile.bus_channel)
-    return result
+    result = replay_file(path, profile, cfg, checked)
+    try:
+        measures = measures_of(checked.head, profile)
+    except Exception as exc:  # the replay read it: a failure here only leaves the measures out
+        log.warning("%s: no drive measures: %s: %s", path, type(exc).__name__, exc)
+        measures = {}
+    return result, measures
 
 
 _TASK_LOG: contextvars.ContextVar[str | None] = contextvars.ContextVar("vdp_task_log", default=None)
@@ -239,7 +245,7 @@ def _run(task: Task) -> list[dict]:
     key = run_key(task.log, None)
     t0, c0 = time.monotonic(), time.thread_time()
     try:
-        res = replay_log(task.log, task.profile, task.mass)
+        res, measures = replay_log(task.log, task.profile, task.mass)
     except VdpError as exc:
         return [error_row(task, str(exc), key)]
     except Exception as exc:  # a bug, not the log: keep the rest of the fleet going, say where
@@ -248,11 +254,6 @@ def _run(task: Task) -> list[dict]:
     # the hash of the profile's files as this replay loaded them (the cache is refreshed on a change)
     key["profile_hash"] = _PROFILES[task.profile][1] if task.profile in _PROFILES else None
     rows = rows_from_result(res, task, key)
-    try:
-        measures = drive_measures(task.log, _profile(task.profile)[0])
-    except Exception as exc:  # the replay read it: a failure here only leaves the measures out
-        log.warning("%s: no drive measures: %s: %s", task.log, type(exc).__name__, exc)
-        measures = {}
     measures["start_time"] = res.log.start_time if res.log is not None else None
     for r in rows:
         r.update(measures)
