@@ -100,6 +100,26 @@ def test_a_block_of_samples_teaches_the_mass_what_each_sample_does():
     assert one.snapshot().valid and one.skipped.get("missing torque or a_x", 0) >= 1
 
 
+def test_rows_with_a_wheel_spinning_or_locked_are_left_out():
+    """A wheel far from the ground speed (spinning up, or locked under braking) puts its own
+    J omega_dot into the torque the balance reads: its rows are skipped and counted; the wheels
+    rolling with the car (slip of a few per cent) are kept."""
+    samples = []
+    for i, smp in enumerate(_drive(1600.0, 200.0, seed=5)):
+        y = list(smp.values)
+        v = y[ch.SPEED]
+        spin = 3000 <= i < 3500  # 10 s with the front left wheel at twice the ground speed
+        y[ch.WS_FL] = (2.0 if spin else 1.02) * v / VEH.wheel_radius
+        y[ch.WS_FR] = y[ch.WS_RL] = y[ch.WS_RR] = v / VEH.wheel_radius
+        if spin:  # the torque that spins it up, which the body never feels
+            y[ch.T_F] += 2000.0
+        samples.append(smp._replace(values=tuple(y)))
+    ml = _learn(samples)
+    assert 9 <= ml.skipped.get("wheel spin or lock", 0) <= 11
+    e = ml.snapshot()
+    assert e.valid and e.value == pytest.approx(1600.0, rel=0.02)
+
+
 @pytest.mark.parametrize("load", [0.0, 150.0, 300.0])
 def test_mass_is_learnt_from_the_longitudinal_balance(load):
     ml = _learn(_drive(1600.0 + load, 240.0))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-MASS_MODES = ("auto", "on", "report", "off")  # core.mass.MODES (the CLI does not import the core to list them)
+from ..settings import MASS_MODES
 
 
 def mass_option() -> dict:

@@ -73,6 +73,10 @@ EXCITED = 0.3  # m/s^2
 MIN_SPEED = 3.0  # m/s
 MAX_ACCEL = 4.0  # m/s^2
 MAX_LATERAL = 1.0  # m/s^2 of v r: a row turning harder has tyre drag the balance leaves out
+# |r omega / v - 1| of any wheel beyond this: spinning or locked (stage 1's LearnerConfig.spin_slip).  The
+# balance takes the wheels' inertia at the body's acceleration; a wheel spinning up to hundreds of rad/s
+# puts its J omega_dot into the torque, and without this gate the test's FWD car read 2,825 kg for 1,600.
+SPIN_SLIP = 0.2
 SIGMA_F = 40.0  # N: a row's force noise before the residuals say otherwise
 LO, HI = 300.0, 10000.0  # kg: a sane mass
 STAGE = 0  # not a stage of the paper's: every sample, before both
@@ -182,7 +186,9 @@ class MassLearner:
         """One sample (derived: its ``v_x`` and ``yaw_bias`` set by the estimator)."""
         y = s.values
         v = y[ch.SPEED]
-        self._add(t, y[ch.T_F], y[ch.T_R], y[ch.AX], v if math.isfinite(v) else s.v_x, y[ch.YAW] - s.yaw_bias, s.gap)
+        v = v if math.isfinite(v) else s.v_x
+        slip = _slip(y[ch.WS_FL], y[ch.WS_FR], y[ch.WS_RL], y[ch.WS_RR], v, self.vehicle.wheel_radius)
+        self._add(t, y[ch.T_F], y[ch.T_R], y[ch.AX], v, y[ch.YAW] - s.yaw_bias, slip, s.gap)
 
     def handle_block(self, T: np.ndarray, Y: np.ndarray, gap: bool, v_x: np.ndarray, yaw_bias: np.ndarray) -> None:
         """A block of samples (TwoStageEstimator.handle_block's, with the speed filter's ``v_x`` and the
@@ -192,19 +198,29 @@ class MassLearner:
         v = Y[:, ch.SPEED]
         v = np.where(np.isfinite(v), v, v_x)
         wz = Y[:, ch.YAW] - yaw_bias
+        rad = self.vehicle.wheel_radius
         add = self._add
-        cols = (T, Y[:, ch.T_F], Y[:, ch.T_R], Y[:, ch.AX], v, wz)
-        for k, (t, tf, tr, ax, vk, w) in enumerate(zip(*(c.tolist() for c in cols))):
-            add(t, tf, tr, ax, vk, w, gap and k == 0)
+        cols = (
+            T,
+            Y[:, ch.T_F],
+            Y[:, ch.T_R],
+            Y[:, ch.AX],
+            v,
+            wz,
+            *(Y[:, c] for c in (ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR)),
+        )
+        for k, (t, tf, tr, ax, vk, w, fl, fr, rl, rr) in enumerate(zip(*(c.tolist() for c in cols))):
+            add(t, tf, tr, ax, vk, w, _slip(fl, fr, rl, rr, vk, rad), gap and k == 0)
 
-    def _add(self, t: float, tf: float, tr: float, ax: float, v: float, wz: float, gap: bool) -> None:
+    def _add(self, t: float, tf: float, tr: float, ax: float, v: float, wz: float, slip: float, gap: bool) -> None:
         """A sample into the open row (rows of ROW seconds from their first sample; a gap drops the
-        open row unclosed; a row with a missing torque or a_x is skipped as a whole)."""
+        open row unclosed; a row with a missing torque or a_x is skipped as a whole; ``slip``: the
+        wheels' largest, :func:`_slip`)."""
         r = self._row
         if gap or r is None or t - r[0] >= ROW:
             if r is not None and not gap:
                 self._close(r)
-            r = self._row = [t, 0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0.0, 0.0, 0.0]
+            r = self._row = [t, 0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
         if not (math.isfinite(tf) and math.isfinite(tr) and math.isfinite(ax)):
             r[1] = -1_000_000  # a row with a missing value: skipped as a whole
             return
@@ -222,12 +238,13 @@ class MassLearner:
             r[9] += dt * dt
             r[10] += dt * v
         r[11] = max(r[11], abs(ax))
+        r[12] = max(r[12], slip)
 
     def _skip(self, why: str) -> None:
         self.skipped[why] = self.skipped.get(why, 0) + 1
 
     def _close(self, r: list) -> None:
-        t0, n, F, ax, ay, v2, nv, st, sv, stt, stv, amax = r
+        t0, n, F, ax, ay, v2, nv, st, sv, stt, stv, amax, slip = r
         if n < 5:
             self._skip("missing torque or a_x")
             return
@@ -239,6 +256,9 @@ class MassLearner:
             return
         if amax > MAX_ACCEL:
             self._skip("beyond the small-slip range")
+            return
+        if slip > SPIN_SLIP:
+            self._skip("wheel spin or lock")
             return
         F, ax, v2 = F / n, ax / n, v2 / nv
         d = nv * stt - st * st
@@ -315,6 +335,16 @@ OFF_REASON = (
     "not estimated: mass estimation is off, so the profile's vehicle.mass ({m:g} kg) is taken as known and a load "
     'is not seen; turn it on to learn the mass as driven (vdp replay --mass auto; vdp serve: [service] mass = "auto")'
 )
+
+
+def _slip(fl: float, fr: float, rl: float, rr: float, v: float, radius: float) -> float:
+    """The largest |r omega / v - 1| of the wheels with a speed (0 below MIN_SPEED or without v)."""
+    if not (math.isfinite(v) and v >= MIN_SPEED):
+        return 0.0
+    out = 0.0
+    for w in (fl, fr, rl, rr):
+        out = max(out, abs(w * radius / v - 1.0))  # (max(out, NaN) is out: a wheel without a speed)
+    return out
 
 
 def off(m0: float) -> Estimate:
