@@ -443,6 +443,7 @@ def test_every_run_takes_its_estimator_settings_from_one_place():
     checks = object()
     live = run_config("live", compiled=True, checks=checks, mass="off")
     assert (live.learner.compiled, live.trace_len, live.learner.check_executor) == (False, 600, checks)
+    assert live.baseline  # the live service serves the EKF beside (/estimates' baseline_ekf)
     assert live.mass.mode == "off" and not live.mass.learn
     with pytest.raises(ValueError, match="one of replay, batch, live"):
         run_config("serve")

@@ -59,8 +59,9 @@ def run_config(
       log: 310 MB peak at 4 h against 200 MB at 1 h, and batch draws no plots);
     - ``live`` (vdp serve): numpy's filter steps (a live bus brings 50 samples/s, which they keep
       up with at a few per cent of a core, and numba's LLVM would add ~120 MB to the service's RSS:
-      docs/decisions/0012, 0002), a 600-row trace for plots of recent data (history lives in the
-      store), and stage 2's batch checks on ``checks`` (a background executor).
+      docs/decisions/0012, 0002), the EKF beside (/estimates' baseline), a 600-row trace for plots
+      of recent data (history lives in the store), and stage 2's batch checks on ``checks`` (a
+      background executor).
 
     ``per_axle``, ``mass`` (core.mass.MassConfig's mode) and ``road`` are the user's, the same
     in every run: ``--one-c``, ``--mass``, ``--road`` and ``[service]``'s keys.
@@ -79,7 +80,7 @@ def run_config(
         trace_len, trace_max = (None, PLOT_ROWS) if plot and run == "replay" else (0, None)
     return EstimatorConfig(
         learner=learner,
-        baseline=ekf and run == "replay",
+        baseline=live or (ekf and run == "replay"),
         trace_len=trace_len,
         trace_max=trace_max,
         mass=MassConfig(mass),
