@@ -71,6 +71,7 @@ from .batched import (
     V_MIN,
     WHEEL_NOISE,
     WHEEL_REF,
+    WHEELBASE,
     WS_FL,
     WS_FR,
     WS_RL,
@@ -80,7 +81,6 @@ from .batched import (
     YAW_RMS_MIN_2,
     YAW_SQ,
     V,
-    WHEELBASE,
 )
 from .jit import jit
 
