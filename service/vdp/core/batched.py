@@ -42,7 +42,7 @@ N_CODES = max(sup.REASONS) + 1  # reason codes 0 (none) to supervisor.WAITING, t
 # the parameters array
 (ACCEL_NOISE, BIAS_WALK, GNSS_NOISE, MAX_GAP, WHEEL_REF, WHEEL_NOISE, BRAKE_MAX, RADIUS, GYRO_TAU, V_MIN,
  DELTA_MAX_1, YAW_MAX_1, AX_STD_MIN, AX_MEAN_MAX_2, DELTA_STD_MIN_2, YAW_RMS_MIN_2, TAU_AX, TAU_STEER, T_ON,
- T_OFF) = range(20)  # fmt: skip
+ T_OFF, WHEELBASE) = range(21)  # fmt: skip
 # the supervisor's reason codes, as copies: numba freezes a global into the cached code and invalidates
 # that cache only when this file changes (tests/test_batched.py holds them equal)
 _SPEED_LOW, _STEERING, _YAWING, _LITTLE_AX, _LITTLE_STEER, _NOT_CONSTANT, _MISSING, _WAITING = range(1, 9)
@@ -66,7 +66,7 @@ def params(cfg, vehicle, gyro_tau: float) -> np.ndarray:
     """The parameters array of an EstimatorConfig (its speed and gate configs) for ``vehicle``."""
     s, g = cfg.speed, cfg.gate
     ref = {None: 0.0, "front": 1.0}.get(s.wheel_ref, 2.0)
-    p = np.zeros(20)
+    p = np.zeros(21)
     p[[ACCEL_NOISE, BIAS_WALK, GNSS_NOISE, MAX_GAP, WHEEL_REF, WHEEL_NOISE, BRAKE_MAX, RADIUS, GYRO_TAU]] = (
         s.accel_noise, s.bias_walk, s.gnss_noise, s.max_gap, ref, s.wheel_noise, s.brake_torque_max,
         vehicle.wheel_radius, gyro_tau,
@@ -75,6 +75,7 @@ def params(cfg, vehicle, gyro_tau: float) -> np.ndarray:
         g.v_min, g.delta_max_1, g.yaw_max_1, g.ax_std_min, g.ax_mean_max_2, g.delta_std_min_2, g.yaw_rms_min_2,
     )  # fmt: skip
     p[[TAU_AX, TAU_STEER, T_ON, T_OFF]] = (g.tau_ax, g.tau_steer, g.t_on, g.t_off)
+    p[WHEELBASE] = vehicle.wheelbase  # estimator.turning's bound on r v_y
     return p
 
 

@@ -88,6 +88,15 @@ class GyroBias:
         return self.yaw, self.roll
 
 
+def turning(yaw: float, yaw_max: float, wheelbase: float) -> float:
+    """The speed filter's ``turn`` (core.speed, "Turning"): 0 while the yaw rate is within stage
+    1's straight-line limit (Table 2; or unknown), else a bound on the ``r v_y`` its model leaves
+    out, ``r^2 L`` (the CG's lateral speed is the kinematic ``r l_r`` in a slow turn, ``l_r < L``)."""
+    if not abs(yaw) >= yaw_max:  # (NaN: no gyro, nothing known of a turn)
+        return 0.0
+    return yaw * yaw * wheelbase
+
+
 def _close(a: float | None, b: float | None) -> bool:
     return a is not None and b is not None and math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-15)
 
@@ -313,7 +322,7 @@ class TwoStageEstimator:
             noise = self.cfg.speed.wheel_noise
         if s.gap:
             self.speed.reset()
-        self.speed.step(t, ax, gnss, noise)
+        self.speed.step(t, ax, gnss, noise, turning(y[ch.YAW], self.cfg.gate.yaw_max_1, self.vehicle.wheelbase))
         std = self.speed.std
         # stage 1 takes the speed's error as correlated over speed_corr^2 x 10 ms (4 s); one
         # that stays longer (a coarse 1 Hz GNSS: about 10 s) counts for less: its std widens by

@@ -71,6 +71,7 @@ from .batched import (
     V_MIN,
     WHEEL_NOISE,
     WHEEL_REF,
+    WHEELBASE,
     WS_FL,
     WS_FR,
     WS_RL,
@@ -96,7 +97,7 @@ def _speed_reset(st):
 
 
 @_inline
-def _speed_step(st, p, t, a_x, gnss, has_gnss, noise):
+def _speed_step(st, p, t, a_x, gnss, has_gnss, noise, turn):
     """SpeedFilter.step; ``has_gnss`` False for None, ``noise`` NaN for the default."""
     r = p[GNSS_NOISE] if math.isnan(noise) else noise
     no_t = math.isnan(st[S_T])
@@ -108,7 +109,8 @@ def _speed_step(st, p, t, a_x, gnss, has_gnss, noise):
         a_mean = 0.5 * (a_x + st[A_PREV]) if math.isfinite(st[A_PREV]) else a_x
         st[V] += dt * (a_mean - st[BIAS])
         an = p[ACCEL_NOISE] * dt
-        p_vv = st[P_VV] - 2 * dt * st[P_VB] + dt * dt * st[P_BB] + an * an
+        tn = turn * dt
+        p_vv = st[P_VV] - 2 * dt * st[P_VB] + dt * dt * st[P_BB] + an * an + tn * tn
         p_vb = st[P_VB] - dt * st[P_BB]
         st[P_VV] = p_vv
         st[P_VB] = p_vb
@@ -128,10 +130,12 @@ def _speed_step(st, p, t, a_x, gnss, has_gnss, noise):
     k_b = st[P_VB] / s
     e = gnss - st[V]
     st[V] += k_v * e
-    st[BIAS] += k_b * e
     p_vv, p_vb, p_bb = st[P_VV], st[P_VB], st[P_BB]
     st[P_VV] = p_vv - k_v * p_vv
     st[P_VB] = p_vb - k_v * p_vb
+    if turn > 0.0:
+        return  # turning: the bias is held
+    st[BIAS] += k_b * e
     st[P_BB] = p_bb - k_b * p_vb
 
 
@@ -207,7 +211,10 @@ def prepass(T, Y, F, A, gap, gate, st, p, c, needs1, needs2, done_from, blk, fir
             noise = p[WHEEL_NOISE]
         if gap[i]:
             _speed_reset(st)
-        _speed_step(st, p, t, ax, gnss, has, noise)
+        # -- estimator.turning
+        yr = y[c[YAW]]
+        turn = yr * yr * p[WHEELBASE] if abs(yr) >= p[YAW_MAX_1] else 0.0
+        _speed_step(st, p, t, ax, gnss, has, noise, turn)
         v = st[V]
         out[i, 0] = v
         out[i, 1] = math.sqrt(st[P_VV]) if math.isfinite(v) else math.nan
