@@ -54,7 +54,7 @@ def run(case: str, scenario: str, cond: str, seed: int) -> dict:
     sim, profile, truth, _ = load_grade.simulation(case, scenario, cond, seed)
     frames = list(sim.frames())  # the simulators run as their frames are drawn
     g = np.asarray(_GY) if _GY else np.zeros(1)  # a flat road: no set_road
-    pipe = Pipeline(profile, EstimatorConfig(mass=MassConfig(report=True, use=True), road=RoadConfig(on=True)))
+    pipe = Pipeline(profile, EstimatorConfig(mass=MassConfig("on"), road=RoadConfig(on=True)))
     pipe.monitor = None
     l2 = pipe.estimator.s2["ukf"]
     seen, est = [0], []

@@ -46,9 +46,9 @@ def bare(path: Path) -> tuple[int, float]:
 
 def replay(path: Path, bulk: bool, ekf: bool, front_only: bool = False, trace: bool = True) -> tuple[float, dict]:
     from vdp.core.estimator import EstimatorConfig
-    from vdp.io.bulk import replay_log
     from vdp.pipeline import Pipeline
     from vdp.profile import load_profile
+    from vdp.replay import replay_log
 
     profile = load_profile(ROOT / "profiles" / "paper.toml")
 

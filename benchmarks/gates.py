@@ -36,8 +36,8 @@ PROFILE = ROOT / "profiles" / "paper_status.toml"
 
 def _replay(path: Path, prof, shut: bool = True):
     from vdp.core import gates as gt
-    from vdp.io.bulk import replay_log
     from vdp.pipeline import Pipeline
+    from vdp.replay import replay_log
 
     def make():
         pipe = Pipeline(prof)

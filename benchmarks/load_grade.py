@@ -1,7 +1,7 @@
 """Issue 28's world: an undeclared load, a body-fixed IMU, hills and a banked road.
 
     python benchmarks/load_grade.py [--cases vdp,brush] [--scenarios paper,ordinary] [--seeds 1]
-        [--conditions load0,load150,load300,body,hills] [--estimator off,on] [--jobs 2] [--json out.json]
+        [--conditions load0,load150,load300,body,hills] [--estimator off,auto,on] [--jobs 2] [--json out.json]
 
 Each run simulates a drive (vdp's own simulator on profiles/paper.toml, or the independent
 brush model's ``saloon``; the brush model drives ``ordinary_rolling``, which rolls through
@@ -16,11 +16,12 @@ Conditions:
   m/s^2 and the model's own roll, 0.3 deg mounting pitch; brush: its own pitch and roll);
 * ``hills``: no load, grade to +-8 % and bank to +-3 deg, body-fixed IMU.
 
-Estimator: ``off`` is today's (mass neither learnt nor used, no grade or tilt model);
-``on`` learns the mass (core.mass, reported and put into the six) and models grade and tilt
-(core.road).  Truth is the loaded car's (its mass, l_f, h, I_z, I_x); per parameter the
-table gives the error, z = |error| / std, and whether it was valid; a valid value with
-z > 3 is counted.
+Estimator: ``off`` is the one before issue 28 (the mass learnt and reported, never put into the
+six; no grade or tilt model); ``auto`` is today's default (the mass put into the six once valid,
+core.mass.MassConfig; no grade or tilt model); ``on`` puts the mass in from the start and models
+grade and tilt (core.road: ``vdp replay --mass --road``).  Truth is the loaded car's (its mass,
+l_f, h, I_z, I_x); per parameter the table gives the error, z = |error| / std, and whether it
+was valid; a valid value with z > 3 is counted.
 """
 
 from __future__ import annotations
@@ -77,7 +78,8 @@ def simulation(case: str, scenario: str, cond: str, seed: int):
 
 
 def run_one(job) -> dict:
-    case, scenario, cond, seed, on, *rest = job
+    case, scenario, cond, seed, mode, *rest = job
+    on = mode == "on"
     import logging
 
     from vdp.core.estimator import EstimatorConfig
@@ -96,7 +98,7 @@ def run_one(job) -> dict:
     # road-aligned one is vdp's old assumption): only the roll's part of a_y depends on it
     body = _world(cond)[2] is not None
     road = RoadConfig(on=on, **{"body_imu": body, **(rest[0] if rest else {})})
-    cfg = EstimatorConfig(mass=MassConfig(report=True, use=on), road=road)
+    cfg = EstimatorConfig(mass=MassConfig({"off": "report"}.get(mode, mode)), road=road)
     with tempfile.TemporaryDirectory() as tmp:
         log = Path(tmp) / "drive.log"
         write_log(sim.frames(), log, sim.bus_channel)
@@ -113,7 +115,7 @@ def run_one(job) -> dict:
             d["z"] = abs(v - tv) / sd if sd else math.inf
         rows[name] = d
     est = pipe.estimator
-    out = {"case": case, "scenario": scenario, "cond": cond, "seed": seed, "on": on, "params": rows}
+    out = {"case": case, "scenario": scenario, "cond": cond, "seed": seed, "on": mode, "params": rows}
     out["wall"] = round(time.perf_counter() - t0, 1)
     out["tilt"] = est.tilt.state() if est.tilt is not None else None
     return out
@@ -132,12 +134,13 @@ def report(runs: list[dict]) -> str:
         "| case | drive | condition | estimator | " + " | ".join(PARAMS) + " | valid >3σ |",
         "|" + "---|" * (len(PARAMS) + 5),
     ]
-    for r in sorted(runs, key=lambda r: (r["case"], r["scenario"], CONDITIONS.index(r["cond"]), r["on"], r["seed"])):
+    order = ("off", "auto", "on")
+    for r in sorted(
+        runs, key=lambda r: (r["case"], r["scenario"], CONDITIONS.index(r["cond"]), order.index(r["on"]), r["seed"])
+    ):
         bad = sum(1 for d in r["params"].values() if d["valid"] and d.get("z", 0) > 3)
         cells = " | ".join(_cell(r["params"][p]) for p in PARAMS)
-        lines.append(
-            f"| {r['case']} | {r['scenario']} | {r['cond']} | {'on' if r['on'] else 'off'} | {cells} | {bad} |"
-        )
+        lines.append(f"| {r['case']} | {r['scenario']} | {r['cond']} | {r['on']} | {cells} | {bad} |")
     lines.append("")
     lines.append("Cell: error against the loaded car's truth, z = |error| / std, ✓ valid.")
     # the issue's targets
@@ -154,7 +157,7 @@ def main() -> int:
     ap.add_argument("--cases", default="vdp,brush")
     ap.add_argument("--scenarios", default="paper,ordinary")
     ap.add_argument("--conditions", default=",".join(CONDITIONS))
-    ap.add_argument("--estimator", default="off,on")
+    ap.add_argument("--estimator", default="off,auto,on")
     ap.add_argument("--seeds", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--json", type=Path)
@@ -162,11 +165,11 @@ def main() -> int:
     a = ap.parse_args()
     extra = {} if a.speed_walk is None else {"speed_walk": a.speed_walk}
     jobs = [
-        (c, s, k, seed, on == "on", extra)
+        (c, s, k, seed, est, extra)
         for c in a.cases.split(",")
         for s in a.scenarios.split(",")
         for k in a.conditions.split(",")
-        for on in a.estimator.split(",")
+        for est in a.estimator.split(",")
         for seed in range(1, a.seeds + 1)
     ]
     t0 = time.perf_counter()

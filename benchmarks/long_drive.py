@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PARAMS = ("l_f", "h", "C_K", "C_alpha", "I_z", "I_x")
+PARAMS = ("l_f", "h", "C_K", "C_alpha", "I_z", "I_x", "mass")  # the mass: learnt by default (core.mass)
 
 
 def vdp(*args: str) -> None:
@@ -48,7 +48,11 @@ def one(tmp: Path, scenario: str, model: str, car: str | None, repeat: int, seed
     vdp(*rep)
     replayed = time.perf_counter() - t0
     res = json.loads(out.read_text())
-    tv = json.loads(truth.read_text())["parameters"]
+    doc = json.loads(truth.read_text())
+    tv = dict(doc["parameters"])
+    m = doc.get("mass") or (doc.get("vehicle") or {}).get("mass")  # the car as driven (no load: its profile's)
+    if m:
+        tv["mass"] = m
     rows = {}
     for p in PARAMS:
         e = res["parameters"][p]

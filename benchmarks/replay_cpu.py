@@ -2,7 +2,7 @@
 
     python benchmarks/replay_cpu.py LOG [--tree CHECKOUT] [--profile] [--numpy]
 
-Runs ``vdp.io.bulk.replay_log(LOG, bulk=True)`` with the paper profile, as
+Runs ``vdp.replay.replay_log(LOG, bulk=True)`` with the paper profile, as
 ``vdp replay LOG`` does without ``--plot`` (and ``vdp batch`` per log), on the
 vdp of ``--tree`` (a git checkout or worktree of any commit; default this one),
 and prints its CPU time and two of its estimates.  ``--profile`` runs it under
@@ -33,9 +33,9 @@ def main() -> int:
     a = ap.parse_args()
     sys.path.insert(0, str(a.tree / "service"))
     from vdp.core.estimator import EstimatorConfig
-    from vdp.io.bulk import replay_log
     from vdp.pipeline import Pipeline
     from vdp.profile import load_profile
+    from vdp.replay import replay_log
 
     prof = load_profile(a.tree / "profiles" / "paper.toml")
     cfg = EstimatorConfig(baseline=False, trace_len=0)

@@ -52,9 +52,9 @@ def phases(log: str) -> None:
     from vdp import profilecheck
     from vdp.core.estimator import EstimatorConfig
     from vdp.core.learner import LearnerConfig
-    from vdp.io.bulk import replay_log
     from vdp.pipeline import Pipeline
     from vdp.profile import load_profile
+    from vdp.replay import replay_log
 
     mark("imports (vdp, can, numpy, cantools)")
     import numba  # noqa: F401

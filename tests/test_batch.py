@@ -237,8 +237,9 @@ def test_batch_runs_the_fleet_records_bad_logs_and_resumes(fleet, repo_root):
     # a stage-1 drive: stage 2's parameters did not run, and their rows say why
     assert all(r["reason"] and "no window" in r["reason"] for r in good[:6] if r["status"] == "not_run")
     assert any(r["status"] == "not_run" for r in good[:6])
-    # the mass's row: batch does not learn it, and says so
-    assert good[6]["status"] == "not_run" and "mass estimation is off" in good[6]["reason"]
+    # the mass's row: batch learns it by default (--mass auto), and says how far (a 20-s drive: not valid yet)
+    m = good[6]
+    assert m["status"] == "uncertain" and not m["valid"] and m["mass_mode"] == "auto" and "known to" in m["reason"]
 
     # the same numbers as vdp replay --json on the same log and profile
     out = d / "one.json"
@@ -389,7 +390,8 @@ def test_a_result_is_done_only_for_the_same_log_profile_dbc_and_vdp(tmp_path, re
     def key():
         return profile_hash(load_profile(prof))
 
-    rows = [{**dict.fromkeys(RUN_COLUMNS), "parameter": "l_f", "error": None, **run_key(t.log, key())}]
+    rows = [{**dict.fromkeys(RUN_COLUMNS), "parameter": "l_f", "error": None, "mass_mode": "auto"}]
+    rows[0].update(run_key(t.log, key()))
     assert rerun_reason(rows, t, key()) is None
     assert rerun_reason([], t, key()) == "new"
     old = [{k: v for k, v in rows[0].items() if k not in ("log_hash", "profile_hash", "vdp_version")}]
@@ -410,29 +412,30 @@ def test_a_result_is_done_only_for_the_same_log_profile_dbc_and_vdp(tmp_path, re
     with dbc.open("a") as f:
         f.write('\nCM_ "a comment added to the DBC";\n')
     assert rerun_reason(rows, t, key()) == "its profile changed"
-    # a result made without the mass learnt is not one with it (vdp batch --mass), and the other way
-    rows = [{**rows[0], **run_key(t.log, key()), "mass_learnt": False}]
-    assert rerun_reason(rows, t, key()) is None
-    assert rerun_reason(rows, dataclasses.replace(t, mass=True), key()) == "--mass now"
-    rows = [{**rows[0], "mass_learnt": True}]
-    assert rerun_reason(rows, t, key()) == "without --mass now"
-    assert rerun_reason(rows, dataclasses.replace(t, mass=True), key()) is None
-    assert t.key == dataclasses.replace(t, mass=True).key  # one part per log: the rerun replaces it
+    # a result made with another mass mode is run again (vdp batch --mass MODE); one from before the
+    # modes says only whether the mass was put in: on, or off
+    rows = [{**rows[0], **run_key(t.log, key()), "mass_learnt": True, "mass_mode": "auto"}]
+    assert t.mass == "auto" and rerun_reason(rows, t, key()) is None
+    assert rerun_reason(rows, dataclasses.replace(t, mass="on"), key()) == "--mass on now"
+    rows = [{**rows[0], "mass_learnt": False, "mass_mode": None}]
+    assert rerun_reason(rows, t, key()) == "--mass auto now"
+    assert rerun_reason(rows, dataclasses.replace(t, mass="off"), key()) is None
+    assert t.key == dataclasses.replace(t, mass="on").key  # one part per log: the rerun replaces it
 
 
 def test_batch_mass_makes_each_task_learn_the_mass(tmp_path, repo_root):
-    """`vdp batch --mass`: each log's task learns the mass (fleet.replay_log with --mass's config);
-    without it, as before."""
+    """`vdp batch --mass MODE`: each log's task takes the mass so (fleet.replay_log with that mode);
+    auto without it, on for the bare flag (a switch before the modes)."""
     from vdp.cli import build_parser
     from vdp.cli.batch import tasks
 
     prof = repo_root / "profiles" / "paper.toml"
     m = tmp_path / "m.csv"
     m.write_text(f"log,vehicle,profile\na.log,car,{prof}\n")
-    for flags, on in (([], False), (["--mass"], True)):
+    for flags, mode in (([], "auto"), (["--mass"], "on"), (["--mass", "off"], "off")):
         args = build_parser("batch").parse_args(["batch", "--manifest", str(m), "--out", str(tmp_path), *flags])
         (t,) = tasks(args)
-        assert t.mass is on
+        assert t.mass == mode
 
 
 def test_an_out_folder_that_takes_no_file_is_refused_before_the_batch(tmp_path, capsys):
@@ -450,7 +453,7 @@ def test_a_tasks_warnings_name_its_log(monkeypatch, caplog):
 
     from vdp import fleet
 
-    def replay(path, profile, mass=False):
+    def replay(path, profile, mass="auto"):
         logging.getLogger("vdp.profilecheck").warning("vehicle.mass is %d kg", 1600)
         logging.getLogger("vdp.io.logs").warning("%s: %s", path, "damaged in 1 place(s)")  # names it already
         logging.getLogger("vdp.io.decoder").warning("3 bad frames in a row")  # no arguments

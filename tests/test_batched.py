@@ -17,9 +17,9 @@ from vdp.core.estimator import EstimatorConfig, TwoStageEstimator
 from vdp.core.learner import Stage1, Stage2
 from vdp.core.sample import Sample
 from vdp.io import bulk
-from vdp.io.bulk import replay_log
 from vdp.pipeline import Pipeline
 from vdp.profile import load_profile
+from vdp.replay import replay_log
 from vdp.sim.run import simulate, write_log
 
 pytestmark = [
@@ -150,7 +150,9 @@ def replay_both(path, profile, monkeypatch, cfg=None):
     if len(pipe.estimator.s1) == 1:  # (with the EKF beside the UKF the learners go sample by sample)
         l1, l2 = pipe.estimator.s1["ukf"], pipe.estimator.s2["ukf"]
         if l2.updates:  # stage 2 stepped: most of its samples by the compiled steps
-            assert sum(stepped[2]) > 0.8 * l2.samples
+            # (the events drive of test_the_gates_fire_alike_in_both_paths: 81 % before the speed
+            # filter held its bias in turns, 79.5 % since, its windows a little changed)
+            assert sum(stepped[2]) > 0.75 * l2.samples
         if l1.samples > 500 and pipe.estimator.handover_t is not None:  # stage 1 after the hand-over: too
             assert sum(stepped[1]) > 0.5 * l1.samples
     return (a, sa), (b, sb), [i for i in handed if i is not None]

@@ -8,9 +8,10 @@ import pytest
 
 from vdp.core.estimator import EstimatorConfig
 from vdp.io import bulk
-from vdp.io.bulk import BulkSource, Irregular, replay_log
+from vdp.io.bulk import BulkSource, Irregular
 from vdp.pipeline import Pipeline
 from vdp.profile import load_profile
+from vdp.replay import replay_log
 from vdp.sim.run import simulate, write_log
 
 
@@ -104,7 +105,7 @@ def test_a_damaged_log_is_replayed_frame_by_frame(mixed, paper, tmp_path, caplog
     with pytest.raises(Irregular):
         src = BulkSource(path)
         src.feed_into(Pipeline(paper, EstimatorConfig(baseline=False)))
-    with caplog.at_level(logging.INFO, logger="vdp.io.bulk"):
+    with caplog.at_level(logging.INFO, logger="vdp.replay"):
         (a, _), (b, _) = both(path, paper)
     assert b == a and a["log"]["bad_lines"] == 2
     assert "frame by frame" in caplog.text

@@ -12,9 +12,9 @@ import pytest
 
 from vdp import channels
 from vdp.core.estimator import EstimatorConfig
-from vdp.io.bulk import replay_log
 from vdp.pipeline import Pipeline
 from vdp.profile import load_profile
+from vdp.replay import replay_log
 from vdp.sim.run import Simulation, write_log
 
 ROOT = Path(__file__).resolve().parents[1]

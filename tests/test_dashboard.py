@@ -52,6 +52,7 @@ def live(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("dash")
     settings = simulate_settings(PROFILE, tmp, scenario="paper", speed=5.0, noise="realistic", loop=True)
     settings = replace(settings, raw_log=replace(settings.raw_log, max_bytes=1 << 20, max_files=8))
+    settings = replace(settings, service=replace(settings.service, mass="off"))  # the mass card's "off" below
     svc = Service(settings)
     svc.start()
     sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)

@@ -15,7 +15,8 @@ Each step is a test of its own: the drives before it are made once a module (``_
 car A and its restart, its `stage1` half (54 s) for the load and the tyres, 25 s of it for
 car B; nothing is lost from the raw log.  The simulator drives
 the loaded car as the profile's car with the load's mass and the CG and inertias it moves
-(``loaded`` below); the service still estimates with the profile's mass.  Car B runs under
+(``loaded`` below); the service estimates with the profile's mass (``[service] mass = "off"``) except
+where a test says otherwise.  Car B runs under
 the same profile, but its bus carries other ECUs (ids car A's never did) and other parameters.
 """
 
@@ -81,9 +82,11 @@ class Logger:
         self.svc: Service | None = None
 
     def service(self, seed: int = 1, scenario: str = "paper", mass: bool = False) -> Service:
-        """A fresh service on the logger's store and raw-log folder (not started)."""
+        """A fresh service on the logger's store and raw-log folder (not started); ``mass``:
+        ``[service] mass = "on"``, else "off" (core.mass.MassConfig)."""
         settings = simulate_settings(PROFILE, self.tmp, scenario=scenario, speed=0, noise="none", seed=seed)
-        settings = dataclasses.replace(settings, service=dataclasses.replace(settings.service, mass=mass))
+        svc = dataclasses.replace(settings.service, mass="on" if mass else "off")
+        settings = dataclasses.replace(settings, service=svc)
         settings = dataclasses.replace(settings, store=dataclasses.replace(settings.store, commit_interval=0.2))
         return Service(settings, profile=self.profile)
 
@@ -99,7 +102,7 @@ class Logger:
         mass: bool = False,
     ):
         """One drive of the given car through a fresh service; returns it (stopped if ``stop``).
-        ``mass``: the service learns the mass as driven (``[service] mass = true``)."""
+        ``mass``: the service learns the mass as driven and puts it in (``[service] mass = "on"``)."""
         svc = self.service(seed, scenario, mass)
         start = 1.7e9 + self.drives * (DRIVE + GAP)
         svc.sim._sim = Simulation(
@@ -234,7 +237,7 @@ def test_4_a_load_of_300_kg_is_named_as_a_mass_change(loaded_a):
 
 
 def test_4_with_the_mass_learnt_a_restart_resumes_it_and_a_load_is_named_and_leaves_the_tyres_alone(tmp_path):
-    """With ``[service] mass = true`` the estimator puts the learnt mass into C_K and C_alpha.  A
+    """With ``[service] mass = "on"`` the estimator puts the learnt mass into C_K and C_alpha.  A
     restart resumes the mass learner where it was (its own state in the store, as the six's), and
     the six as published with it; another car on the bus starts from the prior mass.  A mass step
     resets the mass, l_f, h, I_z and I_x, not C_K and C_alpha (core.change.affected), and the mass

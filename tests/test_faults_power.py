@@ -131,7 +131,8 @@ def test_kill_9_in_a_loop_loses_nothing_committed_and_no_closed_log(tmp_path):
             first = get(port, "/estimates")
             if seen:  # carried on from what was committed before the kill (the values: test_e2e_restart.py)
                 assert first["restored"] is True, get(port, "/health")
-                learnt = sorted(k for k, v in seen.items() if v["samples"])
+                # (the mass comes back through its learner's own state, not as a restored value: test_drives.py)
+                learnt = sorted(k for k, v in seen.items() if v["samples"] and k != "mass")
                 assert learnt and get(port, "/status")["store"]["restored"] == learnt
             commits = 0
             end = time.monotonic() + 60
@@ -148,7 +149,7 @@ def test_kill_9_in_a_loop_loses_nothing_committed_and_no_closed_log(tmp_path):
                 assert proc.wait(60) == 0, err.read_text()[-3000:]
                 break
             seen = stored(db)
-            assert set(seen) == {*NAMES, "mass"}  # the mass too (not_run: its estimation is off)
+            assert set(seen) == {*NAMES, "mass"}  # the mass too (learnt: [service] mass = "auto")
             os.kill(proc.pid, signal.SIGKILL)
             proc.wait()
             bounds.append(last_seq(raw, crashed=True))

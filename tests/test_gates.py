@@ -157,8 +157,8 @@ EVENTS = "reverse=2,abs=2,kerb=4,spin=2"
 @pytest.fixture(scope="module")
 def drives(repo_root, tmp_path_factory):
     """The city drive (seed 11) with the events and without them, replayed with the status profile."""
-    from vdp.io.bulk import replay_log
     from vdp.pipeline import Pipeline
+    from vdp.replay import replay_log
     from vdp.sim.events import Events
     from vdp.sim.run import Simulation, write_log
 

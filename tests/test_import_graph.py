@@ -58,8 +58,6 @@ TOP = 9
 # the simulated bus feed is part of the live service and may drive the simulator
 ALLOWED = {
     ("vdp.live.simfeed", "vdp.sim"),
-    # the block reader's entry point, replay_log, drives a replay (it would sit better in vdp.replay)
-    ("vdp.io.bulk", "vdp.replay"),
 }
 
 CORE_MAY_IMPORT = {"numpy", "scipy", "math", "dataclasses", "typing", "collections", "functools"}

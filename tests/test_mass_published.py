@@ -3,8 +3,8 @@
 its estimation is off, each of them says so (not_run, and why), none leaves it out.
 
 One drive: the paper drive (112 s, noise-free) of the car with an undeclared 300 kg (passengers
-and luggage), through the live service with ``[service] mass = true`` as fast as it estimates;
-then `vdp replay` of the raw log the service wrote, with and without ``--mass``.
+and luggage), through the live service with ``[service] mass = "on"`` as fast as it estimates;
+then `vdp replay` of the raw log the service wrote, with ``--mass on``, ``off`` and the default (auto).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 def drive(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("mass")
     settings = simulate_settings(PROFILE, tmp, scenario="paper", speed=0, noise="none", seed=1)
-    settings = dataclasses.replace(settings, service=dataclasses.replace(settings.service, mass=True))
+    settings = dataclasses.replace(settings, service=dataclasses.replace(settings.service, mass="on"))
     profile = load_profile(PROFILE)
     svc = Service(settings, profile=profile)
     sim = svc.sim._sim = Simulation(profile, "paper", 1, "none", load=LOAD)
@@ -63,7 +63,7 @@ def drive(tmp_path_factory):
         for f in sorted(settings.raw_log.dir.glob("vdp-*.log")):
             out.write(f.read_bytes())
     docs = {}
-    for name, flags in (("on", ["--mass"]), ("off", [])):
+    for name, flags in (("on", ["--mass"]), ("off", ["--mass", "off"]), ("auto", [])):
         out_json = tmp / f"replay-{name}.json"
         args = ["replay", str(log), "--profile", str(PROFILE), "--json", str(out_json), "--no-progress", *flags]
         with contextlib.redirect_stdout(io.StringIO()) as text:
@@ -104,9 +104,10 @@ def test_runs_parquet_rows_say_what_the_replay_json_says(drive, tmp_path):
     with ``vdp batch --mass`` (Task.mass) those of ``vdp replay --mass``: the mass learnt, and
     put into the six."""
     for name, on in (("on", True), ("off", False)):
-        task = fleet.Task(str(drive["log"]), "car", str(PROFILE), mass=on)
+        task = fleet.Task(str(drive["log"]), "car", str(PROFILE), mass=name)
         rows = {r["parameter"]: r for r in fleet.run_task(task)}
         assert list(rows) == list(PUBLISHED) and all(r["mass_learnt"] is on for r in rows.values())
+        assert all(r["mass_mode"] == name for r in rows.values())
         params = drive["replay"][name]["parameters"]
         for n, row in rows.items():
             doc = params[n]
@@ -148,7 +149,7 @@ def test_off_the_mass_is_said_to_be_off_in_the_json_and_the_table(drive, capsys)
     assert (m["status"], m["valid"], m["value"]) == ("not_run", False, 1600.0)
     assert m["std"] == pytest.approx(0.12 * 1600.0)  # the prior's (core.mass.PRIOR_REL)
     assert "mass estimation is off" in m["reason"] and "--mass" in m["reason"]
-    assert vdp_main(["replay", str(drive["log"]), "--profile", str(PROFILE), "--no-progress"]) == 0
+    assert vdp_main(["replay", str(drive["log"]), "--profile", str(PROFILE), "--no-progress", "--mass", "off"]) == 0
     text = capsys.readouterr().out
     rows = [ln for ln in text.splitlines() if ln.startswith("mass ")]
     assert len(rows) == 1 and "not_run!" in rows[0]
@@ -172,3 +173,13 @@ def test_the_table_says_the_learnt_mass_answers_the_profile_mass_and_scales_the_
     c = drive["replay"]["on"]["parameters"]["C_alpha"]
     x = c["extra"]
     assert 0.5 * (x["C_alpha_front"] + x["C_alpha_rear"]) == pytest.approx(c["value"], rel=1e-9)
+
+
+def test_by_default_the_mass_is_learnt_and_once_valid_put_in_as_with_mass_on(drive):
+    """The default (auto): the undeclared 300 kg is learnt, and once the mass is valid the six are
+    those of ``--mass on``, not the profile's mass's (C_K 18 % high, valid, before issue 28)."""
+    auto, on, off = (drive["replay"][k]["parameters"] for k in ("auto", "on", "off"))
+    assert auto["mass"]["valid"] and auto["mass"]["value"] == pytest.approx(drive["sim"].model.params.m, rel=0.03)
+    for n in ("C_K", "C_alpha", "I_z"):
+        assert auto[n]["value"] == on[n]["value"] and auto[n]["std"] == on[n]["std"], n
+        assert auto[n]["value"] != off[n]["value"], n

@@ -429,7 +429,7 @@ def test_a_replay_polled_on_the_way_ends_on_the_same_result(repo_root, tmp_path)
     """``vdp replay --series`` asks for the result every 0.2 s of window; the batch check then solves
     on the rows it has, and again only every quarter of its record.  The log's end makes the last
     result take every row (TwoStageEstimator.finish), so polling never changes what is reported."""
-    from vdp.io.bulk import replay_log
+    from vdp.replay import replay_log
     from vdp.series import SeriesRecorder
     from vdp.sim.run import write_log
 

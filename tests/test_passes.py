@@ -28,13 +28,16 @@ def params() -> list[float]:
     passes.speed_params(p, SpeedConfig())
     passes.gate_params(p, GateConfig())
     p[passes.GYRO_TAU] = 30.0
+    p[passes.WHEELBASE] = 2.5
     return p
 
 
 def speed_inputs(n: int = 3000, seed: int = 0):
-    """(t, a_x, gnss, has, noise) per step: every branch of the step (a_x missing, time going
-    back or leaping past max_gap, a GNSS speed missing or NaN, the wheels' noise) now and then."""
+    """(t, a_x, gnss, has, noise, yaw) per step: every branch of the step (a_x missing, time going
+    back or leaping past max_gap, a GNSS speed missing or NaN, the wheels' noise, a turn: the yaw
+    rate beyond stage 1's limit, or missing) now and then."""
     rng = np.random.default_rng(seed)
+    turns = np.random.default_rng(seed + 100)  # (its own draws: the other inputs as they were before turns)
     t, v = 0.0, 10.0
     for k in range(n):
         u = rng.random()
@@ -45,7 +48,18 @@ def speed_inputs(n: int = 3000, seed: int = 0):
         has = k % 5 == 0 or rng.random() < 0.01
         gnss = (math.nan if rng.random() < 0.05 else v + 0.05 * rng.standard_normal()) if has else 0.0
         noise = 0.08 if rng.random() < 0.2 else math.nan
-        yield t, ax, gnss, has, noise
+        yaw = (0.3 if math.sin(0.013 * k) > 0.7 else 0.0) + 0.01 * turns.standard_normal()
+        yield t, ax, gnss, has, noise, math.nan if turns.random() < 0.01 else yaw
+
+
+def test_the_turn_compiled_is_the_python_one():
+    assert prepass._turning.py_func is passes.turning
+    p = params()
+    pa = np.array(p)
+    ys = [-0.4, -0.1, -0.05, 0.0, 0.05, 0.1, 0.3, math.nan, math.inf, p[passes.YAW_MAX_1], -p[passes.YAW_MAX_1]]
+    for yaw in ys:
+        assert same(passes.turning(p, yaw), prepass._turning(pa, yaw)), yaw
+    assert passes.turning(p, 0.3) == 0.3 * 0.3 * 2.5 and passes.turning(p, math.nan) == 0.0
 
 
 def test_the_speed_step_compiled_is_the_python_one():
@@ -59,16 +73,21 @@ def test_the_speed_step_compiled_is_the_python_one():
     assert same(py, jit)
     pa = np.array(p)
     ready = resets = 0
-    for k, (t, ax, gnss, has, noise) in enumerate(speed_inputs()):
+    held = 0
+    for k, (t, ax, gnss, has, noise, yaw) in enumerate(speed_inputs()):
         if k % 700 == 699:  # a gap in the grid: the estimator resets the filter
             passes.speed_reset(py)
             prepass._speed_reset(jit)
-        passes.speed_step(py, p, t, ax, gnss, has, noise)
-        prepass._speed_step(jit, pa, t, ax, gnss, has, noise)
+        turn = passes.turning(p, yaw)
+        bias = py[passes.BIAS]
+        passes.speed_step(py, p, t, ax, gnss, has, noise, turn)
+        prepass._speed_step(jit, pa, t, ax, gnss, has, noise, prepass._turning(pa, yaw))
         assert same(py, jit), k
         ready += math.isfinite(py[passes.V])
         resets += math.isnan(py[passes.V])
+        held += turn > 0.0 and has and math.isfinite(gnss) and py[passes.BIAS] == bias
     assert ready > 2000 and resets > 20  # (the inputs met both: a filter running, and restarting)
+    assert held > 50  # (and turns: a GNSS speed that left the bias as it was)
     assert py[passes.BIAS] != 0.0 and py[passes.P_BB] != 0.05**2  # the bias learnt
 
 
@@ -79,9 +98,10 @@ def test_the_speed_filter_steps_on_its_state_list():
     st[passes.BIAS], st[passes.P_BB] = 0.0, 0.05**2
     passes.speed_reset(st)
     assert same(f.st, st) and f.t is None and not f.ready
-    for t, ax, gnss, has, noise in speed_inputs(500, seed=1):
-        f.step(t, ax, gnss if has else None, None if math.isnan(noise) else noise)
-        passes.speed_step(st, p, t, ax, gnss, has, noise)
+    for t, ax, gnss, has, noise, yaw in speed_inputs(500, seed=1):
+        turn = passes.turning(p, yaw)
+        f.step(t, ax, gnss if has else None, None if math.isnan(noise) else noise, turn)
+        passes.speed_step(st, p, t, ax, gnss, has, noise, turn)
         assert same(f.st, st)
     assert f.ready and (f.v, f.bias, f.p_vv, f.t) == (st[passes.V], st[passes.BIAS], st[passes.P_VV], st[passes.S_T])
 

@@ -135,11 +135,13 @@ def test_replay_warns_and_marks_the_parameters_not_valid(drive, tmp_path, capsys
     for name in PARAMETERS:
         p = res["parameters"][name]
         assert p["valid"] is False and "accel_x" in p["reason"]
-    # the mass, its estimation off, says so; learnt, a_x's finding marks it too (it rests on a_x)
-    assert "mass estimation is off" in res["parameters"]["mass"]["reason"]
-    assert main(["replay", str(drive), "--profile", str(prof), "--json", str(out), "--no-progress", "--mass"]) == 0
-    m = json.loads(out.read_text())["parameters"]["mass"]
+    # the mass, learnt by default (--mass auto): a_x's finding marks it too (it rests on a_x); its
+    # estimation off, it says so
+    m = res["parameters"]["mass"]
     assert m["status"] != "not_run" and m["valid"] is False and "accel_x" in m["reason"]
+    args = ["replay", str(drive), "--profile", str(prof), "--json", str(out), "--no-progress", "--mass", "off"]
+    assert main(args) == 0
+    assert "mass estimation is off" in json.loads(out.read_text())["parameters"]["mass"]["reason"]
     capsys.readouterr()
     assert main(["profile", "check", str(drive), "--profile", str(prof)]) == 1
     assert "set sign = -1" in capsys.readouterr().out
@@ -217,8 +219,8 @@ def test_values_beyond_the_limits_are_dropped_and_counted_on_both_replay_paths(t
     import math
 
     from vdp.channels import AY
-    from vdp.io.bulk import replay_log
     from vdp.pipeline import Pipeline
+    from vdp.replay import replay_log
 
     low = chan(PAPER, "accel_y", offset=-500.0)
     seen = []
@@ -301,8 +303,8 @@ def test_a_check_whose_channel_lost_its_message_says_so(drive):
 def test_a_stage_whose_messages_never_came_cannot_run_and_names_them(tmp_path):
     """A bus with no wheel-speed message at all (nor the gear, on the Hyundai) had said both
     stages can run: the profile maps the channels, but the log never carried them."""
-    from vdp.io.bulk import replay_log
     from vdp.pipeline import Pipeline
+    from vdp.replay import replay_log
 
     sim = Simulation(PAPER, "paper", seed=2, duration=15.0)
     gone = ("WHEEL_SPEEDS_FRONT", "WHEEL_SPEEDS_REAR", "GNSS_VELOCITY")

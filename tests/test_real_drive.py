@@ -170,7 +170,7 @@ def test_a_fleet_row_gives_the_reason_the_car_cannot_learn_a_parameter():
     not "its stage had no window" (which asks for more driving that cannot help)."""
     from vdp import fleet
 
-    res = fleet.replay_log(str(TRIMMED), str(PROFILE))
+    res, _ = fleet.replay_log(str(TRIMMED), str(PROFILE))
     rows = {r["parameter"]: r for r in fleet.rows_from_result(res, fleet.Task(str(TRIMMED), "rav4", str(PROFILE)))}
     assert rows["I_x"]["status"] == "not_run" and "no roll-rate gyro" in rows["I_x"]["reason"]
     assert "no per-axle wheel torque" in rows["h"]["reason"]  # its stage cannot run on this car

@@ -42,12 +42,10 @@ def test_replay_writes_the_documented_json_and_a_plot(drive, repo_root, capsys):
     res = json.loads(out.read_text())
     for key in ("parameters", "baseline_ekf", "windows", "log"):
         assert key in res
-    # the six and the mass after them (said to be off: core.mass); the EKF baseline is of the six
+    # the six and the mass after them (learnt by default: core.mass); the EKF baseline is of the six
     assert list(res["parameters"]) == [*NAMES, "mass"] and list(res["baseline_ekf"]) == list(NAMES)
-    assert (
-        res["parameters"]["mass"]["status"] == "not_run"
-        and "mass estimation is off" in res["parameters"]["mass"]["reason"]
-    )
+    m = res["parameters"]["mass"]
+    assert m["status"] != "not_run" and m["extra"]["profile_mass"] == 1600.0 and m["extra"]["rows"] > 0
     for kind in ("parameters", "baseline_ekf"):
         for p in res[kind].values():
             assert {"value", "std", "unit", "valid", "stage"} <= set(p)
@@ -123,8 +121,6 @@ def test_bad_input_is_one_line_and_exit_2(drive, capsys, bad, needle):
 def test_the_plots_trace_is_thinned_not_grown(drive, repo_root, monkeypatch):
     """With trace_max, a long log's trace keeps at most that many rows, spread over the whole
     drive (every other row dropped and the spacing doubled each time it fills)."""
-    import vdp.core.estimator as est
-    from vdp.cli import replay as replay_cli
     from vdp.core.estimator import EstimatorConfig
     from vdp.io.logs import open_log
     from vdp.pipeline import Pipeline
@@ -142,17 +138,19 @@ def test_the_plots_trace_is_thinned_not_grown(drive, repo_root, monkeypatch):
     assert max(dt) < 4 * 0.1 * 2**3  # three thinnings at most: 200 rows into fewer than 50
     assert all(d > 0 for d in dt)
     # vdp replay --plot caps its trace so
+    from vdp import pipeline
+
     seen = {}
-    orig = est.EstimatorConfig
+    orig = pipeline.EstimatorConfig
 
     def spy(*a, **kw):
         seen.update(kw)
         return orig(*a, **kw)
 
-    monkeypatch.setattr(est, "EstimatorConfig", spy)
+    monkeypatch.setattr(pipeline, "EstimatorConfig", spy)  # (pipeline.run_config makes every run's)
     png = log.parent / "thin.png"
     assert main(["replay", str(log), "--profile", str(repo_root / "profiles" / "paper.toml"), "--plot", str(png)]) == 0
-    assert seen["trace_max"] == replay_cli.PLOT_ROWS and png.stat().st_size > 20000
+    assert seen["trace_max"] == pipeline.PLOT_ROWS and png.stat().st_size > 20000
 
 
 def test_the_readmes_profile_path_works_from_any_directory(drive, monkeypatch, capsys):
@@ -430,3 +428,24 @@ def test_replay_after_earlier_drives_names_the_changes_as_batch_and_serve_do(tmp
     for bad, said in ((tmp_path / "none.json", "no such file"), (old, "no 'drive' section")):
         assert main(["replay", str(tmp_path / "a.log"), "--profile", prof, "--after", str(bad)]) == 2
         assert said in capsys.readouterr().err
+
+
+def test_every_run_takes_its_estimator_settings_from_one_place():
+    """pipeline.run_config: replay, batch and the live service differ only where their runs do
+    (compiled steps, trace, EKF, the checks' executor); the user's keys reach each alike."""
+    from vdp.pipeline import PLOT_ROWS, run_config
+
+    rep = run_config("replay", compiled=True, ekf=True, plot=True, mass="on", road=True, per_axle=False)
+    assert (rep.learner.compiled, rep.baseline, rep.trace_len, rep.trace_max) == (True, True, None, PLOT_ROWS)
+    assert (rep.mass.mode, rep.road.on, rep.learner.per_axle) == ("on", True, False)
+    bat = run_config("batch", compiled=True, ekf=True, plot=True)
+    assert (bat.learner.compiled, bat.baseline, bat.trace_len, bat.mass.mode) == (True, False, 0, "auto")
+    checks = object()
+    live = run_config("live", compiled=True, checks=checks, mass="off")
+    assert (live.learner.compiled, live.trace_len, live.learner.check_executor) == (False, 600, checks)
+    assert live.baseline  # the live service serves the EKF beside (/estimates' baseline_ekf)
+    assert live.mass.mode == "off" and not live.mass.learn
+    with pytest.raises(ValueError, match="one of replay, batch, live"):
+        run_config("serve")
+    with pytest.raises(ValueError, match="mass mode"):
+        run_config("replay", mass="yes")

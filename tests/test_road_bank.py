@@ -63,7 +63,7 @@ def test_on_a_banked_road_the_bank_state_tracks_the_bank_and_c_alpha_holds(monke
     sim = Simulation(PAPER, "paper", 1, "realistic", road=Road(bank=3.0 * DEG), imu=imu)
     frames = list(sim.frames())  # the simulator runs as its frames are drawn
     truth = sim.truth["parameters"]
-    cfg = EstimatorConfig(baseline=False, mass=MassConfig(report=True, use=True), road=RoadConfig(on=True))
+    cfg = EstimatorConfig(baseline=False, mass=MassConfig("on"), road=RoadConfig(on=True))
     pipe = Pipeline(sim.profile, cfg)
     l2 = pipe.estimator.s2["ukf"]
     seen = {"updates": 0}

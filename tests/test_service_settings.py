@@ -120,3 +120,20 @@ def test_the_raw_logs_lock_is_in_its_folder_and_a_file_in_the_way_is_named(tmp_p
     bad = load_settings(write(tmp_path, 'profile = "p.toml"\n[store]\npath = "afile/state.sqlite"\n'))
     with pytest.raises(ConfigError, match=r"the estimate store needs the folder .*afile, but .*afile is a file"):
         service_lock(bad).acquire()
+
+
+def test_the_mass_modes_are_one_vocabulary_and_a_wrong_one_is_refused(tmp_path):
+    """[service] mass, vdp replay/batch --mass and core.mass.MassConfig take the same words; the
+    switch of before ("true"/"false") still reads as on/off; another word is refused by name."""
+    from vdp.core.mass import MODES
+    from vdp.settings import MASS_MODES, load_settings
+
+    assert MASS_MODES == MODES
+    prof = Path(__file__).resolve().parents[1] / "profiles" / "paper.toml"
+    for value, mode in (("true", "on"), ("false", "off"), ('"report"', "report")):
+        cfg = tmp_path / "vdp.toml"
+        cfg.write_text(f'profile = "{prof}"\n[service]\nmass = {value}\n')
+        assert load_settings(cfg).service.mass == mode
+    cfg.write_text(f'profile = "{prof}"\n[service]\nmass = "yes"\n')
+    with pytest.raises(ConfigError, match="'mass': must be one of auto, on, report, off"):
+        load_settings(cfg)

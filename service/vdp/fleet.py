@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from . import __version__
-from .across import changes, drive_measures, since_changes, usable  # noqa: F401 (batch's, and scripts')
+from .across import changes, drive_measures, measures_of, since_changes, usable  # noqa: F401 (batch's, scripts')
 from .core.params import PUBLISHED
 from .core.result import CONVERGED, INVALID, NOT_IDENTIFIABLE, NOT_RUN, UNCERTAIN
 from .errors import VdpError
@@ -94,10 +94,12 @@ RUN_COLUMNS = {
     # creep) and the sentence that splits it by gate; null for a result made before the gates
     "gated": float,
     "gated_by": str,
-    # whether the run learnt the mass (vdp batch --mass: its row the learnt mass, and C_K, C_alpha, I_z
-    # and I_x with it put in, as vdp replay --mass); null for a result made before the switch
+    # whether the run put the learnt mass into C_K, C_alpha, I_z and I_x (vdp batch --mass auto or on,
+    # as vdp replay), and the mode it ran with (core.mass.MassConfig); null for a result made before
     "mass_learnt": bool,
+    "mass_mode": str,
 }
+PUT = ("auto", "on")  # the mass modes that put the learnt mass into the six (core.mass.MassConfig.put)
 AXLE_COLUMNS = ("C_alpha_front", "C_alpha_front_std", "C_alpha_rear", "C_alpha_rear_std")
 
 
@@ -106,7 +108,7 @@ class Task:
     log: str
     vehicle: str
     profile: str
-    mass: bool = False  # learn the mass (vdp batch --mass); a result made the other way is run again
+    mass: str = "auto"  # the mass mode (vdp batch --mass, core.mass.MassConfig); another mode runs again
 
     @property
     def key(self) -> str:
@@ -180,27 +182,24 @@ def _profile(path: str) -> tuple[Any, str | None]:
     return got
 
 
-def replay_log(path: str, profile_path: str, mass: bool = False) -> Any:
-    """The RunResult of ``vdp replay PATH --profile PROFILE --no-ekf`` (the UKF's
-    numbers do not depend on the EKF baseline running beside it); ``mass``: with ``--mass``."""
-    from .core.estimator import EstimatorConfig
-    from .core.learner import LearnerConfig
-    from .core.mass import MassConfig
-    from .io.bulk import replay_log as replay_file
-    from .pipeline import Pipeline
-    from .replay import compiled_pays
+def replay_log(path: str, profile_path: str, mass: str = "auto") -> Any:
+    """The RunResult of ``vdp replay PATH --profile PROFILE --no-ekf --mass MASS`` (vdp.replay's use
+    case: the same check, the same marks, the same numbers), and the log's own measures from the
+    minutes the check read (across.measures_of): (result, measures)."""
+    from .pipeline import run_config
+    from .replay import check, compiled_pays, replay_file
 
     profile, _ = _profile(profile_path)
-    # no EKF baseline (the UKF's numbers do not depend on it) and no trace: a plot's
-    # history grows with the log (310 MB peak at 4 h against 200 MB at 1 h), and batch draws no plots
-    cfg = EstimatorConfig(
-        learner=LearnerConfig(compiled=compiled_pays(path)),  # as vdp replay: the same numbers
-        baseline=False,
-        trace_len=0,
-        mass=MassConfig(report=mass, use=mass),
-    )
-    result, _ = replay_file(path, lambda: Pipeline(profile, cfg), channel=profile.bus_channel)
-    return result
+    checked = check(path, profile)
+    # as vdp replay, without the EKF baseline (the UKF's numbers do not depend on it)
+    cfg = run_config("batch", compiled=compiled_pays(path), mass=mass)
+    result = replay_file(path, profile, cfg, checked)
+    try:
+        measures = measures_of(checked.head, profile)
+    except Exception as exc:  # the replay read it: a failure here only leaves the measures out
+        log.warning("%s: no drive measures: %s: %s", path, type(exc).__name__, exc)
+        measures = {}
+    return result, measures
 
 
 _TASK_LOG: contextvars.ContextVar[str | None] = contextvars.ContextVar("vdp_task_log", default=None)
@@ -246,7 +245,7 @@ def _run(task: Task) -> list[dict]:
     key = run_key(task.log, None)
     t0, c0 = time.monotonic(), time.thread_time()
     try:
-        res = replay_log(task.log, task.profile, task.mass)
+        res, measures = replay_log(task.log, task.profile, task.mass)
     except VdpError as exc:
         return [error_row(task, str(exc), key)]
     except Exception as exc:  # a bug, not the log: keep the rest of the fleet going, say where
@@ -255,11 +254,6 @@ def _run(task: Task) -> list[dict]:
     # the hash of the profile's files as this replay loaded them (the cache is refreshed on a change)
     key["profile_hash"] = _PROFILES[task.profile][1] if task.profile in _PROFILES else None
     rows = rows_from_result(res, task, key)
-    try:
-        measures = drive_measures(task.log, _profile(task.profile)[0])
-    except Exception as exc:  # the replay read it: a failure here only leaves the measures out
-        log.warning("%s: no drive measures: %s: %s", task.log, type(exc).__name__, exc)
-        measures = {}
     measures["start_time"] = res.log.start_time if res.log is not None else None
     for r in rows:
         r.update(measures)
@@ -272,7 +266,7 @@ def _run(task: Task) -> list[dict]:
 def error_row(task: Task, error: str, key: dict[str, Any] | None) -> dict:
     row: dict[str, Any] = dict.fromkeys(RUN_COLUMNS)
     row.update(log=task.log, vehicle=task.vehicle, profile=task.profile, status="error", error=error, valid=False)
-    row.update(mass_learnt=task.mass)
+    row.update(mass_learnt=task.mass in PUT, mass_mode=task.mass)
     row.update(key or {})
     return row
 
@@ -320,7 +314,8 @@ def rows_from_result(res: Any, task: Task, key: dict[str, Any] | None = None) ->
             bad_lines=int(src.get("bad_lines") or 0),
             damage=(src.get("damage") or {}).get("summary") or None,
             wall_s=float(lg.wall_s if lg is not None else 0.0),
-            mass_learnt=task.mass,
+            mass_learnt=task.mass in PUT,
+            mass_mode=task.mass,
         )
         g = (getattr(res, "supervisor", None) or {}).get("gated") or {}
         if g.get("of"):

@@ -35,6 +35,59 @@ STALE_PERIODS = 5.0  # a channel silent this many cycle times is stale
 PROGRESS_EVERY = 4096  # frames between progress callbacks in run()
 
 
+RUNS = ("replay", "batch", "live")
+PLOT_ROWS = 20_000  # trace rows kept for vdp replay --plot: a 4-hour log's 144,000 rows took ~140 MB
+
+
+def run_config(
+    run: str,
+    *,
+    compiled: bool = False,
+    per_axle: bool = True,
+    mass: str = "auto",
+    road: bool = False,
+    ekf: bool = False,
+    plot: bool = False,
+    checks: Any = None,
+) -> EstimatorConfig:
+    """The estimator's settings for a run, assembled in this one place for ``run``:
+
+    - ``replay`` (vdp replay): the compiled steps if ``compiled`` (vdp.replay.compiled_pays: a
+      short log never loads numba); the trace kept only for a plot, at most PLOT_ROWS rows, thinned
+      as the log goes on (without one, memory stays flat on long logs); the EKF beside if ``ekf``;
+    - ``batch`` (vdp batch): as replay, with neither EKF nor trace (a plot's history grows with the
+      log: 310 MB peak at 4 h against 200 MB at 1 h, and batch draws no plots);
+    - ``live`` (vdp serve): numpy's filter steps (a live bus brings 50 samples/s, which they keep
+      up with at a few per cent of a core, and numba's LLVM would add ~120 MB to the service's RSS:
+      docs/decisions/0012, 0002), the EKF beside (/estimates' baseline), a 600-row trace for plots
+      of recent data (history lives in the store), and stage 2's batch checks on ``checks`` (a
+      background executor).
+
+    ``per_axle``, ``mass`` (core.mass.MassConfig's mode) and ``road`` are the user's, the same
+    in every run: ``--one-c``, ``--mass``, ``--road`` and ``[service]``'s keys.
+    """
+    from .core.learner import LearnerConfig
+    from .core.mass import MassConfig
+    from .core.road import RoadConfig
+
+    if run not in RUNS:
+        raise ValueError(f"run {run!r}: one of {', '.join(RUNS)}")
+    live = run == "live"
+    learner = LearnerConfig(per_axle=per_axle, compiled=compiled and not live, check_executor=checks)
+    if live:
+        trace_len, trace_max = 600, None
+    else:
+        trace_len, trace_max = (None, PLOT_ROWS) if plot and run == "replay" else (0, None)
+    return EstimatorConfig(
+        learner=learner,
+        baseline=live or (ekf and run == "replay"),
+        trace_len=trace_len,
+        trace_max=trace_max,
+        mass=MassConfig(mass),
+        road=RoadConfig(on=road),
+    )
+
+
 class Pipeline:
     def __init__(self, profile: Profile, cfg: EstimatorConfig | None = None, ring_capacity: int = 3000):
         self.profile = profile

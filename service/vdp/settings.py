@@ -86,6 +86,10 @@ class SimulateSettings:
     loop: bool = False  # start the scenario again when it ends
 
 
+# how the mass is taken (core.mass.MassConfig's modes, the same words: tests/test_service_settings.py)
+MASS_MODES = ("auto", "on", "report", "off")
+
+
 @dataclass(frozen=True)
 class ServiceSettings:
     queue_size: int = 65_536  # frames between receive and estimation (about 8 s of a saturated bus)
@@ -96,9 +100,10 @@ class ServiceSettings:
     diverged_hold: float = 60.0  # s /health stays degraded after a filter reset
     # stage 2 estimates the front and the rear cornering stiffness separately (LearnerConfig.per_axle)
     per_axle: bool = True
-    # learn the mass as driven (core.mass): published beside the six and put into C_K, C_alpha and I_z,
-    # as vdp replay --mass does; off, /estimates says the mass is not estimated and the profile's is used
-    mass: bool = False
+    # the mass as driven (core.mass.MassConfig, as vdp replay --mass): "auto" learns it and puts it into
+    # C_K, C_alpha and I_z once it is valid; "on" from the start; "report" learns it only; "off" takes the
+    # profile's as known (/estimates says it is not estimated).  true and false (before "auto") mean on, off.
+    mass: str = "auto"
     # model the road's grade and bank and the IMU's tilt with the body (core.road; the bank a state of
     # stage 2, docs/decisions/0025), as vdp replay --road does: for a car driven on hills and banked roads
     road: bool = False
@@ -267,6 +272,8 @@ def validate(s: Settings) -> Settings:
     _positive(src, "service", "diverged_hold", sv.diverged_hold, allow_zero=True)
     if sv.reconnect_max < sv.reconnect_min:
         raise ConfigError(f"{_where(src, 'service', 'reconnect_max')}: must be >= reconnect_min")
+    if sv.mass not in MASS_MODES:
+        raise ConfigError(f"{_where(src, 'service', 'mass')}: must be one of {', '.join(MASS_MODES)}, got {sv.mass!r}")
     return s
 
 
@@ -292,6 +299,9 @@ def parse(raw: dict[str, Any], source: str, base: Path) -> Settings:
     profile = Path(prof)
     if not profile.is_absolute():
         profile = (base / profile).resolve()
+    svc = raw.get("service")
+    if isinstance(svc, dict) and isinstance(svc.get("mass"), bool):  # a switch before "auto": on or off
+        raw = {**raw, "service": {**svc, "mass": "on" if svc["mass"] else "off"}}
     parts = {
         name: _table(source, name, cls, raw.get(name), base, _PATHS.get(name, ())) for name, cls in _SECTIONS.items()
     }

@@ -5,16 +5,14 @@ vdp replay drive.log --profile profiles/paper.toml --json out.json --plot out.pn
 
 from __future__ import annotations
 
-import dataclasses
 import sys
 import time
 from pathlib import Path
 
 from ..core.result import CONVERGED
 from ..errors import ConfigError, ProfileError
+from .options import mass_option
 from .paths import check_apart, check_output, profile_inputs
-
-PLOT_ROWS = 20_000  # trace rows kept for --plot: a 4-hour log's 144,000 rows took ~140 MB
 
 
 def add_parser(sub):
@@ -64,9 +62,11 @@ def add_parser(sub):
     )
     p.add_argument(
         "--mass",
-        action="store_true",
-        help="learn the mass from the drive, report it beside the six and use it in them (issue 28; "
-        "default: the profile's mass, as before)",
+        **mass_option(),
+        help="the mass (issue 28): auto (the default) learns it from the drive and puts it into C_K, C_alpha "
+        "and I_z once it is known to 1.5 %%, widening their stds before that where it already reads off the "
+        "profile's; on (--mass alone) puts it in from the start; report learns it only; off takes the "
+        "profile's vehicle.mass as weighed as driven",
     )
     p.add_argument(
         "--road",
@@ -159,14 +159,9 @@ class Progress:
 
 def run(args) -> int:
     from .. import profilecheck, report
-    from ..core.estimator import EstimatorConfig
-    from ..core.learner import LearnerConfig
-    from ..core.mass import MassConfig
-    from ..core.road import RoadConfig
-    from ..io.bulk import replay_log
-    from ..pipeline import Pipeline
+    from ..pipeline import run_config
     from ..profile import load_profile
-    from ..replay import compiled_pays
+    from ..replay import check, compiled_pays, replay_file
     from ..series import SUFFIXES, ChannelTap, SeriesRecorder, write_table
 
     if args.no_ekf and args.baseline == "ekf":
@@ -188,10 +183,8 @@ def run(args) -> int:
     check_apart(outputs, [("the log", args.log), *profile_inputs(profile).items(), ("--truth", args.truth), *earlier])
     before = [_earlier(a) for a in after]  # an unreadable one is refused before the replay
     # the profile self-check reads the log's first minutes; a log of another car stops here
-    # quiet: the replay below reads the same lines and warns of what it skips, once
     try:
-        head = profilecheck.first_seconds(args.log, profile, quiet=True)
-        check, cov = profilecheck.check_head(head, profile, path=args.log)
+        checked = check(args.log, profile)
     except ProfileError as exc:
         if args.profile:
             raise
@@ -200,21 +193,21 @@ def run(args) -> int:
             f"{exc} (no --profile was given, so {path} was taken by default: it is vdp's simulated car; "
             f"pass --profile with your car's profile, or draft one with vdp profile new)"
         ) from None
+    head, check_rep, cov = checked.head, checked.report, checked.coverage
     if cov.missing:  # fewer than half seen stopped check_log; a few missing still cost their channels
         print(f"profile check: {args.log}: {cov.message()}")
-    for line in profilecheck.lines(check, mass_on=args.mass):
+    for line in profilecheck.lines(check_rep, mass_on=args.mass in ("auto", "on")):
         print(line)
     truth = report.load_truth(args.truth) if args.truth else None
-    # the estimates' history is kept only for the plot: without one, memory stays flat on long logs
-    # (at most PLOT_ROWS rows, thinned as the log goes on: ~1.5 KB each, and a plot has ~600 px per panel)
     compiled = compiled_pays(args.log)  # a short log never loads numba (vdp.replay.COMPILED_FROM)
-    cfg = EstimatorConfig(
-        learner=LearnerConfig(per_axle=not args.one_c, compiled=compiled),
-        baseline=args.baseline == "ekf",
-        trace_len=None if args.plot else 0,
-        trace_max=PLOT_ROWS if args.plot else None,
-        mass=MassConfig(report=args.mass, use=args.mass),
-        road=RoadConfig(on=args.road),
+    cfg = run_config(
+        "replay",
+        compiled=compiled,
+        per_axle=not args.one_c,
+        mass=args.mass,
+        road=args.road,
+        ekf=args.baseline == "ekf",
+        plot=bool(args.plot),
     )
     if compiled:
         compile_note()
@@ -225,20 +218,19 @@ def run(args) -> int:
     progress = Progress(size, enabled=not args.no_progress)
     made: dict = {}
 
-    def make_pipeline():
-        # a fresh pipeline (and recorders on it) for each attempt: a candump log that the
-        # block reader hands back is replayed again frame by frame
-        pipe = made["pipeline"] = Pipeline(profile, cfg)
-        pipe.monitor = None  # the check above read the log's first minutes; it stands for the replay
+    def prepare(pipe):
+        # recorders on each attempt's fresh pipeline: a candump log that the block reader hands
+        # back is replayed again frame by frame
         made["recorder"] = SeriesRecorder(pipe) if args.series else None
         made["tap"] = ChannelTap(pipe) if args.channels else None
-        return pipe
 
-    result, _ = replay_log(
+    result = replay_file(
         args.log,
-        make_pipeline,
+        profile,
+        cfg,
+        checked,
+        prepare,
         strict=args.strict,
-        channel=profile.bus_channel,
         progress=progress.update,
         # the series samples the estimates frame by frame; else blocks where they pay (bulk.pays)
         bulk=False if args.per_frame or args.series else None,
@@ -246,12 +238,6 @@ def run(args) -> int:
     )
     recorder, tap = made["recorder"], made["tap"]
     progress.close()
-    # parameters the profile check found a mismatch under are not valid, whatever the filter says
-    result = dataclasses.replace(
-        result,
-        parameters=profilecheck.mark_invalid(result.parameters, check),
-        baseline_ekf=None if result.baseline_ekf is None else profilecheck.mark_invalid(result.baseline_ekf, check),
-    )
 
     # this drive's own measures (its mass, wheel-speed scale, bus print: what a later --after reads)
     # from the minutes the check read, and the changes against the earlier drives
@@ -263,7 +249,7 @@ def run(args) -> int:
     if args.json_out:
         doc = report.document(result, truth)
         doc["vehicle"] = _constants(profile)
-        doc["profile_check"] = {**check.as_dict(), "coverage": cov.as_dict()}
+        doc["profile_check"] = {**check_rep.as_dict(), "coverage": cov.as_dict()}
         doc["drive"] = drive
         if found is not None:
             doc["changes"] = found
@@ -303,7 +289,7 @@ def run(args) -> int:
     for line in report.gate_lines(result):
         print(line)
     print(report.table(result, truth))
-    answer = profilecheck.mass_answer(result.parameters, check)
+    answer = profilecheck.mass_answer(result.parameters, check_rep)
     if answer is not None:
         print(answer)
     for line in _coaching(result):

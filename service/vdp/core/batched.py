@@ -54,6 +54,7 @@ def params(cfg, vehicle, gyro_tau: float) -> np.ndarray:
     p[[ps.WHEEL_REF, ps.WHEEL_NOISE, ps.BRAKE_MAX]] = ref, s.wheel_noise, s.brake_torque_max
     p[ps.RADIUS], p[ps.GYRO_TAU] = vehicle.wheel_radius, gyro_tau
     ps.gate_params(p, g)
+    p[ps.WHEELBASE] = vehicle.wheelbase  # passes.turning's bound on r v_y
     return p
 
 

@@ -31,7 +31,6 @@ from .params import MASS
 from .result import CONVERGED, NOT_RUN, SETTLED, UNCERTAIN, Estimate, Snapshot, WindowSpan
 from .road import RoadConfig, Tilt
 from .sample import Sample
-from .sample import block as sample_block
 from .speed import SpeedConfig, speed_filter
 from .supervisor import GateConfig, Supervisor
 
@@ -54,7 +53,8 @@ class EstimatorConfig:
     # None: a row every trace_every; else once the trace holds this many rows, every other row
     # is dropped and the spacing doubles, so a long log's trace (replay --plot) stays this small
     trace_max: int | None = None
-    # issue 28: the mass learnt (reported, and put into the results) and the road's grade and tilt; off by default
+    # issue 28: the mass learnt and put into the results once valid (MassConfig: auto), and the road's
+    # grade and tilt (off by default)
     mass: MassConfig = field(default_factory=MassConfig)
     road: RoadConfig = field(default_factory=RoadConfig)
 
@@ -139,7 +139,7 @@ class TwoStageEstimator:
         self._needs = tuple(np.array(n, dtype=np.int64) for n in (need1, need2))  # (the supervisor's)
         m = self.cfg.mass  # issue 28 (core.mass, core.road)
         self.tilt = Tilt(vehicle, priors["h"].value, self.cfg.road) if self.cfg.road.on else None
-        self.mass = MassLearner(vehicle, m, self.tilt) if m.report or m.use else None
+        self.mass = MassLearner(vehicle, m, self.tilt) if m.learn else None
         # the front wheels' compliance and roll steer a profile declares (core.steer; 0: none)
         lf = vehicle.l_f if vehicle.l_f is not None else priors["l_f"].value
         self.steer_k = steer.gain(vehicle, lf, priors["h"].value)
@@ -221,9 +221,6 @@ class TwoStageEstimator:
             return
         if self.steer_k:
             Y = steer.block(Y, self.steer_k)
-        if self.mass is not None:  # the mass sees every sample (core.mass)
-            for smp in sample_block(T, Y, F, A, gap):
-                self.mass.handle(smp.t, smp)
         su = self.supervisor
         st0 = np.array(self.state)  # (core.passes' layout: the speed filter's, gyro offsets' and supervisor's state)
         blk0, first0 = batched.blockers(su)
@@ -245,6 +242,8 @@ class TwoStageEstimator:
                 break
             # l_f became known at sample ``handed``: the supervisor sees it from the next on
             done_from = i0 = handed + 1
+        if self.mass is not None:  # the mass sees every sample, with the speed filter's v_x and the gyro's offset
+            self.mass.handle_block(T, Y, gap, out[:, 0], out[:, 3])
         self.state[:] = st.tolist()
         batched.set_blockers(su, blk, first)
         batched.windows(su, T, stage)
@@ -312,7 +311,8 @@ class TwoStageEstimator:
         gnss, has, noise = ps.speed_measured(self._p, ps.CHANNELS, y, s.fresh, s.age)
         if s.gap:
             self.speed.reset()
-        self.speed.step(t, y[ch.AX], gnss if has else None, None if math.isnan(noise) else noise)
+        turn = ps.turning(self._p, y[ch.YAW])  # (> 0: the car turns, the speed filter holds its a_x bias)
+        self.speed.step(t, y[ch.AX], gnss if has else None, None if math.isnan(noise) else noise, turn)
         std = self.speed.std
         # stage 1 takes the speed's error as correlated over speed_corr^2 x 10 ms (4 s); one
         # that stays longer (a coarse 1 Hz GNSS: about 10 s) counts for less: its std widens by
@@ -436,8 +436,8 @@ class TwoStageEstimator:
                 f"l_f = {l_f:.3g} ± {sd:.2g} m ([vehicle] l_f)"
             )
             out["l_f"] = replace(e, reason=why)
-        if self.cfg.mass.use:  # the learnt mass into the six, its std carried (core.mass.scaled)
-            out = scaled(out, self.mass.snapshot(), self.vehicle.mass)
+        if self.cfg.mass.put:  # the learnt mass into the six, its std carried (core.mass.scaled)
+            out = scaled(out, self.mass.snapshot(), self.vehicle.mass, self.cfg.mass.auto)
         if kind == "ukf":  # the mass after the six: learnt (core.mass), or said to be off (never left out)
             # (one learner, not a filter kind's: the EKF baseline's six are scaled by it, not given it again)
             out[MASS] = self.mass.snapshot() if self.mass is not None else mass_off(self.vehicle.mass)
@@ -455,11 +455,11 @@ class TwoStageEstimator:
 
     def restore(self, params: Mapping[str, Estimate]) -> None:
         """Start from stored estimates (value, std, samples) instead of the priors.  ``params`` are
-        as :meth:`parameters` publishes them: with the learnt mass put in (cfg.mass.use), they are
+        as :meth:`parameters` publishes them: with the learnt mass put in (cfg.mass.put), they are
         taken out of it first (core.mass.unscaled, with the mass as the learner has it now: resumed
         first at a restart, :meth:`resume`), as the filters run with the profile's mass."""
-        if self.cfg.mass.use and self.mass is not None:
-            params = unscaled(dict(params), self.mass.snapshot(), self.vehicle.mass)
+        if self.cfg.mass.put and self.mass is not None:
+            params = unscaled(dict(params), self.mass.snapshot(), self.vehicle.mass, self.cfg.mass.auto)
         for kind in self.s1:
             for learner in (self.s1[kind], self.s2[kind]):
                 snap = learner.snapshot()
@@ -514,7 +514,7 @@ class TwoStageEstimator:
         done = []
         if self.mass is not None and learnt.get(MASS) and self._resume_mass(learnt[MASS], params.get(MASS)):
             done.append(MASS)
-            if self.cfg.mass.use:  # restore()'s values, taken out of the mass they were published with
+            if self.cfg.mass.put:  # restore()'s values, taken out of the mass they were published with
                 self.restore({k: v for k, v in params.items() if k != MASS})
         for kind in self.s1:
             for learner in (self.s1[kind], self.s2[kind]):
@@ -528,8 +528,8 @@ class TwoStageEstimator:
                 learner.set_params(st["value"], cov, 0)  # 0: the covariance holds no floor to take out
                 learner.samples = max(keep[2], int(st["samples"]))
                 snap = learner.snapshot()
-                if self.cfg.mass.use:  # compared as published: with the mass put in
-                    snap = scaled(snap, self.mass.snapshot(), self.vehicle.mass)
+                if self.cfg.mass.put:  # compared as published: with the mass put in
+                    snap = scaled(snap, self.mass.snapshot(), self.vehicle.mass, self.cfg.mass.auto)
                 same = all(
                     params.get(n) is not None
                     and _close(snap[n].value, params[n].value)

@@ -44,7 +44,8 @@ restart carries on from the mass learnt, its std and its residual statistics, no
 A restore takes published values back into the filters through :func:`unscaled`, the inverse
 of :func:`scaled`.
 
-Pure: ``handle(t, sample)``, ``snapshot()``, ``reset()``, ``state()``, ``load(state)``.
+Pure: ``handle(t, sample)`` (and ``handle_block``, by the same step), ``snapshot()``, ``reset()``,
+``state()``, ``load(state)``.
 """
 
 from __future__ import annotations
@@ -72,6 +73,10 @@ EXCITED = 0.3  # m/s^2
 MIN_SPEED = 3.0  # m/s
 MAX_ACCEL = 4.0  # m/s^2
 MAX_LATERAL = 1.0  # m/s^2 of v r: a row turning harder has tyre drag the balance leaves out
+# |r omega / v - 1| of any wheel beyond this: spinning or locked (stage 1's LearnerConfig.spin_slip).  The
+# balance takes the wheels' inertia at the body's acceleration; a wheel spinning up to hundreds of rad/s
+# puts its J omega_dot into the torque, and without this gate the test's FWD car read 2,825 kg for 1,600.
+SPIN_SLIP = 0.2
 SIGMA_F = 40.0  # N: a row's force noise before the residuals say otherwise
 LO, HI = 300.0, 10000.0  # kg: a sane mass
 STAGE = 0  # not a stage of the paper's: every sample, before both
@@ -79,8 +84,38 @@ STAGE = 0  # not a stage of the paper's: every sample, before both
 
 @dataclass(frozen=True)
 class MassConfig:
-    report: bool = False  # learn the mass and publish it (off: the mass is published as not_run, mass.off)
-    use: bool = False  # put the learnt mass into stage 1's and 2's results (scaled); off: report it only
+    """How the six take the mass (``mode``, one of MODES):
+
+    - ``auto`` (the default): learnt, and put into the six once it is valid; until then the profile's
+      mass is used and the six's stds widen by how far the drive's mass already reads beyond two of its
+      stds from it (:func:`scaled`): an undeclared load shows before the mass is known to 1.5 %, never
+      as a confident wrong C_K, C_alpha or I_z;
+    - ``on``: put in from the first sample: the six carry the prior's 12 % until the mass is valid;
+    - ``report``: learnt and published, never put in (the profile's mass taken as known);
+    - ``off``: neither learnt nor put in: the profile's mass is taken as weighed as driven.
+    """
+
+    mode: str = "auto"
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise ValueError(f"mass mode {self.mode!r}: one of {', '.join(MODES)}")
+
+    @property
+    def learn(self) -> bool:
+        return self.mode != "off"
+
+    @property
+    def put(self) -> bool:
+        """Whether the learnt mass goes into the six (scaled, unscaled)."""
+        return self.mode in ("auto", "on")
+
+    @property
+    def auto(self) -> bool:
+        return self.mode == "auto"
+
+
+MODES = ("auto", "on", "report", "off")
 
 
 class MassLearner:
@@ -148,24 +183,52 @@ class MassLearner:
 
     # -- samples ---------------------------------------------------------------
     def handle(self, t: float, s) -> None:
+        """One sample (derived: its ``v_x`` and ``yaw_bias`` set by the estimator)."""
         y = s.values
-        tf, tr, ax, v = y[ch.T_F], y[ch.T_R], y[ch.AX], y[ch.SPEED]
-        if not math.isfinite(v):
-            v = s.v_x
+        v = y[ch.SPEED]
+        v = v if math.isfinite(v) else s.v_x
+        slip = _slip(y[ch.WS_FL], y[ch.WS_FR], y[ch.WS_RL], y[ch.WS_RR], v, self.vehicle.wheel_radius)
+        self._add(t, y[ch.T_F], y[ch.T_R], y[ch.AX], v, y[ch.YAW] - s.yaw_bias, slip, s.gap)
+
+    def handle_block(self, T: np.ndarray, Y: np.ndarray, gap: bool, v_x: np.ndarray, yaw_bias: np.ndarray) -> None:
+        """A block of samples (TwoStageEstimator.handle_block's, with the speed filter's ``v_x`` and the
+        gyro's ``yaw_bias`` per sample): what :meth:`handle` on each does, by the same step."""
+        if not len(T):
+            return
+        v = Y[:, ch.SPEED]
+        v = np.where(np.isfinite(v), v, v_x)
+        wz = Y[:, ch.YAW] - yaw_bias
+        rad = self.vehicle.wheel_radius
+        add = self._add
+        cols = (
+            T,
+            Y[:, ch.T_F],
+            Y[:, ch.T_R],
+            Y[:, ch.AX],
+            v,
+            wz,
+            *(Y[:, c] for c in (ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR)),
+        )
+        for k, (t, tf, tr, ax, vk, w, fl, fr, rl, rr) in enumerate(zip(*(c.tolist() for c in cols))):
+            add(t, tf, tr, ax, vk, w, _slip(fl, fr, rl, rr, vk, rad), gap and k == 0)
+
+    def _add(self, t: float, tf: float, tr: float, ax: float, v: float, wz: float, slip: float, gap: bool) -> None:
+        """A sample into the open row (rows of ROW seconds from their first sample; a gap drops the
+        open row unclosed; a row with a missing torque or a_x is skipped as a whole; ``slip``: the
+        wheels' largest, :func:`_slip`)."""
         r = self._row
-        if s.gap or r is None or t - r[0] >= ROW:
-            if r is not None and not s.gap:
+        if gap or r is None or t - r[0] >= ROW:
+            if r is not None and not gap:
                 self._close(r)
-            r = self._row = [t, 0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0.0, 0.0, 0.0]
+            r = self._row = [t, 0, 0.0, 0.0, 0.0, 0.0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
         if not (math.isfinite(tf) and math.isfinite(tr) and math.isfinite(ax)):
             r[1] = -1_000_000  # a row with a missing value: skipped as a whole
             return
         r[1] += 1
         r[2] += (tf + tr) / self.vehicle.wheel_radius
         r[3] += ax
-        wz = y[ch.YAW] - s.yaw_bias
-        r[4] += abs(wz * v) if math.isfinite(wz) and math.isfinite(v) else 0.0  # turning, by the yaw rate: a bank
-        # reads in a_y, not in it
+        # turning, by the yaw rate (a bank reads in a_y, not in it)
+        r[4] += abs(wz * v) if math.isfinite(wz) and math.isfinite(v) else 0.0
         if math.isfinite(v):
             dt = t - r[0]
             r[5] += v * v
@@ -175,12 +238,13 @@ class MassLearner:
             r[9] += dt * dt
             r[10] += dt * v
         r[11] = max(r[11], abs(ax))
+        r[12] = max(r[12], slip)
 
     def _skip(self, why: str) -> None:
         self.skipped[why] = self.skipped.get(why, 0) + 1
 
     def _close(self, r: list) -> None:
-        t0, n, F, ax, ay, v2, nv, st, sv, stt, stv, amax = r
+        t0, n, F, ax, ay, v2, nv, st, sv, stt, stv, amax, slip = r
         if n < 5:
             self._skip("missing torque or a_x")
             return
@@ -192,6 +256,9 @@ class MassLearner:
             return
         if amax > MAX_ACCEL:
             self._skip("beyond the small-slip range")
+            return
+        if slip > SPIN_SLIP:
+            self._skip("wheel spin or lock")
             return
         F, ax, v2 = F / n, ax / n, v2 / nv
         d = nv * stt - st * st
@@ -266,8 +333,18 @@ class MassLearner:
 
 OFF_REASON = (
     "not estimated: mass estimation is off, so the profile's vehicle.mass ({m:g} kg) is taken as known and a load "
-    "is not seen; turn it on to learn the mass as driven (vdp replay --mass; vdp serve: [service] mass = true)"
+    'is not seen; turn it on to learn the mass as driven (vdp replay --mass auto; vdp serve: [service] mass = "auto")'
 )
+
+
+def _slip(fl: float, fr: float, rl: float, rr: float, v: float, radius: float) -> float:
+    """The largest |r omega / v - 1| of the wheels with a speed (0 below MIN_SPEED or without v)."""
+    if not (math.isfinite(v) and v >= MIN_SPEED):
+        return 0.0
+    out = 0.0
+    for w in (fl, fr, rl, rr):
+        out = max(out, abs(w * radius / v - 1.0))  # (max(out, NaN) is out: a wheel without a speed)
+    return out
 
 
 def off(m0: float) -> Estimate:
@@ -284,16 +361,36 @@ SCALE = {"C_K": -1, "C_alpha": 1, "I_z": 1}  # the power of m each parameter sca
 USEFUL = {"l_f": 0.02, "h": 0.05, "C_K": 0.05, "C_alpha": 0.05, "I_z": 0.05, "I_x": 0.10}  # params.SPECS' useful_rel
 
 
-def scaled(params: dict, mass: Estimate, m_used: float) -> dict:
+def _put(mass: Estimate, m_used: float, auto: bool) -> tuple[float, float, str]:
+    """(mass ratio, relative std, what it is) that the six are published with.
+
+    A valid mass: its own.  Before (``auto`` off): the profile's mass, with the prior's std.  Before
+    (``auto``): the profile's mass, and as std only how far the drive's mass already reads beyond two
+    of its stds from it (0 while they agree): a mass not yet known to 1.5 % that already says the car
+    is 300 kg heavier than its profile must not leave C_K +18 % "valid" (BENCHMARKS.md, load).
+    """
+    if mass.valid and mass.value is not None and mass.std is not None and mass.value > 0:
+        return mass.value / m_used, mass.std / mass.value, "learnt"
+    if not auto:
+        return 1.0, PRIOR_REL, "the prior"
+    m, sd = mass.value, mass.std
+    if mass.status == NOT_RUN or m is None or sd is None or not (m != 0 and math.isfinite(m) and math.isfinite(sd)):
+        return 1.0, 0.0, "the profile's"
+    # (a mass of no car's, negative from a sign-flipped a_x or tiny from a torque's scale, departs the most)
+    return 1.0, max(0.0, abs(m / m_used - 1.0) - 2.0 * sd / abs(m)), "the profile's"
+
+
+def scaled(params: dict, mass: Estimate, m_used: float, auto: bool = False) -> dict:
     """The six estimates with the learnt mass put in (see the module), and its std carried.
 
     Before the mass is valid the profile's is kept, and its std is the prior's: every scaled
-    parameter then carries the prior's 12 %, which is what an undeclared load does to it.
+    parameter then carries the prior's 12 %, which is what an undeclared load does to it; with
+    ``auto`` (MassConfig), only the drive's mass's departure from it beyond two stds (:func:`_put`).
     """
-    m, sd = (mass.value, mass.std) if mass.valid else (m_used, PRIOR_REL * m_used)
-    if m is None or sd is None or not m > 0:
+    ratio, rel_m, what = _put(mass, m_used, auto)
+    if not m_used > 0 or (ratio == 1.0 and rel_m == 0.0):  # (auto, the mass agreeing: the six as learnt)
         return params
-    ratio, rel_m = m / m_used, sd / m
+    m = m_used * ratio
     out = dict(params)
     for name, e in params.items():
         if e.value is None or e.std is None or e.status == NOT_RUN:
@@ -309,7 +406,12 @@ def scaled(params: dict, mass: Estimate, m_used: float) -> dict:
         valid = e.valid and rel <= USEFUL.get(name, 0.05)
         why = e.reason
         if e.valid and not valid:
-            why = f"the mass is known to +-{100 * rel_m:.1f} % only ({'learnt' if mass.valid else 'the prior'})"
+            if what == "the profile's":
+                why = (f"the drive's mass reads {mass.value:.0f} ± {mass.std:.0f} kg against the profile's "
+                       f"{m_used:.0f} kg (not yet known to {100 * USEFUL_REL:g} %): {100 * rel_m:.1f} % carried "
+                       f"until it is, then put in")  # fmt: skip
+            else:
+                why = f"the mass is known to +-{100 * rel_m:.1f} % only ({what})"
         extra = {**e.extra, "mass_used": round(m, 1), "mass_ratio": round(ratio, 4)}
         if name == "C_alpha":
             extra.update(_axles(e.extra, ratio, rel_m))
@@ -334,16 +436,15 @@ def _axles(extra: dict, ratio: float, rel_m: float) -> dict:
     return out
 
 
-def unscaled(params: dict, mass: Estimate, m_used: float) -> dict:
+def unscaled(params: dict, mass: Estimate, m_used: float, auto: bool = False) -> dict:
     """The inverse of :func:`scaled`: the six as their learners hold them, from the six published
     with ``mass`` (a restore takes published values back into the filters, which run with the
     profile's mass).  A relative std narrower than the mass's share (values published without the
     mass: a store written with mass estimation off) keeps its own: the mass's is added again when
     published, never taken out twice."""
-    m, sd = (mass.value, mass.std) if mass.valid else (m_used, PRIOR_REL * m_used)
-    if m is None or sd is None or not m > 0:
+    ratio, rel_m, _ = _put(mass, m_used, auto)
+    if not m_used > 0 or (ratio == 1.0 and rel_m == 0.0):
         return params
-    ratio, rel_m = m / m_used, sd / m
     out = dict(params)
     for name, e in params.items():
         if e.value is None or e.std is None or e.status == NOT_RUN or not e.value:

@@ -29,8 +29,8 @@ N_STATE = 27
 # the parameters array
 (ACCEL_NOISE, BIAS_WALK, GNSS_NOISE, MAX_GAP, WHEEL_REF, WHEEL_NOISE, BRAKE_MAX, RADIUS, GYRO_TAU, V_MIN,
  DELTA_MAX_1, YAW_MAX_1, AX_STD_MIN, AX_MEAN_MAX_2, DELTA_STD_MIN_2, YAW_RMS_MIN_2, TAU_AX, TAU_STEER, T_ON,
- T_OFF) = range(20)  # fmt: skip
-N_PARAMS = 20
+ T_OFF, WHEELBASE) = range(21)  # fmt: skip
+N_PARAMS = 21
 # the channels the steps read, passed in as ``c`` (numba would freeze module globals into its cache), and
 # their positions in it
 CHANNELS = (ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR, ch.T_F, ch.T_R, ch.DELTA, ch.AX, ch.YAW, ch.ROLL, ch.SPEED)
@@ -108,9 +108,22 @@ def speed_reset(st):
     st[A_PREV] = math.nan
 
 
-def speed_step(st, p, t, a_x, gnss, has_gnss, noise):
+def turning(p, yaw):
+    """The speed filter's ``turn`` (core.speed, "Turning") at a yaw rate: 0 while it is within
+    stage 1's straight-line limit YAW_MAX_1 (Table 2; or unknown), else a bound on the ``r v_y``
+    the filter's model leaves out, ``r^2 L`` (WHEELBASE: the CG's lateral speed is the kinematic
+    ``r l_r`` in a slow turn, ``l_r < L``)."""
+    if not abs(yaw) >= p[YAW_MAX_1]:  # (NaN: no gyro, nothing known of a turn)
+        return 0.0
+    return yaw * yaw * p[WHEELBASE]
+
+
+def speed_step(st, p, t, a_x, gnss, has_gnss, noise, turn):
     """Advance to ``t`` with the measured a_x; correct with a speed measured at ``t`` (GNSS, or
-    the free-rolling axle; ``has_gnss`` False: none), of std ``noise`` (NaN: ``GNSS_NOISE``)."""
+    the free-rolling axle; ``has_gnss`` False: none), of std ``noise`` (NaN: ``GNSS_NOISE``).
+    ``turn`` > 0 (m/s^2, a bound on the ``r v_y`` the model leaves out, :func:`turning`): the car
+    turns, the bias is held (a consider state: no gain, its variance kept) and the speed's
+    process noise is widened by it (core.speed, "Turning")."""
     r = p[GNSS_NOISE] if math.isnan(noise) else noise
     no_t = math.isnan(st[S_T])
     dt = 0.0 if no_t else t - st[S_T]
@@ -124,7 +137,8 @@ def speed_step(st, p, t, a_x, gnss, has_gnss, noise):
         # P = F P F^T + Q with F = [[1, -dt], [0, 1]] (squares as products, not **: Python's pow can
         # differ from x * x in the last bit, and numba may compile ** as a product)
         an = p[ACCEL_NOISE] * dt
-        p_vv = st[P_VV] - 2 * dt * st[P_VB] + dt * dt * st[P_BB] + an * an
+        tn = turn * dt
+        p_vv = st[P_VV] - 2 * dt * st[P_VB] + dt * dt * st[P_BB] + an * an + tn * tn
         p_vb = st[P_VB] - dt * st[P_BB]
         st[P_VV] = p_vv
         st[P_VB] = p_vb
@@ -144,10 +158,12 @@ def speed_step(st, p, t, a_x, gnss, has_gnss, noise):
     k_b = st[P_VB] / s
     e = gnss - st[V]
     st[V] += k_v * e
-    st[BIAS] += k_b * e
     p_vv, p_vb, p_bb = st[P_VV], st[P_VB], st[P_BB]
     st[P_VV] = p_vv - k_v * p_vv
     st[P_VB] = p_vb - k_v * p_vb
+    if turn > 0.0:
+        return  # turning: the bias is held
+    st[BIAS] += k_b * e
     st[P_BB] = p_bb - k_b * p_vb
 
 

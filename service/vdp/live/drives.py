@@ -413,7 +413,7 @@ def _mass_used(pipe) -> bool:
     """Whether the estimator puts a learnt mass into C_K and C_alpha (core.mass.scaled): then a
     mass step leaves them alone (core.change.affected)."""
     est = getattr(pipe, "estimator", None)
-    return bool(est is not None and est.cfg.mass.use)
+    return bool(est is not None and est.cfg.mass.put)
 
 
 def _doc(m: Measure | None) -> dict | None:

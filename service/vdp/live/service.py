@@ -93,23 +93,12 @@ class Service:
         self.running = False
 
     @staticmethod
-    def estimator_config(per_axle: bool, checks, mass: bool = False, road: bool = False):
-        """The live pipeline's estimator settings (``checks``: the executor of stage 2's batch checks;
-        ``mass``: learn the mass and scale the six with it, ``[service] mass``; ``road``: the road's grade
-        and bank and the IMU's tilt modelled, ``[service] road``, as ``vdp replay --road``)."""
-        from ..core.estimator import EstimatorConfig
-        from ..core.learner import LearnerConfig
-        from ..core.mass import MassConfig
-        from ..core.road import RoadConfig
+    def estimator_config(per_axle: bool, checks, mass: str = "auto", road: bool = False):
+        """The live pipeline's estimator settings (pipeline.run_config's "live": ``checks`` the executor
+        of stage 2's batch checks; ``per_axle``, ``mass``, ``road``: ``[service]``'s keys)."""
+        from ..pipeline import run_config
 
-        # The live trace only backs plots of recent data; history lives in the store.
-        # numpy's filter steps, not the compiled ones (core.kernels): a live bus brings 50 samples/s,
-        # which they keep up with at a few per cent of a core, and numba's LLVM would add ~120 MB
-        # to the service's RSS (docs/decisions/0012, 0002; tests/test_live_pieces.py checks it never loads).
-        learner = LearnerConfig(per_axle=per_axle, compiled=False, check_executor=checks)
-        return EstimatorConfig(
-            trace_len=600, learner=learner, mass=MassConfig(report=mass, use=mass), road=RoadConfig(on=road)
-        )
+        return run_config("live", per_axle=per_axle, mass=mass, road=road, checks=checks)
 
     # the pieces' parts that callers and tests reach for
     pipeline = property(lambda self: self.estimation.pipeline)

@@ -1,6 +1,6 @@
 """vdp batch: many logs on a Dask cluster, results as Parquet, drives combined per vehicle.
 
-vdp batch LOGS... [--manifest FILE] --out DIR [--workers N | --scheduler ADDRESS] [--mass]
+vdp batch LOGS... [--manifest FILE] --out DIR [--workers N | --scheduler ADDRESS] [--mass MODE]
 
 Each log is one task.  A finished log is written at once to DIR/parts/, so an
 interrupted batch loses nothing and a rerun skips what is done (a log that
@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 from ...errors import ConfigError
+from ..options import mass_option
 from .cluster import Progress, client
 from .inputs import MANIFEST_COLUMNS, expand, read_manifest, tasks  # noqa: F401 (importable from here, as before)
 from .results import (
@@ -68,9 +69,9 @@ def add_parser(sub):
     p.add_argument("--redo", action="store_true", help="run every log again, even those already done")
     p.add_argument(
         "--mass",
-        action="store_true",
-        help="learn each drive's mass and use it in the six, as vdp replay --mass (the mass row then holds "
-        "the learnt mass; logs run without it are run again)",
+        **mass_option(),
+        help="the mass as vdp replay --mass takes it (default auto: learnt, and put into C_K, C_alpha and "
+        "I_z once valid; logs run with another mode are run again)",
     )
     p.add_argument(
         "--plot",

@@ -143,7 +143,7 @@ def tasks(args, unmatched: list[str] | None = None) -> list:
             if prof not in names:
                 names[prof] = load_profile(prof).vehicle.name  # bad profile: one clear error up front
             vehicle = names[prof]
-        t = Task(str(Path(logp).resolve()), vehicle, prof, mass=bool(getattr(args, "mass", False)))
+        t = Task(str(Path(logp).resolve()), vehicle, prof, mass=getattr(args, "mass", "auto"))
         if t.key not in seen:
             seen.add(t.key)
             out.append(t)

@@ -63,8 +63,8 @@ def rerun_reason(rows: list[dict], task, profile_key: str | None) -> str | None:
         return "another vdp version"
     if profile_key is None or first.get("profile_hash") != profile_key:
         return "its profile changed"
-    if bool(first.get("mass_learnt")) != task.mass:
-        return "--mass now" if task.mass else "without --mass now"
+    if (first.get("mass_mode") or ("on" if first.get("mass_learnt") else "off")) != task.mass:
+        return f"--mass {task.mass} now"
     # size and mtime first: a log that changed is told without reading it
     stamp = (first.get("log_size"), first.get("log_mtime_ns"))
     if stamp != file_stamp(task.log) or first["log_hash"] != content_hash(task.log):

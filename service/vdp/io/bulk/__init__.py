@@ -18,10 +18,10 @@ samples.  Whatever this path does not reproduce exactly goes the per-frame way:
   flagged invalid) is decoded frame by frame through ``FrameDecoder.decode``;
 - a log with anything but plain, in-order data frames (a bad line, a remote, FD
   or error frame, time going backwards, odd spacing) is replayed again from the
-  start by the per-frame reader (``replay_log``), whose rules for damaged logs
+  start by the per-frame reader (vdp.replay.replay_log), whose rules for damaged logs
   are the reference.  Clean logs, the usual case, never pay for that.
 
-The package: ``run`` (:func:`replay_log`, :func:`pays`: the entry point), ``source``
+The package: ``run`` (:func:`pays`, :func:`usable`: when it pays; vdp.replay.replay_log uses it), ``source``
 (:class:`BulkSource`: the log read a block at a time, each block parsed and its frames sorted
 by channel and id), ``decode`` (a block's frames decoded per message, as the frame decoder
 would) and ``aligner`` (the aligner's ticks over a block).  The module-level settings are read
@@ -33,7 +33,7 @@ from __future__ import annotations
 
 from .aligner import align
 from .decode import _Plan
-from .run import pays, replay_log, usable
+from .run import pays, usable
 from .source import BLOCK, BulkSource, Irregular
 
 __all__ = [
@@ -43,6 +43,5 @@ __all__ = [
     "_Plan",
     "align",
     "pays",
-    "replay_log",
     "usable",
 ]
