@@ -246,7 +246,8 @@ def test_4_with_the_mass_learnt_a_restart_resumes_it_and_a_load_is_named_and_lea
     first = lg.drive(seed=1, mass=True)
     a1 = first.latest.result.parameters
     m1, m0 = a1["mass"], lg.profile.vehicle.mass
-    assert m1.valid and abs(m1.value - m0) < 3 * m1.std, m1
+    # learnt and put in (not valid on its own: its std carries the IMU's pitch, core.mass.KAPPA_TYPICAL)
+    assert a1["C_K"].extra["mass_source"] == "learnt" and abs(m1.value - m0) < 3 * m1.std, m1
     # a restart, as `vdp serve` restores at its start (no frame fed yet): the mass as learnt, not the prior
     svc = lg.service(mass=True)
     try:
@@ -255,7 +256,7 @@ def test_4_with_the_mass_learnt_a_restart_resumes_it_and_a_load_is_named_and_lea
         now = svc.pipeline.result().parameters
         m = now["mass"]
         assert (m.value, m.std, m.valid, m.status, m.samples) == (m1.value, m1.std, m1.valid, m1.status, m1.samples)
-        assert m.std < 0.1 * PRIOR_REL * m0 and m.extra["rows_excited"] == m1.extra["rows_excited"]
+        assert m.std < 0.4 * PRIOR_REL * m0 and m.extra["rows_excited"] == m1.extra["rows_excited"]
         for n in NAMES:  # the six as published with that mass: none scaled twice, no std widened or narrowed
             assert now[n].value == pytest.approx(a1[n].value, rel=1e-9), n
             assert now[n].std == pytest.approx(a1[n].std, rel=1e-9), n

@@ -103,6 +103,13 @@ def test_bad_outputs_are_refused_before_the_replay(drive, tmp_path, capsys):
         assert not js.exists()  # refused before any work
 
 
+def _mass(p: dict) -> float:
+    """The mass a file is made with: the learnt one (--mass auto, the default) where it is valid or
+    the six were scaled with it (core.mass.scaled's mass_source), else the profile's 1600 kg."""
+    put = p["C_K"].get("extra", {}).get("mass_source") == "learnt"
+    return p["mass"]["value"] if p["mass"]["valid"] or put else 1600.0
+
+
 @pytest.mark.parametrize("fmt", ["commonroad", "carla", "json", "toml"])
 def test_export_formats(replayed, fmt, tmp_path):
     d, out, res = replayed
@@ -110,8 +117,7 @@ def test_export_formats(replayed, fmt, tmp_path):
     assert main(["export", str(out["json"]), "--format", fmt, "--out", str(dest)]) == 0
     text = dest.read_text()
     p = res["parameters"]
-    # the mass learnt by default (--mass auto) where it is valid, else the profile's 1600 kg
-    mass = p["mass"]["value"] if p["mass"]["valid"] else 1600.0
+    mass = _mass(p)
     assert p["mass"]["value"] == pytest.approx(1600.0, rel=0.03)
     if fmt == "commonroad":
         y = yaml.safe_load(text)
@@ -244,7 +250,7 @@ def test_commonroad_file_loads_into_commonroad_vehicle_models(replayed, tmp_path
     )
     p = OmegaConf.to_object(conf)
     est = res["parameters"]
-    mass = est["mass"]["value"] if est["mass"]["valid"] else 1600.0  # learnt (--mass auto) where valid
+    mass = _mass(est)
     assert p.a == est["l_f"]["value"] and p.m == mass and p.tire.p_kx1 == est["C_K"]["value"]
     # the ST model's cornering stiffness per unit load times the mean axle load is vdp's C_alpha
     if est["C_alpha"]["status"] in ("converged", "uncertain"):

@@ -183,7 +183,11 @@ def document_rows(doc: Mapping[str, Any], log: str, vehicle: str = "") -> list[d
     common.update(vehicle=vehicle, log=log, bus_print=json.dumps(prn) if prn else None)
     params = doc.get("parameters") or {}
     # a replay with --mass: the six carry the mass they were scaled with (core.mass.scaled's mass_used)
-    common["mass_learnt"] = any("mass_used" in ((p or {}).get("extra") or {}) for p in params.values())
+    extras = [(p or {}).get("extra") or {} for p in params.values()]
+    if any("mass_source" in x for x in extras):  # (core.mass.scaled's mark; a JSON from before it: mass_used)
+        common["mass_learnt"] = any(x.get("mass_source") == "learnt" for x in extras)
+    else:
+        common["mass_learnt"] = any("mass_used" in x for x in extras)
     return [
         dict(common, parameter=n, value=p.get("value"), std=p.get("std"), status=p.get("status"), valid=p.get("valid"))
         for n, p in params.items()

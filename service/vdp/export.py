@@ -92,10 +92,17 @@ MASS_DESCRIPTION = "vehicle mass as driven (kerb weight, occupants, load)"
 
 def mass_of(params: dict, const: Constants) -> tuple[Constants, dict]:
     """(the constants with the mass the file is made with, what says which): the result's learnt
-    mass where it is valid (learnt from the data, its std within its usefulness threshold), else
-    the profile's, with the reason the learnt one is not taken."""
+    mass where it is valid (learnt from the data, its std within its usefulness threshold) or the
+    six were scaled with it (core.mass.scaled's ``mass_source``: the axle loads and C_alpha per
+    unit load then take the mass C_alpha was published with), else the profile's, with the reason
+    the learnt one is not taken."""
     p = params.get(MASS)
-    if isinstance(p, dict) and p.get("valid") and p.get("status") in (CONVERGED, UNCERTAIN):
+    put = any(
+        isinstance(e, dict) and (e.get("extra") or {}).get("mass_source") == "learnt"
+        for n, e in params.items()
+        if n != MASS
+    )
+    if isinstance(p, dict) and (p.get("valid") or put) and p.get("status") in (CONVERGED, UNCERTAIN):
         v, sd = p.get("value"), p.get("std")
         if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0:
             said = {"source": "learnt", "value": float(v), "std": finite(sd), "status": p["status"]}
@@ -103,7 +110,7 @@ def mass_of(params: dict, const: Constants) -> tuple[Constants, dict]:
     if not isinstance(p, dict):
         why = "the result has no mass (made before vdp learnt it)"
     elif p.get("status", NOT_RUN) == NOT_RUN:
-        why = "the mass was not learnt (vdp replay --mass, [service] mass = true learn it)"
+        why = 'the mass was not learnt (vdp replay --mass off, [service] mass = "off")'
     else:
         why = f"the learnt mass is not valid ({p.get('status')}): see its reason in the result"
     return const, {"source": "profile", "value": const.mass, "reason": why}

@@ -88,10 +88,15 @@ def mark_invalid(params: Mapping[str, Estimate], report: Report) -> dict[str, Es
 
 
 def _mass_learnt(params: Mapping[str, Estimate]) -> bool:
-    """A valid learnt mass that the six are scaled with (core.mass.scaled marks them ``mass_used``)."""
+    """A learnt mass that the six are scaled with (core.mass.scaled marks them ``mass_source`` "learnt";
+    a result from before the mark: ``mass_used`` with the mass valid)."""
     m = params.get(MASS)
-    used = any("mass_used" in (e.extra or {}) for n, e in params.items() if n != MASS)
-    return m is not None and m.status != NOT_RUN and m.valid and used
+    if m is None or m.status == NOT_RUN:
+        return False
+    extras = [e.extra or {} for n, e in params.items() if n != MASS]
+    if any("mass_source" in x for x in extras):
+        return any(x.get("mass_source") == "learnt" for x in extras)
+    return m.valid and any("mass_used" in x for x in extras)
 
 
 def _under_mass(f: Finding) -> bool:
