@@ -137,7 +137,7 @@ def test_vdp_export_makes_the_file_with_the_learnt_mass_and_says_so(drive, tmp_p
         y = yaml.safe_load(out.read_text())
         m = doc["parameters"]["mass"]
         if name == "on":
-            assert y["m"] == m["value"] and "the mass is the one learnt from the data" in err
+            assert y["m"] == pytest.approx(m["value"], abs=0.05) and "the mass is the one learnt from the data" in err
             assert y["m"] == pytest.approx(drive["sim"].model.params.m, rel=0.03)  # the loaded car's
         else:
             assert y["m"] == 1600.0 and "learnt" not in err

@@ -281,6 +281,21 @@ def test_auto_keeps_the_six_as_learnt_until_the_drives_mass_reads_off_the_profil
     for known in (replace(off, std=19.0, valid=True), replace(off, std=70.0)):
         assert scaled(params, known, 1600.0, auto=True) == scaled(params, known, 1600.0)
         assert scaled(params, known, 1600.0, auto=True)["C_K"].value == pytest.approx(10.0)
+    # known and agreeing within 2 of its stds (a body-fixed IMU's 3.4 % is in them): the six as learnt
+    near = Estimate("mass", 1600.0 * 1.06, 1600.0 * 1.06 * 0.035, "kg", UNCERTAIN, False, 0, 30)
+    assert scaled(params, near, 1600.0, auto=True) is params
+
+    # from 2 to 3 stds the learnt mass comes in on a ramp: value and std without a jump at either end
+    def put(d):
+        m = 1600.0 * (1.0 + d)
+        return scaled(params, Estimate("mass", m, 0.035 * m, "kg", UNCERTAIN, False, 0, 30), 1600.0, auto=True)["C_K"]
+
+    lo, hi = put(0.0700001), put(0.1049999)
+    assert lo.value == pytest.approx(11.875, rel=1e-5) and lo.std == pytest.approx(params["C_K"].std, rel=1e-4)
+    full = scaled(params, Estimate("mass", 1600.0 * 1.105, 0.035 * 1600.0 * 1.105, "kg", UNCERTAIN, False, 0, 30),
+                  1600.0)["C_K"]  # fmt: skip
+    assert hi.value == pytest.approx(full.value, rel=1e-5) and hi.std == pytest.approx(full.std, rel=1e-4)
+    assert lo.value > put(0.09).value > hi.value
     # a sign-flipped a_x's negative mass: no car's (invalid), every scaled parameter not valid
     neg = Estimate("mass", -900.0, 40.0, "kg", "invalid", False, 0, 30)
     assert not any(scaled(params, neg, 1600.0, auto=True)[n].valid for n in ("C_K", "C_alpha", "I_z"))

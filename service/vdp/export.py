@@ -97,13 +97,14 @@ def mass_of(params: dict, const: Constants) -> tuple[Constants, dict]:
     unit load then take the mass C_alpha was published with), else the profile's, with the reason
     the learnt one is not taken."""
     p = params.get(MASS)
-    put = any(
-        isinstance(e, dict) and (e.get("extra") or {}).get("mass_source") == "learnt"
+    put = [
+        (e.get("extra") or {}).get("mass_used")
         for n, e in params.items()
-        if n != MASS
-    )
+        if n != MASS and isinstance(e, dict) and (e.get("extra") or {}).get("mass_source") == "learnt"
+    ]
     if isinstance(p, dict) and (p.get("valid") or put) and p.get("status") in (CONVERGED, UNCERTAIN):
-        v, sd = p.get("value"), p.get("std")
+        # the mass the six were scaled with (mode auto may take the learnt one in part), else the learnt
+        v, sd = (put[0] if put and put[0] is not None else p.get("value")), p.get("std")
         if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0:
             said = {"source": "learnt", "value": float(v), "std": finite(sd), "status": p["status"]}
             return replace(const, mass=float(v)), {**said, "profile_mass": const.mass}

@@ -378,23 +378,32 @@ USEFUL = {"l_f": 0.02, "h": 0.05, "C_K": 0.05, "C_alpha": 0.05, "I_z": 0.05, "I_
 def _put(mass: Estimate, m_used: float, auto: bool) -> tuple[float, float, str]:
     """(mass ratio, relative std, what it is) that the six are published with.
 
-    A learnt mass known to PUT_REL (from MIN_ROWS rows of acceleration or braking): its own, with its
-    std.  Before that, ``auto`` off (mode on): the profile's mass, with the prior's std; ``auto``: the
-    profile's mass, and as std only how far the drive's mass already reads beyond two of its stds
-    from it (0 while they agree): a mass not yet known that already says the car is 300 kg heavier
-    than its profile must not leave C_K +18 % "valid" (BENCHMARKS.md, load).
+    Mode on (``auto`` False): a learnt mass known to PUT_REL (from MIN_ROWS rows of acceleration or
+    braking), its own, with its std; before that the profile's mass, with the prior's std.
+
+    Mode auto: the profile's mass as declared while the drive's mass agrees with it within 2 of its
+    stds (the six as learnt, bit for bit: a known mass that agrees would only add its std, 3.4 % or
+    more without the road model).  Beyond, where the learnt mass is known, it comes in on a ramp
+    from 2 to 3 of its stds (ratio 1 + w (m / m_used - 1), the std w of its own and 1 - w of the
+    excess beyond 2 stds: no jump in either); where it is not known yet, the profile's mass stays
+    and the std takes the excess: a mass that already says the car is 300 kg heavier than its
+    profile must not leave C_K +18 % "valid" (BENCHMARKS.md, load).
     """
     m, sd = mass.value, mass.std
     known = mass.status in (CONVERGED, UNCERTAIN) and m is not None and sd is not None
     known = known and m > 0 and math.isfinite(m) and math.isfinite(sd)
-    if known and sd <= PUT_REL * m and (mass.extra or {}).get("rows_excited", MIN_ROWS) >= MIN_ROWS:
-        return m / m_used, sd / m, "learnt"
+    known = known and sd <= PUT_REL * m and (mass.extra or {}).get("rows_excited", MIN_ROWS) >= MIN_ROWS
     if not auto:
-        return 1.0, PRIOR_REL, "the prior"
+        return (m / m_used, sd / m, "learnt") if known else (1.0, PRIOR_REL, "the prior")
     if mass.status == NOT_RUN or m is None or sd is None or not (m != 0 and math.isfinite(m) and math.isfinite(sd)):
         return 1.0, 0.0, "the profile's"
     # (a mass of no car's, negative from a sign-flipped a_x or tiny from a torque's scale, departs the most)
-    return 1.0, max(0.0, abs(m / m_used - 1.0) - 2.0 * sd / abs(m)), "the profile's"
+    rel, d = sd / abs(m), abs(m / m_used - 1.0)
+    excess = max(0.0, d - 2.0 * rel)
+    if not known or excess == 0.0:
+        return 1.0, excess, "the profile's"
+    w = min(1.0, excess / rel)
+    return 1.0 + w * (m / m_used - 1.0), math.hypot(w * rel, (1.0 - w) * excess), "learnt"
 
 
 def scaled(params: dict, mass: Estimate, m_used: float, auto: bool = False) -> dict:
