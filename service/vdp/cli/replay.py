@@ -63,10 +63,10 @@ def add_parser(sub):
     p.add_argument(
         "--mass",
         **mass_option(),
-        help="the mass (issue 28): auto (the default) learns it from the drive and puts it into C_K, C_alpha "
-        "and I_z once it is known to 1.5 %%, widening their stds before that where it already reads off the "
-        "profile's; on (--mass alone) puts it in from the start; report learns it only; off takes the "
-        "profile's vehicle.mass as weighed as driven",
+        help="the mass (issue 28): auto (the default) learns it from the drive and, where it reads off the "
+        "profile's beyond 2 of its stds, puts it into C_K, C_alpha and I_z once known to 5 %% (widening their "
+        "stds before that); on (--mass alone) puts it in from the start; report learns it only; off takes "
+        "the profile's vehicle.mass as weighed as driven",
     )
     p.add_argument(
         "--road",

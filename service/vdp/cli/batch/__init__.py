@@ -71,7 +71,7 @@ def add_parser(sub):
         "--mass",
         **mass_option(),
         help="the mass as vdp replay --mass takes it (default auto: learnt, and put into C_K, C_alpha and "
-        "I_z once valid; logs run with another mode are run again)",
+        "I_z where it reads off the profile's; logs run with another mode are run again)",
     )
     p.add_argument(
         "--plot",
