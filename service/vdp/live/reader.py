@@ -175,8 +175,6 @@ def _udp_reader(bus, channel: str, on_garbage: Callable[[BaseException], None]):
 
     def slow(data: bytes, ts: float) -> Frame | None:
         """Anything but a plain classic frame: python-can's own unpacking and checks."""
-        from .bus import clean_frame
-
         try:
             msg = unpack_message(data, replace={"timestamp": ts}, check=True)
         except Exception as exc:
@@ -400,3 +398,38 @@ class BlockNotifier(can.Notifier):
                 if not self._on_error(exc):
                     raise
                 log.debug("suppressed exception: %s", exc)
+
+
+_NUMBER = (float, int)
+_BYTES = (bytearray, bytes)
+_FLAGS = ("is_extended_id", "is_remote_frame", "is_error_frame", "is_fd", "bitrate_switch", "error_state_indicator")
+
+
+def clean_frame(msg: can.Message, channel: str) -> can.Message | None:
+    """``msg`` put on ``channel``, if it holds only what a CAN frame can hold; None if it is no frame.
+
+    udp_multicast fills every field from the datagram as it is: a channel "can0\n(123.0) can0
+    0B1#..." wrote made-up lines into the raw log, and an id of 1.5 passes python-can's checks
+    (they assume the types) and stopped the raw log's writer.  The channel is the configured one:
+    the bus is one bus, whatever a sender says.  Changed in place: no copy per frame.
+    """
+    # one expression, no loop: this runs for every frame (0.7 us, half a per cent of a core at 8,000 frames/s)
+    if not (
+        type(msg.arbitration_id) is int
+        and type(msg.dlc) is int
+        and type(msg.timestamp) in _NUMBER
+        and type(msg.data) in _BYTES
+        and type(msg.is_extended_id) is bool
+        and type(msg.is_remote_frame) is bool
+        and type(msg.is_error_frame) is bool
+        and type(msg.is_fd) is bool
+        and type(msg.bitrate_switch) is bool
+        and type(msg.error_state_indicator) is bool
+    ):
+        return None
+    try:
+        msg._check()  # id range, dlc against the data, flags that exclude each other, a finite timestamp
+    except (ValueError, TypeError):
+        return None
+    msg.channel = channel
+    return msg

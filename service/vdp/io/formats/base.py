@@ -12,7 +12,7 @@ import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from itertools import chain
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import can
 
@@ -51,9 +51,6 @@ _DIRS = {b"R": True, b"r": True, b"T": False, b"t": False}
 _INF = math.inf
 _ID_CACHE_MAX = 1 << 16
 EXT_KEY = 1 << 31  # marks an extended id in id keys (keep_ids, the decoder's plans): 0x123 != 0x00000123
-
-if TYPE_CHECKING:  # (the source opens the file and picks the reader from here)
-    from ..logs import LogSource
 
 
 def channel_keys(want: str) -> frozenset[Any]:
@@ -174,10 +171,32 @@ class _Quiet:
 _QUIET = _Quiet()
 
 
+class Source(Protocol):
+    """What a reader takes from the source that opened its file and chose it (vdp.io.logs.LogSource):
+    named here, so that the formats need not import the module that imports them."""
+
+    path: Any
+    stats: LogStats
+    strict: bool
+    quiet: bool
+    channel: str | None
+    format: str
+    size: int
+    compressed: bool
+    _want: Any
+    _keep: Any
+    _stream: Any
+    _reader: Any
+
+    position: Any  # where the source has read to (a property of LogSource)
+
+    def close(self) -> None: ...
+
+
 class _Reader:
     """What every format shares: bad records, the clock, channels, the end-of-file report."""
 
-    def __init__(self, src: LogSource):
+    def __init__(self, src: Source):
         self.src = src
         self.path = src.path
         self.stats = src.stats

@@ -6,7 +6,6 @@ import struct
 import zlib
 from collections.abc import Iterator
 from decimal import Decimal
-from typing import TYPE_CHECKING
 
 import can
 from can.io import blf as _blf
@@ -18,13 +17,11 @@ from .base import (
     _INF,
     _MAX_INNER,
     _MAX_OBJ,
+    Source,
     _msg,
     _Reader,
     log,
 )
-
-if TYPE_CHECKING:  # (the source opens the file and picks the reader from here)
-    from ..logs import LogSource
 
 
 class BlfReader(_Reader):
@@ -38,7 +35,7 @@ class BlfReader(_Reader):
     as python-can decodes them (its structs and constants).
     """
 
-    def __init__(self, src: LogSource):
+    def __init__(self, src: Source):
         super().__init__(src)
         self._buf = b""  # bytes read from the file and not consumed yet
         self._off = 0  # file offset of _buf[0]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import binascii
 from collections.abc import Iterator
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import can
 
@@ -22,11 +22,9 @@ from .base import (
     _MAX_CHANNELS,
     _MAX_LINE,
     EXT_KEY,
+    Source,
     _Reader,
 )
-
-if TYPE_CHECKING:  # (the source opens the file and picks the reader from here)
-    from ..logs import LogSource
 
 
 class CandumpReader(_Reader):
@@ -37,7 +35,7 @@ class CandumpReader(_Reader):
     Without the compiled scan (:func:`_use_scan`), every line goes by those rules.
     """
 
-    def __init__(self, src: LogSource):
+    def __init__(self, src: Source):
         super().__init__(src)
         self._keep = src._keep
         self._frames = self._skipped = 0
