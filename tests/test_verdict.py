@@ -239,3 +239,19 @@ def test_the_load_sensitivity_moves_what_the_fit_ties_to_h():
     assert shift[H] == pytest.approx(0.1 * 0.55)
     assert shift[C_K] == pytest.approx(0.9 * 0.5 / 0.01 * 0.1 * 0.55)
     assert shift[L_F] == 0.0  # not tied to h: unmoved
+
+
+def test_an_invalid_estimate_says_why(learner):
+    """A filter that left the data (I_x at 1e12 kg m^2 after a kerb strike no gate caught, in
+    benchmarks/gates.py) is invalid, and says so: the range it left, never a bare "invalid"."""
+    from vdp.core.result import INVALID
+
+    l2 = with_rel_std(learner, 0.01)
+    pub, pcov = l2._publish(*l2.params())
+    i = list(l2.names).index("I_x")
+    for bad, said in ((2.5e12, "2.5e+12 kg*m^2 is beyond what a car has (100 to 20000)"), (math.nan, "not a number")):
+        out = pub.copy()
+        out[i] = bad
+        l2._publish = lambda theta, cov, out=out: (out, pcov)
+        e = l2.snapshot()["I_x"]
+        assert e.status == INVALID and not e.valid and said in e.reason, e

@@ -202,6 +202,8 @@ class StageLearner:
             valid = useful(spec, status, value, std) and not isinstance(own, Hard)
             if not valid and reason is None and status in (CONVERGED, UNCERTAIN) and math.isfinite(std):
                 reason = too_wide(spec, value, std)
+            if status == INVALID and reason is None:  # (said, never left bare: a user must see why)
+                reason = beyond(spec, value)
             out[name] = Estimate(
                 name=name,
                 value=finite(value),
@@ -329,3 +331,13 @@ class StageLearner:
 
     def _param_q(self) -> np.ndarray:
         return (self.cfg.param_walk * self.prior_std) ** 2
+
+
+def beyond(spec, value: float) -> str:
+    """Why an estimate is invalid: not a number, or beyond what any car has (ParamSpec's range)."""
+    if not math.isfinite(value):
+        return "not a number: the filter diverged from the data"
+    return (
+        f"{value:.3g} {spec.unit} is beyond what a car has ({spec.lo:g} to {spec.hi:g}): the filter left the data "
+        "(a disturbance no gate caught, e.g. a kerb strike, can do it)"
+    )
