@@ -99,7 +99,6 @@ RUN_COLUMNS = {
     "mass_learnt": bool,
     "mass_mode": str,
 }
-PUT = ("auto", "on")  # the mass modes that put the learnt mass into the six (core.mass.MassConfig.put)
 AXLE_COLUMNS = ("C_alpha_front", "C_alpha_front_std", "C_alpha_rear", "C_alpha_rear_std")
 
 
@@ -263,10 +262,17 @@ def _run(task: Task) -> list[dict]:
     return rows
 
 
+def _puts(mode: str) -> bool:
+    """Whether a run in mass mode ``mode`` puts the learnt mass into the six (core.mass.MassConfig.put)."""
+    from .core.mass import MassConfig
+
+    return MassConfig(mode).put
+
+
 def error_row(task: Task, error: str, key: dict[str, Any] | None) -> dict:
     row: dict[str, Any] = dict.fromkeys(RUN_COLUMNS)
     row.update(log=task.log, vehicle=task.vehicle, profile=task.profile, status="error", error=error, valid=False)
-    row.update(mass_learnt=task.mass in PUT, mass_mode=task.mass)
+    row.update(mass_learnt=_puts(task.mass), mass_mode=task.mass)
     row.update(key or {})
     return row
 
@@ -314,7 +320,7 @@ def rows_from_result(res: Any, task: Task, key: dict[str, Any] | None = None) ->
             bad_lines=int(src.get("bad_lines") or 0),
             damage=(src.get("damage") or {}).get("summary") or None,
             wall_s=float(lg.wall_s if lg is not None else 0.0),
-            mass_learnt=task.mass in PUT,
+            mass_learnt=_puts(task.mass),
             mass_mode=task.mass,
         )
         g = (getattr(res, "supervisor", None) or {}).get("gated") or {}

@@ -53,8 +53,8 @@ class EstimatorConfig:
     # None: a row every trace_every; else once the trace holds this many rows, every other row
     # is dropped and the spacing doubles, so a long log's trace (replay --plot) stays this small
     trace_max: int | None = None
-    # issue 28: the mass learnt and put into the results once valid (MassConfig: auto), and the road's
-    # grade and tilt (off by default)
+    # issue 28: the mass learnt, and put into the results where it reads off the profile's (MassConfig:
+    # auto), and the road's grade and tilt (off by default)
     mass: MassConfig = field(default_factory=MassConfig)
     road: RoadConfig = field(default_factory=RoadConfig)
 

@@ -94,11 +94,11 @@ STAGE = 0  # not a stage of the paper's: every sample, before both
 class MassConfig:
     """How the six take the mass (``mode``, one of MODES):
 
-    - ``auto`` (the default): learnt, and put into the six once it is valid; until then the profile's
-      mass is used and the six's stds widen by how far the drive's mass already reads beyond two of its
-      stds from it (:func:`scaled`): an undeclared load shows before the mass is known to 1.5 %, never
-      as a confident wrong C_K, C_alpha or I_z;
-    - ``on``: put in from the first sample: the six carry the prior's 12 % until the mass is valid;
+    - ``auto`` (the default): learnt; the profile's mass is kept while the drive's agrees with it within
+      2 of its stds, and beyond, the learnt one comes in once known to PUT_REL (before that the six's
+      stds widen by the excess): an undeclared load never shows as a confident wrong C_K, C_alpha or
+      I_z (:func:`_put`);
+    - ``on``: put in from the first sample: the six carry the prior's 12 % until the mass is known;
     - ``report``: learnt and published, never put in (the profile's mass taken as known);
     - ``off``: neither learnt nor put in: the profile's mass is taken as weighed as driven.
     """
@@ -409,9 +409,9 @@ def _put(mass: Estimate, m_used: float, auto: bool) -> tuple[float, float, str]:
 def scaled(params: dict, mass: Estimate, m_used: float, auto: bool = False) -> dict:
     """The six estimates with the learnt mass put in (see the module), and its std carried.
 
-    Before the mass is valid the profile's is kept, and its std is the prior's: every scaled
-    parameter then carries the prior's 12 %, which is what an undeclared load does to it; with
-    ``auto`` (MassConfig), only the drive's mass's departure from it beyond two stds (:func:`_put`).
+    Which mass and what std the six take (:func:`_put`): mode on, the learnt mass once known to
+    PUT_REL, the profile's with the prior's 12 % before; mode ``auto``, the profile's while the
+    drive's mass agrees with it, the learnt one beyond 2 of its stds.
     """
     ratio, rel_m, what = _put(mass, m_used, auto)
     if not m_used > 0 or (ratio == 1.0 and rel_m == 0.0):  # (auto, the mass agreeing: the six as learnt)
