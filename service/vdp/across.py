@@ -16,7 +16,7 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from .core.result import CONVERGED, UNCERTAIN
+from .core.result import CONVERGED, UNCERTAIN, learnt_in
 
 # -- a drive's own measures, and the changes between a vehicle's drives -----------------------
 MEASURE_SECONDS = 300.0  # of bus time from a log's start (the profile check reads as much)
@@ -184,10 +184,8 @@ def document_rows(doc: Mapping[str, Any], log: str, vehicle: str = "") -> list[d
     params = doc.get("parameters") or {}
     # a replay with --mass: the six carry the mass they were scaled with (core.mass.scaled's mass_used)
     extras = [(p or {}).get("extra") or {} for p in params.values()]
-    if any("mass_source" in x for x in extras):  # (core.mass.scaled's mark; a JSON from before it: mass_used)
-        common["mass_learnt"] = any(x.get("mass_source") == "learnt" for x in extras)
-    else:
-        common["mass_learnt"] = any("mass_used" in x for x in extras)
+    put = learnt_in(extras)  # (core.mass.scaled's mark; a JSON from before it: mass_used)
+    common["mass_learnt"] = put if put is not None else any("mass_used" in x for x in extras)
     return [
         dict(common, parameter=n, value=p.get("value"), std=p.get("std"), status=p.get("status"), valid=p.get("valid"))
         for n, p in params.items()

@@ -147,3 +147,12 @@ class Snapshot:
     supervisor: Mapping[str, Any]  # active_stage, reasons, windows (count), excitation
     windows: tuple[WindowSpan, ...]
     resets: Mapping[str, int]  # divergence resets per filter kind
+
+
+def learnt_in(extras) -> bool | None:
+    """Whether the six whose ``extra`` dicts these are were published with the learnt mass put in
+    (core.mass.scaled marks them ``mass_source``); None where no mark says (a result made before it)."""
+    extras = list(extras)
+    if not any("mass_source" in x for x in extras):
+        return None
+    return any(x.get("mass_source") == "learnt" for x in extras)

@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from ..core.params import MASS, STAGE2
-from ..core.result import NOT_RUN, Estimate
+from ..core.result import NOT_RUN, Estimate, learnt_in
 from ..profile import PARAMETERS
 
 log = logging.getLogger(__name__)
@@ -94,9 +94,8 @@ def _mass_learnt(params: Mapping[str, Estimate]) -> bool:
     if m is None or m.status == NOT_RUN:
         return False
     extras = [e.extra or {} for n, e in params.items() if n != MASS]
-    if any("mass_source" in x for x in extras):
-        return any(x.get("mass_source") == "learnt" for x in extras)
-    return m.valid and any("mass_used" in x for x in extras)
+    put = learnt_in(extras)
+    return put if put is not None else m.valid and any("mass_used" in x for x in extras)
 
 
 def _under_mass(f: Finding) -> bool:
