@@ -110,6 +110,8 @@ def run_one(job) -> dict:
         e = (res.get("parameters") or {}).get(name) or {}
         tv, v, sd = truth.get(name), e.get("value"), e.get("std")
         d = {"truth": tv, "value": v, "std": sd, "valid": bool(e.get("valid")), "status": e.get("status")}
+        if name == "mass":  # when it first read valid, in s of drive (core.mass: valid_since_s)
+            d["since"] = (e.get("extra") or {}).get("valid_since_s")
         if tv and v is not None:
             d["err"] = (v - tv) / tv
             d["z"] = abs(v - tv) / sd if sd else math.inf
@@ -149,6 +151,10 @@ def report(runs: list[dict]) -> str:
     within = sum(1 for r in mass_ok if abs(r["params"]["mass"]["err"]) <= 0.03 and r["params"]["mass"]["valid"])
     lines.append(f"Valid with the truth beyond 3σ: {total} (of {len(runs)} runs).  "
                  f"Mass within 3 % and valid: {within} of {len(mass_ok)} runs.")  # fmt: skip
+    since = sorted(r["params"]["mass"]["since"] / 60.0 for r in mass_ok if r["params"]["mass"].get("since") is not None)
+    if since:
+        lines.append(f"Mass first valid after {since[0]:.1f}-{since[-1]:.1f} min of drive "
+                     f"(median {statistics.median(since):.1f}; {len(since)} of {len(mass_ok)} runs).")  # fmt: skip
     return "\n".join(lines)
 
 

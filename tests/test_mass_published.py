@@ -178,12 +178,14 @@ def test_the_table_says_the_learnt_mass_answers_the_profile_mass_and_scales_the_
 
 
 def test_by_default_the_mass_is_learnt_and_once_known_put_in_as_with_mass_on(drive):
-    """The default (auto): the undeclared 300 kg is learnt, and once the mass is known (to PUT_REL:
-    the IMU's pitch keeps it from valid) the six are those of ``--mass on``, not the profile's mass's
-    (C_K 18 % high, valid, before issue 28)."""
+    """The default (auto): the undeclared 300 kg is learnt, valid (the IMU's pitch learnt beside it
+    from the GNSS speed: core.road.Pitch), and once the mass is known to PUT_REL the six are those of
+    ``--mass on``, not the profile's mass's (C_K 18 % high, valid, before issue 28)."""
     auto, on, off = (drive["replay"][k]["parameters"] for k in ("auto", "on", "off"))
-    assert auto["mass"]["value"] == pytest.approx(drive["sim"].model.params.m, rel=0.03)
-    assert "IMU's pitch" in auto["mass"]["reason"]
+    m = drive["sim"].model.params.m
+    assert auto["mass"]["value"] == pytest.approx(m, rel=0.03)
+    assert auto["mass"]["valid"] and abs(auto["mass"]["value"] - m) < 3.0 * auto["mass"]["std"]
+    assert auto["mass"]["extra"]["pitch_level_rows"] > 0
     for n in ("C_K", "C_alpha", "I_z"):
         assert auto[n]["value"] == on[n]["value"] and auto[n]["std"] == on[n]["std"], n
         assert auto[n]["value"] != off[n]["value"], n

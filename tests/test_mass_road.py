@@ -58,6 +58,16 @@ def _drive(m: float, seconds: float, grade=lambda s: 0.0, kappa: float = 0.0, se
     return out
 
 
+def _blind(samples):
+    """The samples without a GNSS speed: the speed filter's v_x (here the true speed) stands in."""
+    return [
+        smp._replace(values=smp.values[: ch.SPEED] + (math.nan,) + smp.values[ch.SPEED + 1 :]).derived(
+            smp.values[ch.SPEED], 0.1, 0.0, 0.0, 0.0
+        )
+        for smp in samples
+    ]
+
+
 LEVEL = MassConfig("report", imu_tilt=0.0)  # the samples' a_x is the specific force: an IMU level with the road
 
 
@@ -86,21 +96,26 @@ def test_a_block_of_samples_teaches_the_mass_what_each_sample_does():
             y[ch.T_F] = math.nan  # a row with a missing torque
         smp = smp._replace(values=tuple(y), gap=i == 5000)
         samples.append(smp.derived(float(rng.normal(15.0, 3.0)), 0.1, 0.0, 0.002, 0.0))
-    one = MassLearner(VEH, LEVEL)
-    for smp in samples:
-        one.handle(smp.t, smp)
     T = np.array([smp.t for smp in samples])
     Y = np.array([smp.values for smp in samples])
+    F = np.array([smp.fresh for smp in samples])
+    A = np.array([smp.age for smp in samples])
     v_x = np.array([smp.v_x for smp in samples])
     bias = np.array([smp.yaw_bias for smp in samples])
     n = len(samples)
-    for size in (1, 137, 4000, n):
-        blk = MassLearner(VEH, LEVEL)
-        cuts = sorted({*range(0, n, size), 5000, n})  # a gap begins a block (the aligner's blocks)
-        for i, j in zip(cuts[:-1], cuts[1:]):
-            blk.handle_block(T[i:j], Y[i:j], samples[i].gap, v_x[i:j], bias[i:j])
-        assert blk.state() == one.state() and blk.snapshot() == one.snapshot(), size
-    assert one.snapshot().valid and one.skipped.get("missing torque or a_x", 0) >= 1
+    # an IMU level with the road, and the default (the pitch gain learnt beside the mass: core.road.Pitch)
+    for cfg in (LEVEL, MassConfig("report")):
+        one = MassLearner(VEH, cfg)
+        for smp in samples:
+            one.handle(smp.t, smp)
+        for size in (1, 137, 4000, n):
+            blk = MassLearner(VEH, cfg)
+            cuts = sorted({*range(0, n, size), 5000, n})  # a gap begins a block (the aligner's blocks)
+            for i, j in zip(cuts[:-1], cuts[1:]):
+                blk.handle_block(T[i:j], Y[i:j], F[i:j], A[i:j], samples[i].gap, v_x[i:j], bias[i:j])
+            assert blk.state() == one.state() and blk.snapshot() == one.snapshot(), (cfg, size)
+        assert one.snapshot().valid and one.skipped.get("missing torque or a_x", 0) >= 1
+    assert one.pitch.level_rows > 20
 
 
 def test_rows_with_a_wheel_spinning_or_locked_are_left_out():
@@ -158,6 +173,15 @@ def test_a_body_fixed_imu_biases_the_mass_unless_its_tilt_is_learnt():
     samples = _drive(1600.0, 600.0, kappa=kappa)
     plain = _learn(samples).snapshot()
     assert plain.value == pytest.approx(1600.0 / (1.0 + kappa), rel=0.005)  # 3.3 % low
+    # the default, without the road model: the learner's own pitch gain, from the GNSS speed
+    own = _learn(samples, cfg=MassConfig("report"))
+    e = own.snapshot()
+    assert own.pitch.kappa == pytest.approx(kappa, abs=3.0 * own.pitch.kappa_std)
+    assert abs(e.value - 1600.0) < 3.0 * e.std and e.std >= 1600.0 * own.pitch.kappa_std
+    assert e.valid and e.extra["pitch_gain_kappa"] == round(own.pitch.kappa, 5)
+    # without a GNSS speed nothing teaches it: all of the typical pitch gain stays in the std
+    e = _learn(_blind(samples), cfg=MassConfig("report")).snapshot()
+    assert not e.valid and e.std >= 0.034 * e.value and "GNSS" in e.reason
     tilt = Tilt(VEH, 0.637, RoadConfig(on=True, body_imu=False))
     e = _learn(samples, tilt).snapshot()
     assert tilt.kappa == pytest.approx(kappa, abs=3.0 * tilt.kappa_std) and tilt.kappa_std < 0.01
@@ -241,18 +265,22 @@ def test_scaled_puts_the_learnt_mass_into_the_six_and_carries_its_std():
     assert out["l_f"].valid
 
 
-def test_a_body_fixed_imus_pitch_is_in_the_masss_std_unless_the_road_model_learns_it():
-    """The balance reads m / (1 + kappa) with an IMU that pitches with the body: by default the
-    mass's std carries KAPPA_TYPICAL (3.4 %), so it is put into the six (known to PUT_REL) but never
-    valid on its own (1.5 %), and says why; an IMU declared level (imu_tilt 0) is valid."""
+def test_a_body_fixed_imus_pitch_is_in_the_masss_std_until_the_gnss_speed_teaches_it():
+    """The balance reads m / (1 + kappa) with an IMU that pitches with the body.  By default the
+    learner's own pitch gain (core.road.Pitch) is learnt from the GNSS speed on level road, from a
+    prior of KAPPA_TYPICAL (3.4 %); without a GNSS speed all of that stays in the mass's std, so it
+    is put into the six (known to PUT_REL) but never valid on its own (1.5 %), and says why; an IMU
+    declared level (imu_tilt 0) carries none of it."""
     from vdp.core.mass import KAPPA_TYPICAL, PUT_REL
 
     samples = _drive(1900.0, 200.0)
     default, level = _learn(samples, cfg=MassConfig()).snapshot(), _learn(samples).snapshot()
-    assert default.value == level.value == pytest.approx(1900.0, rel=0.02)
-    assert KAPPA_TYPICAL < default.std / default.value < PUT_REL and not default.valid
-    assert "IMU's pitch" in default.reason and "--road" in default.reason
+    assert default.value == pytest.approx(1900.0, rel=0.02) and level.value == pytest.approx(1900.0, rel=0.02)
+    assert level.std < default.std < KAPPA_TYPICAL * default.value
     assert level.valid and level.std / level.value < 0.015
+    blind = _learn(_blind(samples), cfg=MassConfig()).snapshot()
+    assert KAPPA_TYPICAL < blind.std / blind.value < PUT_REL and not blind.valid
+    assert "IMU's pitch" in blind.reason and "GNSS" in blind.reason
 
 
 def test_auto_keeps_the_six_as_learnt_until_the_drives_mass_reads_off_the_profiles():

@@ -243,7 +243,7 @@ class TwoStageEstimator:
             # l_f became known at sample ``handed``: the supervisor sees it from the next on
             done_from = i0 = handed + 1
         if self.mass is not None:  # the mass sees every sample, with the speed filter's v_x and the gyro's offset
-            self.mass.handle_block(T, Y, gap, out[:, 0], out[:, 3])
+            self.mass.handle_block(T, Y, F, A, gap, out[:, 0], out[:, 3])
         self.state[:] = st.tolist()
         batched.set_blockers(su, blk, first)
         batched.windows(su, T, stage)

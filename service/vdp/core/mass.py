@@ -9,8 +9,10 @@ so the grade needs no separate sensor: ``m a_x + c_0 + c_2 v^2 = F``, linear in
 ``[m, c_0, c_2]`` (Bae, Ryu and Gerdes 2001; Vahidi et al. 2005 estimate the grade beside
 the mass with a second forgetting factor; here the accelerometer carries it).  A body-fixed
 accelerometer reads ``(1 + kappa) f_x`` plus its mounting offset; with core.road on, a_x
-comes in already divided by ``1 + kappa`` (learnt there from the GNSS speed's slope); the
-offset times m is a constant force and goes into ``c_0``.  dv/dt, in the wheels' inertia
+comes in already divided by ``1 + kappa`` (learnt there from the GNSS speed's slope); with it
+off, the learner keeps its own :class:`core.road.Pitch` on the raw a_x and the GNSS speed, and
+the balance's ``m / (1 + kappa)`` is multiplied back by ``1 + kappa`` (:meth:`MassLearner.value`).
+The offset times m is a constant force and goes into ``c_0``.  dv/dt, in the wheels' inertia
 term only (13 kg on the paper car), is the GNSS speed's slope.
 
 The filter works on rows of ``ROW`` seconds (means of F, a_x, v^2), recursive least squares in
@@ -59,6 +61,8 @@ import numpy as np
 from .. import channels as ch
 from .params import MASS
 from .result import CONVERGED, INVALID, NOT_RUN, UNCERTAIN, Estimate
+from .road import ROW as ROAD_ROW
+from .road import Pitch
 
 log = logging.getLogger(__name__)
 
@@ -80,8 +84,9 @@ SPIN_SLIP = 0.2
 SIGMA_F = 40.0  # N: a row's force noise before the residuals say otherwise
 # An IMU fixed to the body reads (1 + kappa) times the specific force, kappa = g x the body's pitch per
 # m/s^2 (about 0.2 deg: issue 28), so the balance reads m / (1 + kappa): the vdp and brush models' body-fixed
-# IMUs gave -2.5...-3.3 %, "valid" at 7-21 std, before this term.  Where the road model (core.road.Tilt)
-# does not learn kappa, the mass's std carries this much of it (core.road.KAPPA_PRIOR: 0.034 at 0.2 deg).
+# IMUs gave -2.5...-3.3 %, "valid" at 7-21 std, before this term.  Without the road model (core.road.Tilt)
+# the learner's own core.road.Pitch learns kappa from the GNSS speed, from this prior std (0.034 at 0.2 deg);
+# without a GNSS speed the mass's std carries all of it.
 KAPPA_TYPICAL = 0.034
 # A learnt mass known to this (relative, with KAPPA_TYPICAL in it) is put into the six in mode auto: one
 # known worse could not leave C_K, C_alpha or I_z within their 5 % (params: useful_rel) anyway.
@@ -136,6 +141,8 @@ class MassLearner:
         self.vehicle = vehicle
         self.tilt = tilt  # core.road.Tilt: a_x comes divided by its 1 + kappa, whose std the mass takes
         self.cfg = cfg or MassConfig()
+        # the road model off: the pitch gain learnt here, from the raw a_x and the GNSS speed (the module)
+        self.pitch = Pitch(self.cfg.imu_tilt) if tilt is None and self.cfg.imu_tilt > 0 else None
         self.m0 = float(vehicle.mass)
         self.reset()
 
@@ -152,6 +159,9 @@ class MassLearner:
         self._rho = 0.0  # their lag-1 correlation (EWMA)
         self._last_e: float | None = None
         self._var = 1.0
+        self.valid_since: float | None = None  # the end of the row from which the mass first read valid [s]
+        if self.pitch is not None:
+            self.pitch.reset()
 
     # -- across restarts ----------------------------------------------------------
     def state(self) -> dict:
@@ -168,6 +178,8 @@ class MassLearner:
             "rho": self._rho,
             "last_e": self._last_e,
             "var": self._var,
+            "valid_since": self.valid_since,
+            **({"pitch": [self.pitch.kappa, self.pitch.P[1][1], self.pitch.level_rows]} if self.pitch else {}),
         }
 
     def load(self, st) -> bool:
@@ -178,7 +190,9 @@ class MassLearner:
             m0, rows, excited = float(st["m0"]), int(st["rows"]), int(st["excited"])
             chi, rho, var = float(st["chi"]), float(st["rho"]), float(st["var"])
             last_e = None if st.get("last_e") is None else float(st["last_e"])
+            since = None if st.get("valid_since") is None else float(st["valid_since"])
             skipped = {str(k): int(v) for k, v in (st.get("skipped") or {}).items()}
+            kappa, kp, klevel = (float(v) for v in st.get("pitch") or (math.nan,) * 3)
         except (KeyError, TypeError, ValueError, AttributeError):
             return False
         if not math.isclose(m0, self.m0, rel_tol=1e-12) or x.shape != (3,) or P.shape != (3, 3):
@@ -189,7 +203,13 @@ class MassLearner:
             return False
         self.x, self.P, self.rows, self.excited, self.skipped = x, P, rows, excited, skipped
         self._chi, self._rho, self._var, self._last_e = chi, rho, var, last_e
+        self.valid_since = since
         self._row = None
+        # the pitch gain carries on too (a state from before it was kept: learnt afresh)
+        if self.pitch is not None and math.isfinite(kappa) and 0.0 < kp <= self.cfg.imu_tilt**2 and klevel >= 0:
+            self.pitch.reset()
+            self.pitch.kappa, self.pitch.level_rows = kappa, int(klevel)
+            self.pitch.P[1][1] = kp
         return True
 
     # -- samples ---------------------------------------------------------------
@@ -200,10 +220,16 @@ class MassLearner:
         v = v if math.isfinite(v) else s.v_x
         slip = _slip(y[ch.WS_FL], y[ch.WS_FR], y[ch.WS_RL], y[ch.WS_RR], v, self.vehicle.wheel_radius)
         self._add(t, y[ch.T_F], y[ch.T_R], y[ch.AX], v, y[ch.YAW] - s.yaw_bias, slip, s.gap)
+        if self.pitch is not None:
+            self.pitch.add(t, s.gap, y[ch.AX], y[ch.SPEED], s.fresh[ch.SPEED], s.age[ch.SPEED])
 
-    def handle_block(self, T: np.ndarray, Y: np.ndarray, gap: bool, v_x: np.ndarray, yaw_bias: np.ndarray) -> None:
-        """A block of samples (TwoStageEstimator.handle_block's, with the speed filter's ``v_x`` and the
-        gyro's ``yaw_bias`` per sample): what :meth:`handle` on each does, by the same step."""
+    def handle_block(
+        self, T: np.ndarray, Y: np.ndarray, F: np.ndarray, A: np.ndarray, gap: bool, v_x: np.ndarray,
+        yaw_bias: np.ndarray,
+    ) -> None:  # fmt: skip
+        """A block of samples (TwoStageEstimator.handle_block's: ticks, values, fresh and ages by channel,
+        with the speed filter's ``v_x`` and the gyro's ``yaw_bias`` per sample): what :meth:`handle` on
+        each does, by the same steps."""
         if not len(T):
             return
         v = Y[:, ch.SPEED]
@@ -220,8 +246,16 @@ class MassLearner:
             wz,
             *(Y[:, c] for c in (ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR)),
         )
-        for k, (t, tf, tr, ax, vk, w, fl, fr, rl, rr) in enumerate(zip(*(c.tolist() for c in cols))):
+        if self.pitch is None:
+            for k, (t, tf, tr, ax, vk, w, fl, fr, rl, rr) in enumerate(zip(*(c.tolist() for c in cols))):
+                add(t, tf, tr, ax, vk, w, _slip(fl, fr, rl, rr, vk, rad), gap and k == 0)
+            return
+        # the pitch gain's step after the mass's, sample by sample, as handle does (a row's verdict reads it)
+        padd = self.pitch.add
+        cols += (Y[:, ch.SPEED], F[:, ch.SPEED], A[:, ch.SPEED])
+        for k, (t, tf, tr, ax, vk, w, fl, fr, rl, rr, g, fg, ag) in enumerate(zip(*(c.tolist() for c in cols))):
             add(t, tf, tr, ax, vk, w, _slip(fl, fr, rl, rr, vk, rad), gap and k == 0)
+            padd(t, gap and k == 0, ax, g, fg, ag)
 
     def _add(self, t: float, tf: float, tr: float, ax: float, v: float, wz: float, slip: float, gap: bool) -> None:
         """A sample into the open row (rows of ROW seconds from their first sample; a gap drops the
@@ -297,6 +331,10 @@ class MassLearner:
             self._rho += a * (e * self._last_e / max(self._var, 1e-9) - self._rho)
         self._var += a * (e * e - self._var)
         self._last_e = e
+        if self.valid_since is None and self.excited >= MIN_ROWS:
+            m, sd = self.value()
+            if LO <= m <= HI and sd <= USEFUL_REL * m:
+                self.valid_since = t0 + ROW
 
     # -- results -----------------------------------------------------------------
     def value(self) -> tuple[float, float]:
@@ -304,9 +342,13 @@ class MassLearner:
         rho = min(max(self._rho, 0.0), 0.9)
         sd = math.sqrt(max(self.P[0, 0], 0.0)) * math.sqrt((1.0 + rho) / (1.0 - rho))
         m = float(self.x[0])
-        # m a_x / (1 + kappa): kappa's std is the mass's, relative: learnt with the road model, else typical
-        sd = math.hypot(sd, m * (self.tilt.kappa_std if self.tilt is not None else self.cfg.imu_tilt))
-        return m, sd
+        # m a_x / (1 + kappa): kappa's std is the mass's, relative: learnt with the road model or here
+        # (the balance then holds m / (1 + kappa), multiplied back), else all of the typical one
+        if self.pitch is not None:
+            k = 1.0 + self.pitch.kappa
+            m, sd = m * k, sd * k
+        ks = self.tilt.kappa_std if self.tilt is not None else self.pitch.kappa_std if self.pitch else 0.0
+        return m, math.hypot(sd, m * ks)
 
     def snapshot(self) -> Estimate:
         m, sd = self.value()
@@ -323,7 +365,11 @@ class MassLearner:
             "residual_chi2": round(self._chi, 3),
             "residual_corr": round(self._rho, 3),
             "profile_mass": self.m0,
+            "valid_since_s": None if self.valid_since is None else round(self.valid_since, 1),
         }
+        if self.pitch is not None:
+            extra.update(pitch_gain_kappa=round(self.pitch.kappa, 5), pitch_gain_std=round(self.pitch.kappa_std, 5),
+                         pitch_level_rows=self.pitch.level_rows)  # fmt: skip
         extra.update({f"skipped_{k.replace(' ', '_')}": v for k, v in self.skipped.items()})
         if self.rows == 0:
             return Estimate(NAME, self.m0, prior_sd, UNIT, NOT_RUN, False, STAGE, 0,
@@ -338,9 +384,12 @@ class MassLearner:
         if not valid:
             reason = (f"known to +-{100 * sd / m:.1f} % from {self.excited} s of acceleration or braking; "
                       f"valid within {100 * USEFUL_REL:g} % and after {MIN_ROWS} s")  # fmt: skip
-            if self.tilt is None and self.cfg.imu_tilt > 0:
-                reason += (f", and {100 * self.cfg.imu_tilt:.1f} % of it is the IMU's pitch with the body, which "
-                           f"only the road model learns (vdp replay --road, [service] road = true)")  # fmt: skip
+            ks = self.pitch.kappa_std if self.pitch is not None else 0.0
+            if ks > 0.5 * USEFUL_REL:
+                # the IMU's pitch gain is learnt on level road with a GNSS speed (core.road.Pitch)
+                rows = self.pitch.level_rows
+                reason += (f", and {100 * ks:.1f} % of it is the IMU's pitch with the body, learnt from the "
+                           f"GNSS speed on level road ({rows} rows of {ROAD_ROW:g} s so far)")  # fmt: skip
         return Estimate(NAME, m, sd, UNIT, status, valid, STAGE, self.rows, reason=reason,
                         progress=round(progress, 3), extra=extra)  # fmt: skip
 

@@ -112,19 +112,13 @@ class _Row:
         return self.sv / self.gn if self.gn else math.nan
 
 
-class Tilt:
-    """The grade and tilt filter and the per-sample correction (see the module)."""
+class Pitch:
+    """The grade and pitch-gain filter (see the module): rows of ROW seconds of the accelerometer
+    against the GNSS speed's slope.  :class:`Tilt` builds on it; with the road model off, the mass
+    learner keeps one of its own, for the pitch gain only (core.mass)."""
 
-    def __init__(self, vehicle, h: float, cfg: RoadConfig | None = None):
-        self.cfg = cfg or RoadConfig()
-        v = vehicle
-        self.g = v.g
-        # eq 9 quasi-static: phi = m h a_y / (k_phi - m g h); its lag c_phi / k_phi
-        mh = v.mass * h
-        self.roll_gain = mh / max(v.roll_stiffness - mh * v.g, 1e-9 * v.roll_stiffness)
-        self.roll_tau = v.roll_damping / v.roll_stiffness if v.roll_stiffness > 0 else 0.0
-        # eq 9's phi / a_y as the IMU reads it (a_y = f_y + g phi): the prior of the learnt beta
-        self.beta_prior = self.roll_gain / (1.0 + self.g * self.roll_gain)
+    def __init__(self, kappa_std: float = KAPPA_PRIOR[1]):
+        self.kappa_std0 = kappa_std
         self.reset()
 
     def reset(self) -> None:
@@ -132,60 +126,30 @@ class Tilt:
         self.level: float | None = None  # the grade term's slow mean: a level road's (the bias, the mounting)
         self.level_rows = 0  # rows the pitch gain learnt from
         self.moving = 0.0  # how fast the grade term moves now: EWMA of |dG| per sqrt(s) over rows
-        self.P = [[1.0, 0.0], [0.0, KAPPA_PRIOR[1] ** 2]]  # G's prior: 1 m/s^2 (about 10 %)
+        self.P = [[1.0, 0.0], [0.0, self.kappa_std0**2]]  # G's prior: 1 m/s^2 (about 10 %)
         self.row: _Row | None = None
         self.rows = self.gated = 0
-        self.phi = 0.0
-        self.t: float | None = None
-        self.last: dict | None = None  # the last row: what the mass learner takes
-        # the roll's filter (body_imu): beta and the roll-rate gyro's bias (see ROLL_ROW_NOISE)
-        self.beta, self.gyro_bias = self.beta_prior, 0.0
-        self.Pr = [[(BETA_REL_STD * self.beta_prior) ** 2, 0.0], [0.0, GYRO_BIAS_STD**2]]
-        self.lag = 0.0  # a_y lagged by c_phi / k_phi
-        self.roll_row: list[float] | None = None  # [t0, lag at t0, integral of the roll rate, last roll rate]
-        self.roll_rows = self.roll_gated = 0
+        self.last: dict | None = None  # the last row
 
-    # -- per sample -------------------------------------------------------------
-    def correct(self, s):
-        """The sample with a_x and a_y in the road's axes (the grade stays in a_x)."""
-        y = s.values
-        ax, ay = y[ch.AX], y[ch.AY]
-        self._accumulate(s, ax, ay)
-        out = list(y)
-        if math.isfinite(ax):
-            out[ch.AX] = ax / (1.0 + self.kappa)
-        if self.cfg.body_imu and math.isfinite(ay):
-            # a_y = f_y + g phi and phi = beta a_y (lagged), beta learnt from the roll-rate gyro (_roll)
-            dt = 0.0 if self.t is None else min(max(s.t - self.t, 0.0), 0.2)
-            k = 1.0 if self.roll_tau <= 0 else 1.0 - math.exp(-dt / self.roll_tau) if dt > 0 else 0.0
-            self.lag += k * (ay - self.lag)
-            self._roll(s, y[ch.ROLL], dt)
-            self.phi = self.beta * self.lag
-            out[ch.AY] = ay - self.g * self.phi
-        elif self.cfg.body_imu:
-            self.roll_row = None
-        self.t = s.t
-        return s._replace(values=tuple(out))
-
-    def _accumulate(self, s, ax: float, ay: float) -> None:
-        y = s.values
-        if not math.isfinite(ax) or s.gap:
+    def add(self, t: float, gap: bool, ax: float, v: float, fresh: bool, age: float) -> None:
+        """One sample: its time, whether a gap precedes it, its a_x, and the GNSS speed ``v`` with
+        whether it is new at this sample and its age [s]."""
+        if not math.isfinite(ax) or gap:
             self.row = None
             return
         r = self.row
-        if r is None or s.t - r.t0 >= ROW:
+        if r is None or t - r.t0 >= ROW:
             if r is not None:
                 self._close(r)
-            r = self.row = _Row(s.t)
+            r = self.row = _Row(t)
         r.n += 1
         r.ax += ax
         if math.isfinite(r.a_prev):
-            r.u += 0.5 * (ax + r.a_prev) * (s.t - r.t_prev)
-        r.a_prev, r.t_prev = ax, s.t
-        v = y[ch.SPEED]
-        if s.fresh[ch.SPEED] and math.isfinite(v):
-            age = s.age[ch.SPEED] if math.isfinite(s.age[ch.SPEED]) else 0.0
-            tt = s.t - r.t0 - age
+            r.u += 0.5 * (ax + r.a_prev) * (t - r.t_prev)
+        r.a_prev, r.t_prev = ax, t
+        if fresh and math.isfinite(v):
+            age = age if math.isfinite(age) else 0.0
+            tt = t - r.t0 - age
             w = v - (r.u - ax * age)  # u at the speed's own time
             r.gn += 1
             r.st += tt
@@ -239,6 +203,69 @@ class Tilt:
         self.level = self.G if self.level is None else self.level + LEVEL_RATE * (self.G - self.level)
         self.last = {"t": r.t0 + ROW, "a_x": a, "dv_dt": dvdt, "G": self.G}
 
+    @property
+    def kappa_std(self) -> float:
+        return math.sqrt(max(self.P[1][1], 0.0))
+
+
+class Tilt(Pitch):
+    """The grade and tilt filter and the per-sample correction (see the module)."""
+
+    def __init__(self, vehicle, h: float, cfg: RoadConfig | None = None):
+        self.cfg = cfg or RoadConfig()
+        v = vehicle
+        self.g = v.g
+        # eq 9 quasi-static: phi = m h a_y / (k_phi - m g h); its lag c_phi / k_phi
+        mh = v.mass * h
+        self.roll_gain = mh / max(v.roll_stiffness - mh * v.g, 1e-9 * v.roll_stiffness)
+        self.roll_tau = v.roll_damping / v.roll_stiffness if v.roll_stiffness > 0 else 0.0
+        # eq 9's phi / a_y as the IMU reads it (a_y = f_y + g phi): the prior of the learnt beta
+        self.beta_prior = self.roll_gain / (1.0 + self.g * self.roll_gain)
+        super().__init__()
+
+    def reset(self) -> None:
+        super().reset()
+        self.phi = 0.0
+        self.t: float | None = None
+        # the roll's filter (body_imu): beta and the roll-rate gyro's bias (see ROLL_ROW_NOISE)
+        self.beta, self.gyro_bias = self.beta_prior, 0.0
+        self.Pr = [[(BETA_REL_STD * self.beta_prior) ** 2, 0.0], [0.0, GYRO_BIAS_STD**2]]
+        self.lag = 0.0  # a_y lagged by c_phi / k_phi
+        self.roll_row: list[float] | None = None  # [t0, lag at t0, integral of the roll rate, last roll rate]
+        self.roll_rows = self.roll_gated = 0
+
+    def speed_walk(self, base: float) -> float:
+        """The speed filter's a_x offset walk now [m/s^2 per sqrt(s)]: ``base`` on a level road, up
+        to ``speed_walk`` while the grade moves (a walk that fast on a level road costs stage 1 its
+        speed: h was not valid on the paper drive at 0.1 throughout)."""
+        return min(max(base, 2.0 * self.moving), max(base, self.cfg.speed_walk))
+
+    # -- per sample -------------------------------------------------------------
+    def correct(self, s):
+        """The sample with a_x and a_y in the road's axes (the grade stays in a_x)."""
+        y = s.values
+        ax, ay = y[ch.AX], y[ch.AY]
+        self._accumulate(s, ax, ay)
+        out = list(y)
+        if math.isfinite(ax):
+            out[ch.AX] = ax / (1.0 + self.kappa)
+        if self.cfg.body_imu and math.isfinite(ay):
+            # a_y = f_y + g phi and phi = beta a_y (lagged), beta learnt from the roll-rate gyro (_roll)
+            dt = 0.0 if self.t is None else min(max(s.t - self.t, 0.0), 0.2)
+            k = 1.0 if self.roll_tau <= 0 else 1.0 - math.exp(-dt / self.roll_tau) if dt > 0 else 0.0
+            self.lag += k * (ay - self.lag)
+            self._roll(s, y[ch.ROLL], dt)
+            self.phi = self.beta * self.lag
+            out[ch.AY] = ay - self.g * self.phi
+        elif self.cfg.body_imu:
+            self.roll_row = None
+        self.t = s.t
+        return s._replace(values=tuple(out))
+
+    def _accumulate(self, s, ax: float, ay: float) -> None:
+        y = s.values
+        self.add(s.t, s.gap, ax, y[ch.SPEED], s.fresh[ch.SPEED], s.age[ch.SPEED])
+
     def _roll(self, s, p: float, dt: float) -> None:
         """The roll-rate gyro's integral over a row against the change of the lagged a_y:
         integral(p) = beta (lag(t1) - lag(t0)) + bias (t1 - t0), one row at a time (H = [d lag, t1 - t0])."""
@@ -270,16 +297,6 @@ class Tilt:
         self.beta += k0 * inn
         self.gyro_bias += k1 * inn
         self.Pr = [[P[0][0] - k0 * ph0, P[0][1] - k0 * ph1], [P[1][0] - k1 * ph0, P[1][1] - k1 * ph1]]
-
-    def speed_walk(self, base: float) -> float:
-        """The speed filter's a_x offset walk now [m/s^2 per sqrt(s)]: ``base`` on a level road, up
-        to ``speed_walk`` while the grade moves (a walk that fast on a level road costs stage 1 its
-        speed: h was not valid on the paper drive at 0.1 throughout)."""
-        return min(max(base, 2.0 * self.moving), max(base, self.cfg.speed_walk))
-
-    @property
-    def kappa_std(self) -> float:
-        return math.sqrt(max(self.P[1][1], 0.0))
 
     def state(self) -> dict:
         """What the road did to the drive, plainly."""
