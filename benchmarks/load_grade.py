@@ -110,8 +110,8 @@ def run_one(job) -> dict:
         e = (res.get("parameters") or {}).get(name) or {}
         tv, v, sd = truth.get(name), e.get("value"), e.get("std")
         d = {"truth": tv, "value": v, "std": sd, "valid": bool(e.get("valid")), "status": e.get("status")}
-        if name == "mass":  # when it first read valid, in s of drive (core.mass: valid_since_s)
-            d["since"] = (e.get("extra") or {}).get("valid_since_s")
+        if name == "mass":  # when it first read valid, in s of drive (core.mass: valid_after_s)
+            d["since"] = (e.get("extra") or {}).get("valid_after_s")
         if tv and v is not None:
             d["err"] = (v - tv) / tv
             d["z"] = abs(v - tv) / sd if sd else math.inf

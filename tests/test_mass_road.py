@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from vdp import channels as ch
-from vdp.core.mass import PRIOR_REL, MassConfig, MassLearner, scaled, unscaled
+from vdp.core.mass import MIN_ROWS, PRIOR_REL, MassConfig, MassLearner, scaled, unscaled
 from vdp.core.result import CONVERGED, NOT_RUN, UNCERTAIN, Estimate
 from vdp.core.road import RoadConfig, Tilt
 from vdp.core.sample import Sample
@@ -147,6 +147,9 @@ def test_mass_is_learnt_from_the_longitudinal_balance(load):
     assert e.valid and e.status in (UNCERTAIN, CONVERGED)
     assert abs(e.value - 1600.0 - load) < 3.0 * e.std
     assert e.extra["rolling_resistance_N"] == pytest.approx(180.0, abs=40.0)
+    # the drive's time, and when within it the mass first read valid (after MIN_ROWS excited rows)
+    assert e.extra["driven_s"] == pytest.approx(240.0, abs=0.1)
+    assert MIN_ROWS <= e.extra["valid_after_s"] < e.extra["driven_s"]
 
 
 def test_mass_is_robust_to_grade_through_the_accelerometer():
@@ -363,27 +366,35 @@ def test_unscaled_takes_the_six_back_out_of_the_mass_they_were_published_with():
     assert back["C_K"].std == params["C_K"].std and back["I_x"].std < params["I_x"].std
 
 
-def test_the_mass_learners_state_carries_it_on_exactly():
+@pytest.mark.parametrize("cfg", [LEVEL, MassConfig("report")], ids=["level", "pitch"])
+def test_the_mass_learners_state_carries_it_on_exactly(cfg):
     """MassLearner.state / load (what the store keeps across a restart): the same snapshot, and
-    the same on from there to far within its std; a state of another profile mass or a damaged
-    one is refused, nothing changed."""
+    the same on from there to far within its std (the pitch gain learnt beside it too); a state of
+    another profile mass or a damaged one is refused, nothing changed."""
     import json
 
-    samples = _drive(1900.0, 80.0)
-    a = _learn(samples[:2000])
-    b = MassLearner(VEH, LEVEL)
+    samples = _drive(1900.0, 80.0, kappa=0.03)
+    a = _learn(samples[:2000], cfg=cfg)
+    b = MassLearner(VEH, cfg)
     assert b.load(json.loads(json.dumps(a.state()))) and b.snapshot() == a.snapshot()
     for smp in samples[2000:]:
         a.handle(smp.t, smp)
         b.handle(smp.t, smp)
-    # (only the row open at the restart is not carried: the rest of the drive moves both alike)
+    # (only the row open at the restart is not carried: the rest of the drive moves both alike; the pitch
+    # gain's row is 2 s, and on this short drive one of its 33 rows is worth about 0.2 std)
     ea, eb = a.snapshot(), b.snapshot()
-    assert eb.valid and abs(eb.value - ea.value) < 0.01 * ea.std and eb.std == pytest.approx(ea.std, rel=0.01)
-    fresh = MassLearner(VEH, LEVEL)
-    other = MassLearner(replace(VEH, mass=1400.0), LEVEL)
+    tol, rel = (0.01, 0.01) if not cfg.imu_tilt else (0.25, 0.05)
+    assert eb.valid and abs(eb.value - ea.value) < tol * ea.std and eb.std == pytest.approx(ea.std, rel=rel)
+    if cfg.imu_tilt:
+        assert b.pitch.kappa == pytest.approx(a.pitch.kappa, abs=0.3 * a.pitch.kappa_std) and a.pitch.level_rows > 10
+    fresh = MassLearner(VEH, cfg)
+    other = MassLearner(replace(VEH, mass=1400.0), cfg)
     for bad in ({**a.state(), "x": [math.nan, 0.0, 0.0]}, {"x": [1.0]}, "junk", {**a.state(), "P": [[1.0]]}):
-        assert not fresh.load(bad) and fresh.snapshot() == MassLearner(VEH, LEVEL).snapshot()
+        assert not fresh.load(bad) and fresh.snapshot() == MassLearner(VEH, cfg).snapshot()
     assert not other.load(a.state())  # learnt with another prior: another profile's
+    if cfg.imu_tilt:  # a damaged or missing pitch gain: the mass carries on, the pitch gain is learnt afresh
+        for bad in ({**a.state(), "pitch": ["junk"]}, {k: v for k, v in a.state().items() if k != "pitch"}):
+            assert fresh.load(bad) and fresh.pitch.level_rows == 0 and fresh.pitch.kappa_std == cfg.imu_tilt
 
 
 def test_the_mass_is_learnt_by_default_the_road_on_by_config_and_mass_off_says_so():

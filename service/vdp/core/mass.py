@@ -159,7 +159,9 @@ class MassLearner:
         self._rho = 0.0  # their lag-1 correlation (EWMA)
         self._last_e: float | None = None
         self._var = 1.0
-        self.valid_since: float | None = None  # the end of the row from which the mass first read valid [s]
+        self.driven = 0.0  # s of samples seen, gaps left out: the drive's time
+        self._t: float | None = None  # the last sample's
+        self.valid_after: float | None = None  # s of drive (driven) until the mass first read valid
         if self.pitch is not None:
             self.pitch.reset()
 
@@ -178,8 +180,9 @@ class MassLearner:
             "rho": self._rho,
             "last_e": self._last_e,
             "var": self._var,
-            "valid_since": self.valid_since,
-            **({"pitch": [self.pitch.kappa, self.pitch.P[1][1], self.pitch.level_rows]} if self.pitch else {}),
+            "driven": self.driven,
+            "valid_after": self.valid_after,
+            **({"pitch": self.pitch.saved()} if self.pitch is not None else {}),
         }
 
     def load(self, st) -> bool:
@@ -190,9 +193,9 @@ class MassLearner:
             m0, rows, excited = float(st["m0"]), int(st["rows"]), int(st["excited"])
             chi, rho, var = float(st["chi"]), float(st["rho"]), float(st["var"])
             last_e = None if st.get("last_e") is None else float(st["last_e"])
-            since = None if st.get("valid_since") is None else float(st["valid_since"])
+            after = None if st.get("valid_after") is None else float(st["valid_after"])
+            driven = float(st.get("driven") or 0.0)
             skipped = {str(k): int(v) for k, v in (st.get("skipped") or {}).items()}
-            kappa, kp, klevel = (float(v) for v in st.get("pitch") or (math.nan,) * 3)
         except (KeyError, TypeError, ValueError, AttributeError):
             return False
         if not math.isclose(m0, self.m0, rel_tol=1e-12) or x.shape != (3,) or P.shape != (3, 3):
@@ -203,13 +206,11 @@ class MassLearner:
             return False
         self.x, self.P, self.rows, self.excited, self.skipped = x, P, rows, excited, skipped
         self._chi, self._rho, self._var, self._last_e = chi, rho, var, last_e
-        self.valid_since = since
+        self.valid_after, self.driven, self._t = after, driven, None
         self._row = None
-        # the pitch gain carries on too (a state from before it was kept: learnt afresh)
-        if self.pitch is not None and math.isfinite(kappa) and 0.0 < kp <= self.cfg.imu_tilt**2 and klevel >= 0:
+        # the pitch gain carries on too (a state without it, or one damaged: learnt afresh)
+        if self.pitch is not None and not self.pitch.restore(st.get("pitch")):
             self.pitch.reset()
-            self.pitch.kappa, self.pitch.level_rows = kappa, int(klevel)
-            self.pitch.P[1][1] = kp
         return True
 
     # -- samples ---------------------------------------------------------------
@@ -261,6 +262,9 @@ class MassLearner:
         """A sample into the open row (rows of ROW seconds from their first sample; a gap drops the
         open row unclosed; a row with a missing torque or a_x is skipped as a whole; ``slip``: the
         wheels' largest, :func:`_slip`)."""
+        if not gap and self._t is not None and 0.0 < t - self._t < ROW:
+            self.driven += t - self._t
+        self._t = t
         r = self._row
         if gap or r is None or t - r[0] >= ROW:
             if r is not None and not gap:
@@ -331,10 +335,10 @@ class MassLearner:
             self._rho += a * (e * self._last_e / max(self._var, 1e-9) - self._rho)
         self._var += a * (e * e - self._var)
         self._last_e = e
-        if self.valid_since is None and self.excited >= MIN_ROWS:
+        if self.valid_after is None and self.excited >= MIN_ROWS:
             m, sd = self.value()
             if LO <= m <= HI and sd <= USEFUL_REL * m:
-                self.valid_since = t0 + ROW
+                self.valid_after = self.driven
 
     # -- results -----------------------------------------------------------------
     def value(self) -> tuple[float, float]:
@@ -365,7 +369,8 @@ class MassLearner:
             "residual_chi2": round(self._chi, 3),
             "residual_corr": round(self._rho, 3),
             "profile_mass": self.m0,
-            "valid_since_s": None if self.valid_since is None else round(self.valid_since, 1),
+            "driven_s": round(self.driven, 1),
+            "valid_after_s": None if self.valid_after is None else round(self.valid_after, 1),
         }
         if self.pitch is not None:
             extra.update(pitch_gain_kappa=round(self.pitch.kappa, 5), pitch_gain_std=round(self.pitch.kappa_std, 5),

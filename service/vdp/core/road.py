@@ -207,6 +207,25 @@ class Pitch:
     def kappa_std(self) -> float:
         return math.sqrt(max(self.P[1][1], 0.0))
 
+    def saved(self) -> list[float]:
+        """The filter, for :meth:`restore` across a restart (a row still open is not kept)."""
+        return [self.G, self.kappa, *self.P[0], *self.P[1], self.level if self.level is not None else math.nan,
+                self.level_rows, self.moving, self.rows, self.gated]  # fmt: skip
+
+    def restore(self, v) -> bool:
+        """Carry on from :meth:`saved`; False, and nothing changed, for one damaged or of another prior."""
+        try:
+            G, kappa, p00, p01, p10, p11, level, level_rows, moving, rows, gated = (float(x) for x in v)
+        except (TypeError, ValueError):
+            return False
+        if not all(map(math.isfinite, (G, kappa, p00, p01, p10, p11, moving))) or not 0.0 < p11 <= self.kappa_std0**2:
+            return False
+        self.reset()
+        self.G, self.kappa, self.P = G, kappa, [[p00, p01], [p10, p11]]
+        self.level = level if math.isfinite(level) else None
+        self.level_rows, self.moving, self.rows, self.gated = int(level_rows), moving, int(rows), int(gated)
+        return True
+
 
 class Tilt(Pitch):
     """The grade and tilt filter and the per-sample correction (see the module)."""
