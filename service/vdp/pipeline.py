@@ -220,7 +220,8 @@ class Pipeline:
 
     def flush(self) -> None:
         """Take the samples held for the look-ahead (a log's end, a gap): nothing comes after them."""
-        held, self._held = self._held, []
+        held = self._held[:]
+        self._held.clear()
         for s in held:
             self._handle(s)
 
