@@ -142,7 +142,7 @@ def kerb(st, p, c, t, y):
         v = abs(s / n)
     if v > p[KERB_SPEED] and abs(ay - v * yaw) > p[KERB_AY]:
         if t - p[KERB_PRE] > st[H_KERB]:  # a new strike (not one whose hold still runs): its rise before
-            st[K_FROM] = t - p[KERB_PRE]
+            st[K_FROM] = t - p[KERB_PRE] - 1e-6  # (a tick kerb_pre before, whatever the float's rounding)
         st[H_KERB] = t + p[HOLD]
 
 
