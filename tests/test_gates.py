@@ -256,7 +256,7 @@ def test_a_kerb_strike_is_gated_from_its_rise_when_the_samples_come_ahead():
     first = codes.index(gt.KERB)
     assert first <= 20  # the rise's every sample gated ...
     assert fire - first == look  # ... from kerb_pre before the sample that fires, no earlier
-    assert set(codes[first : fire + int(cfg.hold / 0.02)]) == {gt.KERB} and set(codes[: first]) == {0}
+    assert set(codes[first : fire + int(cfg.hold / 0.02)]) == {gt.KERB} and set(codes[:first]) == {0}
     # shown no sample ahead (a caller that calls update alone): from the sample that fires, as before
     plain = feed(gt.Gates(cfg, wheel_radius=R), strike())
     assert plain.index(gt.KERB) == fire
