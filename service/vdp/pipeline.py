@@ -103,6 +103,7 @@ class Pipeline:
         self._taps: list[Callable[[Sample], None]] = []
         # samples taken but not yet estimated from: the gates' look-ahead (look_ahead), oldest first
         self._held: list[Sample] = []
+        self._blocks = False  # the last samples came as a block the estimator took compiled (take_block)
         # the profile self-check of a running service, on the samples the ring holds (profilecheck);
         # vdp replay checks the log's first minutes instead and sets this to None
         self.monitor: Monitor | None = Monitor(profile, self.decoder, aligner=self.aligner)
@@ -203,6 +204,7 @@ class Pipeline:
         """Estimate from aligned samples (the aligner's, or a block reader's that aligns itself),
         each :meth:`look_ahead` samples after it came."""
         ring, est, held, look = self.ring.append, self.estimator, self._held, self.look_ahead()
+        self._blocks = False
         for s in samples:
             ring(s)
             if s.gap:  # nothing to look ahead across a gap: the samples before it are taken now
@@ -222,6 +224,10 @@ class Pipeline:
         """Take the samples held for the look-ahead (a log's end, a gap): nothing comes after them."""
         held = self._held[:]
         self._held.clear()
+        if held and self._blocks:  # (held from a block's compiled pass: taken as a block)
+            T, Y, F, A = _arrays(held)
+            self.estimator.handle_block(T, Y, F, A, held[0].gap)
+            return
         for s in held:
             self._handle(s)
 
@@ -240,12 +246,10 @@ class Pipeline:
         if gap:
             self.flush()
         held, look = self._held, self.look_ahead()
+        self._blocks = True
         if held:  # the samples held from before, ahead of this block's (only the first may follow a gap)
             gap = held[0].gap
-            T = np.concatenate((np.array([s.t for s in held]), T))
-            Y = np.concatenate((np.array([s.values for s in held], dtype=Y.dtype).reshape(-1, Y.shape[1]), Y))
-            F = np.concatenate((np.array([s.fresh for s in held], dtype=F.dtype).reshape(-1, F.shape[1]), F))
-            A = np.concatenate((np.array([s.age for s in held], dtype=A.dtype).reshape(-1, A.shape[1]), A))
+            T, Y, F, A = (np.concatenate((h, x)) for h, x in zip(_arrays(held), (T, Y, F, A)))
         keep = min(look, len(T))
         self.estimator.handle_block(T, Y, F, A, gap, ahead=keep)
         self._held = sample_block(T[len(T) - keep :], Y[len(T) - keep :], F[len(T) - keep :], A[len(T) - keep :],
@@ -377,6 +381,16 @@ class Pipeline:
     def restore(self, params: Mapping[str, Estimate]) -> None:
         """Start from stored estimates instead of the priors."""
         self.estimator.restore(params)
+
+
+def _arrays(samples: list[Sample]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Samples as a block's arrays (ticks, values, fresh, ages by channel): core.sample.block's inverse."""
+    return (
+        np.array([s.t for s in samples], dtype=float),
+        np.array([s.values for s in samples], dtype=float),
+        np.array([s.fresh for s in samples], dtype=bool),
+        np.array([s.age for s in samples], dtype=float),
+    )
 
 
 def _lacks(missing: list[str]) -> str | None:

@@ -186,7 +186,9 @@ class TwoStageEstimator:
                     # C_K only from data: before stage 1 has run (a car without axle torques),
                     # stage 2 leaves the front drive force out (Stage2.set_stage1)
                     c_k = None if e["C_K"].status == NOT_RUN else e["C_K"].value
-                    l2.set_stage1(l_f, e["h"].value, c_k, l_f_std, e["h"].std)
+                    h = e["h"]  # (no value where stage 1's left what a car has: the prior's then)
+                    h_v, h_sd = (h.value, h.std) if h.value is not None else (self.priors["h"].value, None)
+                    l2.set_stage1(l_f, h_v, c_k, l_f_std, h_sd)
                 l2.handle(t, s)
             elif l2.filter is not None:
                 l2.end_window()

@@ -202,10 +202,10 @@ class StageLearner:
             valid = useful(spec, status, value, std) and not isinstance(own, Hard)
             if not valid and reason is None and status in (CONVERGED, UNCERTAIN) and math.isfinite(std):
                 reason = too_wide(spec, value, std)
-            if status == INVALID:  # (said, never left bare: a user must see why)
-                if reason is None:
-                    reason = beyond(spec, value)
-                value = std = math.nan  # no number that no car has is published as a value (the reason says it)
+            if status == INVALID and reason is None:  # (said, never left bare: a user must see why)
+                reason = beyond(spec, value)
+            if status == INVALID and not spec.lo <= value <= spec.hi:  # (NaN too)
+                value = std = math.nan  # no number that no car has is published as a value: the reason says it
             out[name] = Estimate(
                 name=name,
                 value=finite(value),
