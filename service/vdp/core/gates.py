@@ -82,13 +82,11 @@ class GatesConfig:
 
 
 # the state: per gate that holds, the time it holds until; the last time; the seconds counted; the
-# kerb gate's start (kerb_pre before the strike's first sample over the test) and the last time the
-# kerb test saw (a sample it saw ahead is not tested again)
+# kerb gate's start (kerb_pre before the strike's first sample over the test)
 (H_REV, H_ABS, H_ESC, H_TCS, H_KERB, H_SPIN, T_LAST, OBSERVED, ANY) = range(9)
 SECONDS = 9  # seconds under gate k at SECONDS + k - 1
 K_FROM = SECONDS + N_GATES
-K_SEEN = K_FROM + 1
-N_STATE = K_SEEN + 1
+N_STATE = K_FROM + 1
 # the parameters array
 (REV_SPEED, SPIN_REL, SPIN_ABS, KERB_AY, KERB_SPEED, HOLD, STAND, CREEP_V, RADIUS, KERB_PRE) = range(10)
 # channel indices, passed in (numba would freeze module globals into its cache)
@@ -111,7 +109,6 @@ def new_state() -> list[float]:
         st[i] = _FAR
     st[T_LAST] = math.nan
     st[K_FROM] = _FAR
-    st[K_SEEN] = _FAR
     return st
 
 
@@ -119,10 +116,8 @@ def kerb(st, p, c, t, y):
     """The kerb test on the sample ``y`` at ``t``: a lateral spike the yaw rate does not explain
     (a_y = v r + dv_y/dt, dv_y/dt small).  Where it fires, the kerb gate holds from kerb_pre before
     (from the first sample that fires of a strike) to ``hold`` after.  Called on each sample before
-    :func:`step`, as early as the caller has it (a look-ahead); a sample seen once is not seen again."""
-    if t <= st[K_SEEN]:
-        return
-    st[K_SEEN] = t
+    :func:`step`, as early as the caller has it (a look-ahead), and again at its step: a second call
+    on a sample changes nothing."""
     ay, yaw = y[c[_AY]], y[c[_YAW]]
     if not (math.isfinite(ay) and math.isfinite(yaw)):
         return
@@ -143,7 +138,7 @@ def kerb(st, p, c, t, y):
     if v > p[KERB_SPEED] and abs(ay - v * yaw) > p[KERB_AY]:
         if t - p[KERB_PRE] > st[H_KERB]:  # a new strike (not one whose hold still runs): its rise before
             st[K_FROM] = t - p[KERB_PRE] - 1e-6  # (a tick kerb_pre before, whatever the float's rounding)
-        st[H_KERB] = t + p[HOLD]
+        st[H_KERB] = max(st[H_KERB], t + p[HOLD])
 
 
 def step(st, p, c, t, gap, y):
@@ -263,7 +258,7 @@ class Gates:
         _kerb_py(self.st, self._p, self._c, t, y)
 
     def update(self, t: float, gap: bool, y) -> int:
-        _kerb_py(self.st, self._p, self._c, t, y)  # (nothing where it was seen ahead)
+        _kerb_py(self.st, self._p, self._c, t, y)  # (nothing new where it was seen ahead)
         code = _step_py(self.st, self._p, self._c, t, gap, y)
         return code if self.cfg.shut or code > SHUTS else 0
 
