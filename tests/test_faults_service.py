@@ -174,7 +174,8 @@ def test_a_silent_channel_is_stale_pauses_gating_and_no_filter_predicts_across_t
         pipe.feed(m)
     assert est.supervisor.active == 2 and learner.filter is not None
     old_filter, samples = learner.filter, learner.samples
-    settle = [m for m in during if m.timestamp < gap[0] + 0.1]
+    # (the pipeline takes each sample look_ahead ticks after it came: the gates' look-ahead)
+    settle = [m for m in during if m.timestamp < gap[0] + 0.1 + pipe.look_ahead() * est.cfg.tick]
     for m in settle:
         pipe.feed(m)
     n0 = predicts["n"]

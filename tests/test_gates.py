@@ -218,3 +218,91 @@ def test_the_fleet_rows_carry_the_gated_share(drives):
     g = res.supervisor["gated"]
     assert len(rows) == len(PUBLISHED) and {r["gated"] for r in rows} == {g["fraction"]} and g["fraction"] > 0.1
     assert rows[0]["gated_by"] == g["text"] and "reverse" in g["text"]
+
+
+# -- a kerb strike's rise: the look-ahead -----------------------------------------------------------
+# the simulator's 80-ms half-sine of 6 m/s^2 on a_y as 20-ms ticks read it (sim.events): the test
+# (kerb_ay 5) fires at its peak; the two ticks of its rise carry 0.5 and 4 m/s^2, and 0.04 and 0.28 rad/s
+# of roll rate, far beyond the model too (benchmarks/gates.py: let into stage 2, I_x read 2.5e12)
+PULSE = (0.5, 4.0, 5.7, 4.0, 0.5)
+
+
+def strike(before=20, after=40, v=15.0, yaw=0.2):
+    cruise = values(v, ay=v * yaw, yaw=yaw)
+    rows = [cruise] * before
+    for a in PULSE:
+        rows.append(values(v, ay=v * yaw + a, yaw=yaw))
+    return rows + [cruise] * after
+
+
+def feed_ahead(g, rows, look, dt=0.02):
+    """What vdp.pipeline does: each sample shown to the kerb test ``look`` samples before its turn."""
+    out = []
+    for k, y in enumerate(rows):
+        if k == 0:
+            for j in range(min(look, len(rows))):
+                g.ahead(j * dt, rows[j])
+        if k + look < len(rows):
+            g.ahead((k + look) * dt, rows[k + look])
+        out.append(g.update(k * dt, False, y))
+    return out
+
+
+def test_a_kerb_strike_is_gated_from_its_rise_when_the_samples_come_ahead():
+    cfg = gt.GatesConfig()
+    look = math.ceil(cfg.kerb_pre / 0.02 - 1e-9)
+    fire = 20 + PULSE.index(5.7)  # the first sample over kerb_ay
+    codes = feed_ahead(gt.Gates(cfg, wheel_radius=R), strike(), look)
+    first = codes.index(gt.KERB)
+    assert first <= 20  # the rise's every sample gated ...
+    assert fire - first == look  # ... from kerb_pre before the sample that fires, no earlier
+    assert set(codes[first : fire + int(cfg.hold / 0.02)]) == {gt.KERB} and set(codes[:first]) == {0}
+    # shown no sample ahead (a caller that calls update alone): from the sample that fires, as before
+    plain = feed(gt.Gates(cfg, wheel_radius=R), strike())
+    assert plain.index(gt.KERB) == fire
+    # the hold after is the same either way; the look-ahead adds kerb_pre to the count
+    assert codes[fire:] == plain[fire:]
+
+
+def test_brisk_steering_gates_nothing_with_the_look_ahead():
+    # the light stiff-tyre car's brisk steering: |a_y - v r| up to 3.2 m/s^2 (benchmarks/robust.py's
+    # light car on the paper drive), in a burst of the same shape as a strike
+    rows = [values(15.0, ay=3.0 + a * 3.2 / 5.7, yaw=0.2) for a in (0.0,) * 20 + PULSE + (0.0,) * 40]
+    g = gt.Gates(wheel_radius=R)
+    assert set(feed_ahead(g, rows, 3)) == {0}
+    assert g.summary()["text"] == "nothing of the drive gated out"
+
+
+def test_a_second_strike_within_the_hold_extends_it_and_a_later_one_starts_its_own_rise():
+    cfg = gt.GatesConfig()
+    hold = int(cfg.hold / 0.02)
+    near = strike(after=10) + strike(before=0)  # the second fires 0.3 s after the first: one gated span
+    codes = feed_ahead(gt.Gates(cfg, wheel_radius=R), near, 3)
+    assert set(codes[:19]) == {0} and set(codes[19 : 37 + hold]) == {gt.KERB}
+    far = strike(after=60) + strike(before=0)  # 1.3 s after: its own rise, from kerb_pre before it fires
+    codes = feed_ahead(gt.Gates(cfg, wheel_radius=R), far, 3)
+    assert set(codes[22 + hold + 1 : 84]) == {0} and set(codes[84 : 87 + hold]) == {gt.KERB}
+
+
+def test_the_pipeline_takes_each_sample_after_the_gates_saw_the_next_ones(repo_root, monkeypatch):
+    """vdp.pipeline's look-ahead: every sample reaches the estimator once, in order, look_ahead samples
+    after it came (the gates saw it at once); a gap, and the log's end (run), take the samples held."""
+    from vdp.core.estimator import TwoStageEstimator
+    from vdp.pipeline import Pipeline
+
+    pipe = Pipeline(load_profile(repo_root / "profiles" / "paper.toml"))
+    look = pipe.look_ahead()
+    assert look == math.ceil(gt.GatesConfig().kerb_pre / pipe.estimator.cfg.tick - 1e-9) >= 2
+    taken, seen = [], []
+    monkeypatch.setattr(TwoStageEstimator, "handle", lambda self, t, s: taken.append(t) or s)
+    monkeypatch.setattr(TwoStageEstimator, "ahead", lambda self, s: seen.append(s.t))
+    rows = [sample(0.02 * k) for k in range(10)]
+    rows[0] = rows[0]._replace(gap=True)
+    pipe.take(rows[:1])  # (one at a time, the first after a gap: as the aligner hands them)
+    pipe.take(rows[1:6])
+    assert seen == [s.t for s in rows[:6]] and taken == [s.t for s in rows[: 6 - look]]
+    gap = rows[6]._replace(gap=True)
+    pipe.take([gap, *rows[7:]])
+    assert taken == [s.t for s in rows[: 10 - look]]  # the gap took the samples held before it
+    pipe.flush()
+    assert taken == [s.t for s in rows] and pipe.samples == 10

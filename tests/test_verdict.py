@@ -255,3 +255,41 @@ def test_an_invalid_estimate_says_why(learner):
         l2._publish = lambda theta, cov, out=out: (out, pcov)
         e = l2.snapshot()["I_x"]
         assert e.status == INVALID and not e.valid and said in e.reason, e
+        assert e.value is None and e.std is None  # the number is in the reason, never the value
+
+
+def test_a_window_that_left_what_a_car_has_is_dropped_not_kept(repo_root):
+    """A disturbance no gate caught (a kerb strike's rise: 0.28 rad/s of roll rate against a gyro of
+    0.1 deg/s) threw the open window's I_x to 2.5e12 kg m^2.  Published meanwhile: invalid, the reason
+    saying it, no such number as the value; at the window's end the window is dropped (the parameters
+    back to its start), never kept for the next window to start from."""
+    from vdp import channels as ch
+    from vdp.core import lateral
+    from vdp.core.learner import LearnerConfig
+    from vdp.core.result import INVALID
+    from vdp.core.sample import Sample
+
+    prof = load_profile(repo_root / "profiles" / "paper.toml")
+    l2 = Stage2("ukf", prof.vehicle, prof.priors, LearnerConfig(compiled=False))
+    l2.set_stage1(1.4, 0.6, 10.0, l_f_std=0.005, h_std=0.0)
+    v, yaw, r = 20.0, 0.1, prof.vehicle.wheel_radius
+    y = [math.nan] * ch.N
+    for i in (ch.WS_FL, ch.WS_FR, ch.WS_RL, ch.WS_RR):
+        y[i] = v / r
+    y[ch.T_F] = y[ch.T_R] = 50.0
+    y[ch.DELTA], y[ch.AX], y[ch.AY], y[ch.YAW], y[ch.ROLL], y[ch.SPEED] = 0.03, 0.0, v * yaw, yaw, 0.0, v
+    for k in range(60):  # steady cornering: a window opens once settled, and steps
+        t = 0.01 * k
+        l2.handle(t, Sample(t, tuple(y), (True,) * ch.N, (0.0,) * ch.N, v_x=v))
+    assert l2.filter is not None and l2.updates > 0
+    start = l2._win_start[0].copy()
+    x, _ = l2.filter_state()
+    x[lateral.I_X] = 2.5e12
+    l2.filter._f.x = l2.bounds.from_si(x)
+    e = l2.snapshot()["I_x"]
+    assert e.status == INVALID and e.value is None and e.std is None and "2.5e+12" in e.reason, e
+    l2.end_window()
+    assert l2.filter is None and l2.restarts == 1 and "left what a car has" in l2.last_error
+    np.testing.assert_array_equal(l2.theta, start)
+    e = l2.snapshot()["I_x"]
+    assert e.status != INVALID and BY_NAME["I_x"].lo <= e.value <= BY_NAME["I_x"].hi

@@ -101,6 +101,9 @@ class Pipeline:
         )
         self.ring = SampleRing(ring_capacity)
         self._taps: list[Callable[[Sample], None]] = []
+        # samples taken but not yet estimated from: the gates' look-ahead (look_ahead), oldest first
+        self._held: list[Sample] = []
+        self._blocks = False  # the last samples came as a block the estimator took compiled (take_block)
         # the profile self-check of a running service, on the samples the ring holds (profilecheck);
         # vdp replay checks the log's first minutes instead and sets this to None
         self.monitor: Monitor | None = Monitor(profile, self.decoder, aligner=self.aligner)
@@ -190,15 +193,43 @@ class Pipeline:
         """Frames offered so far: the decoder counts every one (also those a source passed over)."""
         return self.decoder.stats.frames
 
+    def look_ahead(self) -> int:
+        """Samples the estimator takes each sample after it came: the gates see it that much earlier
+        (core.gates.kerb: a kerb strike's rise, kerb_pre before the sample that fires, is gated too).
+        The estimates lag as much (60 ms); :meth:`flush` takes the samples held at a log's end."""
+        g = self.estimator.supervisor.gates.cfg
+        return max(0, math.ceil(g.kerb_pre / self.estimator.cfg.tick - 1e-9))
+
     def take(self, samples: list[Sample]) -> None:
-        """Estimate from aligned samples (the aligner's, or a block reader's that aligns itself)."""
-        ring, handle, taps = self.ring.append, self.estimator.handle, self._taps
+        """Estimate from aligned samples (the aligner's, or a block reader's that aligns itself),
+        each :meth:`look_ahead` samples after it came."""
+        ring, est, held, look = self.ring.append, self.estimator, self._held, self.look_ahead()
+        self._blocks = False
         for s in samples:
             ring(s)
-            s = handle(s.t, s)
-            for fn in taps:
-                fn(s)
+            if s.gap:  # nothing to look ahead across a gap: the samples before it are taken now
+                self.flush()
+            est.ahead(s)
+            held.append(s)
+            if len(held) > look:
+                self._handle(held.pop(0))
         self.samples += len(samples)
+
+    def _handle(self, s: Sample) -> None:
+        s = self.estimator.handle(s.t, s)
+        for fn in self._taps:
+            fn(s)
+
+    def flush(self) -> None:
+        """Take the samples held for the look-ahead (a log's end, a gap): nothing comes after them."""
+        held = self._held[:]
+        self._held.clear()
+        if held and self._blocks:  # (held from a block's compiled pass: taken as a block)
+            T, Y, F, A = _arrays(held)
+            self.estimator.handle_block(T, Y, F, A, held[0].gap)
+            return
+        for s in held:
+            self._handle(s)
 
     def take_block(self, T: np.ndarray, Y: np.ndarray, F: np.ndarray, A: np.ndarray, gap: bool) -> None:
         """Estimate from a block of aligned samples as arrays (a block reader's, vdp.io.bulk):
@@ -207,9 +238,22 @@ class Pipeline:
         if self._taps or not self.estimator.batchable():
             self.take(sample_block(T, Y, F, A, gap))
             return
+        n = len(T)
+        if not n:
+            return
         self.ring.extend(T, Y)
-        self.estimator.handle_block(T, Y, F, A, gap)
-        self.samples += len(T)
+        self.samples += n
+        if gap:
+            self.flush()
+        held, look = self._held, self.look_ahead()
+        self._blocks = True
+        if held:  # the samples held from before, ahead of this block's (only the first may follow a gap)
+            gap = held[0].gap
+            T, Y, F, A = (np.concatenate((h, x)) for h, x in zip(_arrays(held), (T, Y, F, A)))
+        keep = min(look, len(T))
+        self.estimator.handle_block(T, Y, F, A, gap, ahead=keep)
+        self._held = sample_block(T[len(T) - keep :], Y[len(T) - keep :], F[len(T) - keep :], A[len(T) - keep :],
+                                  gap and keep == len(T)) if keep else []  # fmt: skip
 
     def tap(self, fn: Callable[[Sample], None]) -> None:
         """Call ``fn`` with every sample the estimator takes, as it saw it (derived fields set)."""
@@ -263,6 +307,7 @@ class Pipeline:
             start_time=first,
             source=stats,
         )
+        self.flush()
         self.estimator.finish()
         self.finished = True
         return self.result(trace=True, t0=first, log=info)
@@ -336,6 +381,16 @@ class Pipeline:
     def restore(self, params: Mapping[str, Estimate]) -> None:
         """Start from stored estimates instead of the priors."""
         self.estimator.restore(params)
+
+
+def _arrays(samples: list[Sample]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Samples as a block's arrays (ticks, values, fresh, ages by channel): core.sample.block's inverse."""
+    return (
+        np.array([s.t for s in samples], dtype=float),
+        np.array([s.values for s in samples], dtype=float),
+        np.array([s.fresh for s in samples], dtype=bool),
+        np.array([s.age for s in samples], dtype=float),
+    )
 
 
 def _lacks(missing: list[str]) -> str | None:

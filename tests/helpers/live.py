@@ -34,6 +34,9 @@ class FakePipeline:
         self.restored = params
         self.lf = params["l_f"].value
 
+    def flush(self):
+        pass
+
     def decode(self):
         return {
             "frames": self.frames,

@@ -186,7 +186,9 @@ class TwoStageEstimator:
                     # C_K only from data: before stage 1 has run (a car without axle torques),
                     # stage 2 leaves the front drive force out (Stage2.set_stage1)
                     c_k = None if e["C_K"].status == NOT_RUN else e["C_K"].value
-                    l2.set_stage1(l_f, e["h"].value, c_k, l_f_std, e["h"].std)
+                    h = e["h"]  # (no value where stage 1's left what a car has: the prior's then)
+                    h_v, h_sd = (h.value, h.std) if h.value is not None else (self.priors["h"].value, None)
+                    l2.set_stage1(l_f, h_v, c_k, l_f_std, h_sd)
                 l2.handle(t, s)
             elif l2.filter is not None:
                 l2.end_window()
@@ -210,26 +212,36 @@ class TwoStageEstimator:
             and self.tilt is None
         )
 
-    def handle_block(self, T: np.ndarray, Y: np.ndarray, F: np.ndarray, A: np.ndarray, gap: bool) -> None:
+    def ahead(self, s: Sample) -> None:
+        """Show the gates a sample before its turn (core.gates.kerb: a kerb strike gates the
+        samples of its rise, which come before the one that fires): vdp.pipeline's look-ahead."""
+        self.supervisor.gates.ahead(s.t, s.values)
+
+    def handle_block(
+        self, T: np.ndarray, Y: np.ndarray, F: np.ndarray, A: np.ndarray, gap: bool, ahead: int = 0
+    ) -> None:
         """Take aligned samples as arrays (ticks T, values Y, fresh F, ages A by channel; ``gap``:
         the first follows a gap): what :meth:`handle` on each would do, to the last bit, with
         the speed filter, gyro offsets and supervisor compiled over the block (core.batched),
         only the samples a learner takes visited in Python, and an open window's run of them
-        stepped compiled (Stage1.steps, Stage2.steps).  Needs :meth:`batchable`."""
-        n = len(T)
-        if not n:
+        stepped compiled (Stage1.steps, Stage2.steps).  The last ``ahead`` rows are only shown
+        to the gates (:meth:`ahead`), each ``ahead`` rows before its turn.  Needs :meth:`batchable`."""
+        n = len(T) - ahead
+        if n <= 0:
             return
+        su = self.supervisor
+        gaps = np.zeros(len(T), dtype=bool)
+        gaps[0] = gap
+        gate = su.gates.block(T, Y, gaps, n, ahead)  # core.gates: what the model does not cover, per sample
+        if ahead:
+            T, Y, F, A, gaps = T[:n], Y[:n], F[:n], A[:n], gaps[:n]
         if self.steer_k:
             Y = steer.block(Y, self.steer_k)
-        su = self.supervisor
         st0 = np.array(self.state)  # (core.passes' layout: the speed filter's, gyro offsets' and supervisor's state)
         blk0, first0 = batched.blockers(su)
         prev0 = self._stage or 0
-        gaps = np.zeros(n, dtype=bool)
-        gaps[0] = gap
         done_from = 0 if self.handover_t is not None else n
         kern = kernel("prepass")
-        gate = su.gates.block(T, Y, gaps)  # core.gates: what the model does not cover, per sample
         i0 = 0
         while True:
             st, blk, first = st0.copy(), blk0.copy(), first0.copy()

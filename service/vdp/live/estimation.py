@@ -163,6 +163,7 @@ class Estimation:
             except queue.Empty:
                 item = None
             if item is _STOP:
+                self.pipeline.flush()  # the samples held for the gates' look-ahead: nothing comes after them
                 self.publish()
                 return
             if isinstance(item, _Command):

@@ -249,9 +249,11 @@ class Service:
 
     def sync(self, timeout: float = 60.0) -> Published:
         """Wait until every frame queued so far is estimated and every batch check has ended;
-        return the snapshot after it (tests, and a caller who wants the numbers settled)."""
+        return the snapshot after it (tests, and a caller who wants the numbers settled).  The
+        samples the pipeline holds for the gates' look-ahead are taken too (Pipeline.flush)."""
 
         def settle(p) -> None:
+            p.flush()
             est = getattr(p, "estimator", None)
             if est is not None:
                 est.settle()

@@ -204,6 +204,8 @@ class StageLearner:
                 reason = too_wide(spec, value, std)
             if status == INVALID and reason is None:  # (said, never left bare: a user must see why)
                 reason = beyond(spec, value)
+            if status == INVALID and not spec.lo <= value <= spec.hi:  # (NaN too)
+                value = std = math.nan  # no number that no car has is published as a value: the reason says it
             out[name] = Estimate(
                 name=name,
                 value=finite(value),

@@ -125,8 +125,34 @@ class Stage2(AxleSplit, StageLearner):
         return P0
 
     def end_window(self) -> None:
+        if self.filter is not None and not self._sane():
+            self._drop_window("its parameters left what a car has (a disturbance no gate caught)")
         super().end_window()
         self._settle.clear()
+
+    def _sane(self) -> bool:
+        """Whether the open filter's parameters are numbers within what a car has (ParamSpec's range)."""
+        x, P = self.filter_state()
+        p = self._p
+        return self._in_range(x[p]) and bool(np.all(np.isfinite(P[p, p])))
+
+    def _drop_window(self, why: str) -> None:
+        """Drop the open window as diverged: the parameters back to its start, its innovations, roll
+        information and batch-check rows out of the totals.  What is kept never holds a number no
+        car has (an I_x of 2.5e12 kg m^2 after a kerb strike's rise the gate let through)."""
+        self.restarts += 1
+        self.last_error = f"window dropped: {why}"
+        log.warning("stage 2 %s window dropped: %s", self.kind, why)
+        theta, cov, cross = self._win_start
+        self.theta, self.theta_P, self.cross = theta.copy(), cov.copy(), cross
+        self.total.drop(self.window)
+        self.roll_total.drop(self.roll_window)
+        self.window, self.roll_window = Consistency(), Consistency()
+        self.roll_info -= self._info_window
+        self._info_window = 0.0
+        self.check.record.drop()
+        self.filter = None
+        self.t_last = None
 
     def l_f_correlation(self) -> np.ndarray | None:
         """Correlation of the published (C_alpha, I_z, I_x) with the considered l_f: the open

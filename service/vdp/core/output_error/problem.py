@@ -68,6 +68,12 @@ class Record:
             self.rows -= len(self.windows.pop())
         self.windows.append([])
 
+    def drop(self) -> None:
+        """Drop the newest window's rows (a window that left the data); the fit is stale after."""
+        if self.windows:
+            self.rows -= len(self.windows.pop())
+            self.added += 1
+
     def add(self, t: float, u, yaw: float, a_y: float, roll: float = math.nan) -> None:
         if not self.windows:
             self.windows.append([])
