@@ -63,6 +63,7 @@ def run_one(args) -> dict:
             first = msg.timestamp
         pipe.feed(msg)
         n += 1
+    pipe.flush()  # the samples held for the gates' look-ahead: the drive has ended
     wall = time.perf_counter() - t0
     res = pipe.result(trace=True)
     tp = truth["parameters"]

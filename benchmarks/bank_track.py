@@ -69,6 +69,7 @@ def run(case: str, scenario: str, cond: str, seed: int) -> dict:
     pipe.tap(at_update)
     for m in frames:
         pipe.feed(m)
+    pipe.flush()  # the samples held for the gates' look-ahead: the drive has ended
     c = pipe.result().parameters["C_alpha"]
     t, b = np.array(est).T
     tru = g[np.clip(np.round((t - START_TIME) / DT).astype(int), 0, len(g) - 1)]

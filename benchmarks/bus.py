@@ -103,6 +103,7 @@ def car_one(args) -> dict:
     pipe = Pipeline(prof, cfg)
     for msg in sim.frames():
         pipe.feed(msg)
+    pipe.flush()  # the samples held for the gates' look-ahead: the drive has ended
     par, truth = pipe.result().to_dict()["parameters"], sim.truth["parameters"]
     return {
         p: (

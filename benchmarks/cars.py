@@ -41,6 +41,7 @@ def one(args) -> dict:
     pipe = Pipeline(prof, EstimatorConfig(baseline=False))
     for msg in sim.frames():
         pipe.feed(msg)
+    pipe.flush()  # the samples held for the gates' look-ahead: the drive has ended
     res = pipe.result()
     truth = sim.truth["parameters"]
     out = {"caps": dict(res.capabilities), "errors": dict(res.decode["errors"])}

@@ -55,6 +55,7 @@ def main() -> int:
         for m in frames:
             pipe.feed(m)
         # the result a replay ends with: stage 2's batch check (core.output_error) is solved here
+        pipe.flush()  # the samples held for the gates' look-ahead: the drive has ended
         t1 = time.process_time()
         pipe.result()
         snap = time.process_time() - t1

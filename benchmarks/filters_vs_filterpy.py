@@ -29,6 +29,7 @@ def run(profile, frames) -> tuple[dict, float]:
     t0 = time.process_time()
     for m in frames:
         pipe.feed(m)
+    pipe.flush()  # the samples held for the gates' look-ahead: the drive has ended
     r = pipe.result()
     cpu = time.process_time() - t0
     return {

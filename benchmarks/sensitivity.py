@@ -40,6 +40,7 @@ def run(profile, frames, truth: dict, moved: str | None, step: float) -> tuple[d
         pipe = Pipeline(profile)
         for msg in frames:
             pipe.feed(msg)
+        pipe.flush()  # the samples held for the gates' look-ahead: the drive has ended
     finally:
         Stage2.set_stage1 = original
     p = pipe.result().parameters

@@ -87,6 +87,7 @@ def run_one(job) -> dict:
         pipe = Pipeline(prof)
         for m in frames:
             pipe.feed(m)
+        pipe.flush()  # the samples held for the gates' look-ahead: the drive has ended
         res = pipe.result()
     finally:
         if true_stage1:
