@@ -231,10 +231,8 @@ class Stage1(StageLearner):
         with speed and the law leaves out (drag's pitching moment and lift move load from
         axle to axle with v^2: on the brush cars l_f read 0.9 % long).
 
-        The load sensitivity moves h by about LOAD_SENSITIVITY x h, and every parameter the fit
-        correlates with h moves with it, by its regression on h (P_ih / P_hh, a Schmidt consider
-        term): on a gentle drive C_K and h are tied, and h's share alone left brush/compact's C_K
-        +15 % valid at 3.6 % on the ordinary drive (docs/decisions/0018).
+        The load sensitivity moves h by about LOAD_SENSITIVITY x h, and l_f with it by its
+        regression on h (:func:`load_sensitivity_shift`; C_K not: docs/decisions/0031).
         """
         b, k = self.bounds, self.known
         x = b.to_si(fit.t)
@@ -537,12 +535,18 @@ def axle_split_shift(l_f: float, wheelbase: float, q: float) -> float:
 
 
 def load_sensitivity_shift(P: np.ndarray, x: np.ndarray, q: float) -> np.ndarray:
-    """How far each stage-1 parameter moves (SI, 1 sigma) when h moves by ``q`` x h, the tyre's
-    unknown load sensitivity: each by its regression on h in the fit's covariance ``P`` (SI),
-    P_ih / P_hh (a Schmidt consider term); h itself by q h."""
+    """How far each stage-1 parameter moves (SI, 1 sigma) with the tyre's unknown load sensitivity
+    q: h by q h, the others by their regression on h in the fit's covariance ``P`` (SI), P_ih / P_hh
+    (a Schmidt consider term), except C_K.  A stiffness per unit load that falls by q with the load
+    shows (1 - q) of the load transfer in the slips, so h reads low; at the axle loads the drive
+    runs at (where C_K is defined) the stiffness is what the slips show, so C_K takes none of it
+    (docs/decisions/0031: its share had been kept for a C_K +15 % on the ordinary drive that was the
+    speed filter's, 0028)."""
     h = longitudinal.H
     pull = P[:, h] / P[h, h] if P[h, h] > 0.0 else np.eye(len(x))[h]
-    return np.abs(pull) * q * x[h]
+    out = np.abs(pull) * q * x[h]
+    out[longitudinal.C_K] = 0.0
+    return out
 
 
 # the channels core.kernels.lon_run reads, in its order, and what lon_block did with a block
