@@ -174,7 +174,8 @@ def test_stage2_jacobians_with_the_road_bank_as_a_tenth_state(vy, yaw, phid, ca,
     step = lateral.fx(x, 0.04, u, k)
     assert step[lateral.BANK] == bank
     dv = step[lateral.V_Y] - lateral.fx(x0, 0.04, u, k)[lateral.V_Y]  # down the bank, less what the tyres push back
-    assert dv * bank <= 0.0 and abs(dv) <= 0.04 * abs(bank) * (1.0 + 1e-9)
+    # (plus the step's own rounding: hypothesis found a bank of 1e-15 moving v_y by 4.2e-17)
+    assert dv * bank <= 0.0 and abs(dv) <= 0.04 * abs(bank) * (1.0 + 1e-9) + 1e-15
 
 
 def test_roll_driven_by_measured_ay():
