@@ -579,7 +579,8 @@ class Stage2(AxleSplit, StageLearner):
             self._excite = RollExcitation(self.known, ix, x0[lateral.PHI], x0[lateral.PHI_D], t)
             n = self.cfg.noise
             self._noise_info = self.noise_info()  # the window before, closed
-            self._noise_rate = accel_noise_excitation(self.known, ix, self.cfg.tick, n.accel) / (n.gyro * n.inflate) ** 2
+            noise = accel_noise_excitation(self.known, ix, self.cfg.tick, n.accel)  # per sample, of chi'^2
+            self._noise_rate = noise / (n.gyro * n.inflate) ** 2  # per roll-rate update, as roll_info takes it
             self._noise_from = self.roll_updates
             self._us = [u]
             self.t_last = t
