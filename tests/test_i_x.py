@@ -180,3 +180,15 @@ def test_the_accelerometers_noise_is_not_counted_as_the_drives_excitation(learne
     l2._noise_info = 5e3 - 0.7  # the paper car's own information, the rest noise
     e = l2.snapshot()["I_x"]
     assert not e.valid and e.reason.startswith("roll not excited") and "at best" in e.reason
+
+
+def test_noise_that_barely_moved_i_x_off_its_prior_leaves_it_the_priors_std(learner):
+    """The paper car's over-damped roll: the roll rate holds next to nothing, all of it the
+    accelerometer's noise; I_x is then its prior, and its std the prior's, not more."""
+    prior = learner.priors["I_x"]
+    l2 = ran(learner, prior.value, 0.95 * prior.std, info=0.7)
+    feed(l2.roll_total, NIS_MATCHED, 0.0)
+    l2._noise_info = 0.7
+    e = l2.snapshot()["I_x"]
+    assert not e.valid and e.reason.startswith("roll not excited")
+    assert prior.std <= e.std <= 1.1 * prior.std

@@ -212,14 +212,17 @@ class Stage2(AxleSplit, StageLearner):
         if quiet is not None:  # no filter's covariance may claim more than the drive holds
             std = max(std, abs(value) * quiet)
         # the accelerometer's noise through eq (9): I_x read too large by up to this share (accel_share)
+        # of what the roll rate moved it by, which is all of it where the roll-rate rows outweigh the
+        # prior, and little where they hold next to nothing (the paper car's over-damped roll)
         share = self.accel_share()
-        std = math.hypot(std, abs(value) * h_rel, abs(value) * share)
+        weight = self.roll_info / (self.roll_info + self._ix_prior_rel() ** -2) if self.roll_info > 0.0 else 0.0
+        std = math.hypot(std, abs(value) * h_rel, abs(value) * share * weight)
         if why is None and quiet is not None:
             why = Hard(
                 f"roll not excited: the drive's roll rate tells I_x to {100 * quiet:.0f} % at best "
                 f"(its prior: {100 * self._ix_prior_rel():.0f} %); quick steering reversals at speed excite the roll"
             )
-        elif why is None and share > BY_NAME["I_x"].useful_rel:  # its std alone is then beyond use
+        elif why is None and share * weight > BY_NAME["I_x"].useful_rel:  # its std alone is then beyond use
             why = Hard(
                 f"roll not excited: the accelerometer's noise makes up {100 * share:.0f} % of what the roll rate "
                 f"tells of I_x, the drive's own lateral transients the rest (eq (9) is driven by the measured a_y: "
