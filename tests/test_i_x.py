@@ -192,3 +192,17 @@ def test_noise_that_barely_moved_i_x_off_its_prior_leaves_it_the_priors_std(lear
     e = l2.snapshot()["I_x"]
     assert not e.valid and e.reason.startswith("roll not excited")
     assert prior.std <= e.std <= 1.1 * prior.std
+
+
+def test_a_roll_rate_of_noise_alone_widens_i_x_no_further_than_it_moved_it(learner):
+    """A long drive whose roll rate holds noise alone moves I_x off its prior; the std then takes
+    the prior's with that distance, not the whole value's share."""
+    prior = learner.priors["I_x"]
+    l2 = ran(learner, 4200.0, 100.0, info=50.0)
+    feed(l2.roll_total, NIS_MATCHED, 0.0)
+    l2._noise_info = 50.0
+    e = l2.snapshot()["I_x"]
+    assert not e.valid and e.reason.startswith("roll not excited")
+    cap = math.hypot(prior.std, 4200.0 - prior.value)
+    quiet = prior.std / prior.value * 4200.0  # the drive's own information is none: the prior's relative std
+    assert cap <= e.std <= 1.01 * max(cap, quiet) < 4200.0 * 50.0 / 54.0  # the whole share: 3,900

@@ -211,12 +211,16 @@ class Stage2(AxleSplit, StageLearner):
         quiet = self.not_excited()
         if quiet is not None:  # no filter's covariance may claim more than the drive holds
             std = max(std, abs(value) * quiet)
+        std = math.hypot(std, abs(value) * h_rel)
         # the accelerometer's noise through eq (9): I_x read too large by up to this share (accel_share)
-        # of what the roll rate moved it by, which is all of it where the roll-rate rows outweigh the
-        # prior, and little where they hold next to nothing (the paper car's over-damped roll)
+        # of its value where the roll-rate rows outweigh the prior, little where they hold next to
+        # nothing (the paper car's over-damped roll); and never wider than the prior's std with the
+        # distance the rows moved I_x from the prior (a drive whose roll rate is all noise)
         share = self.accel_share()
         weight = self.roll_info / (self.roll_info + self._ix_prior_rel() ** -2) if self.roll_info > 0.0 else 0.0
-        std = math.hypot(std, abs(value) * h_rel, abs(value) * share * weight)
+        p = self.priors["I_x"]
+        wide = min(math.hypot(std, abs(value) * share * weight), math.hypot(p.std, value - p.value))
+        std = max(std, wide)
         if why is None and quiet is not None:
             why = Hard(
                 f"roll not excited: the drive's roll rate tells I_x to {100 * quiet:.0f} % at best "
