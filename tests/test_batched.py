@@ -81,11 +81,12 @@ def stage2_state(l2):
             for c in (l2.window, l2.total, l2.roll_window, l2.roll_total)]  # fmt: skip
     ex = l2._excite
     return (
-        l2.samples, l2.updates, l2.roll_updates, l2.roll_info, l2._info_window, l2.noise_info(), l2.restarts, l2.resets,
+        l2.samples, l2.updates, l2.roll_updates, l2.roll_info, l2._info_window, l2.restarts, l2.resets,
         l2.last_error, l2.t_last, getattr(l2, "_us", None), cons,
         None if ex is None else (ex.phi, ex.w, ex.chi, ex.chi_d, ex.t, ex.u),
         list(l2.check.record.windows), l2.check.record.added,
         None if f is None else (f._f.x, f._f.P, f._f.y, f._f.S), l2.theta, l2.theta_P, l2._good, l2.split_held,
+        l2.noise_info(),
     )  # fmt: skip
 
 
