@@ -86,6 +86,7 @@ def stage2_state(l2):
         None if ex is None else (ex.phi, ex.w, ex.chi, ex.chi_d, ex.t, ex.u),
         list(l2.check.record.windows), l2.check.record.added,
         None if f is None else (f._f.x, f._f.P, f._f.y, f._f.S), l2.theta, l2.theta_P, l2._good, l2.split_held,
+        l2.noise_info(),
     )  # fmt: skip
 
 

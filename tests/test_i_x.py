@@ -5,6 +5,7 @@ the same rules on the independent models is in docs/decisions/0015."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -123,3 +124,85 @@ def test_roll_excitation_is_the_roll_rates_derivative_in_ln_i_x(learner):
     got, want = np.array(got), np.array(want)
     assert np.abs(want).max() > 1e-3  # the reversals do excite the roll
     assert np.abs(got - want).max() <= 0.01 * np.abs(want).max()
+
+
+def test_accel_noise_excitation_is_what_white_a_y_puts_into_chi(learner):
+    """The stationary E[chi'^2] from the Lyapunov equation against RollExcitation driven by
+    white a_y alone (no lateral motion: all of it is the accelerometer's noise)."""
+    from vdp.core.learn.verdict import RollExcitation, accel_noise_excitation
+
+    l2 = ran(learner, 480.0, 4.0)
+    k = dataclasses.replace(l2.known, k_phi=48000.0, c_phi=3500.0, m=1100.0, h=0.55)  # an ordinary roll
+    want = accel_noise_excitation(k, 480.0, 0.01, 0.05)
+    assert want > 0.0
+    ex = RollExcitation(k, 480.0, 0.0, 0.0, 0.0)
+    noise = np.random.default_rng(7).standard_normal(60000) * 0.05
+    got = []
+    for n, a in enumerate(noise, start=1):
+        ex.step(n * 0.01, float(a))
+        if n > 500:
+            got.append(ex.chi_d * ex.chi_d)
+    assert np.mean(got) == pytest.approx(want, rel=0.1)
+    # a quieter accelerometer puts in less, by its variance; the paper car's over-damped roll
+    # (Table 6) takes in far less than an ordinary one
+    assert accel_noise_excitation(k, 480.0, 0.01, 0.025) == pytest.approx(want / 4, rel=1e-9)
+    assert accel_noise_excitation(l2.known, 480.0, 0.01, 0.05) < 0.1 * want
+
+
+def test_roll_information_mostly_the_accelerometers_noise_makes_i_x_not_valid(learner):
+    """An ordinary drive: slow, small lateral transients, so the accelerometer's noise is most of
+    what moves eq (9)'s roll rate where I_x matters; the filter then reads I_x too large, and its
+    std must carry that share of the value."""
+    l2 = ran(learner, 480.0, 4.0, info=1e4)
+    feed(l2.roll_total, NIS_MATCHED, 0.0)
+    l2._noise_info = 0.6e4  # the drive's own: 4e3, which alone would make I_x's std tiny
+    assert l2.accel_share() == pytest.approx(0.6)
+    e = l2.snapshot()["I_x"]
+    assert not e.valid and e.reason.startswith("roll not excited") and "accelerometer" in e.reason
+    assert e.std >= 0.6 * 480.0
+    assert abs(e.value - 480.0 / 1.6) <= 2 * e.std  # I_x read 60 % too large is still inside 2 sigma
+
+
+def test_a_small_noise_share_only_widens_i_x(learner):
+    l2 = ran(learner, 480.0, 4.0, info=1e5)
+    feed(l2.roll_total, NIS_MATCHED, 0.0)
+    l2._noise_info = 3e3  # 3 %: an excited drive (the paper's manoeuvres: well under 3 %)
+    e = l2.snapshot()["I_x"]
+    assert e.valid and e.reason is None
+    assert e.std == pytest.approx(honest_std(BY_NAME["I_x"], 480.0, math.hypot(4.0, 0.03 * 480.0)), rel=0.01)
+
+
+def test_the_accelerometers_noise_is_not_counted_as_the_drives_excitation(learner):
+    """The 'roll not excited' rule reads the information less the noise's share."""
+    l2 = ran(learner, 3000.0, 300.0, info=5e3)
+    feed(l2.roll_total, NIS_MATCHED, 0.0)
+    assert not (l2.snapshot()["I_x"].reason or "").startswith("roll not excited")
+    l2._noise_info = 5e3 - 0.7  # the paper car's own information, the rest noise
+    e = l2.snapshot()["I_x"]
+    assert not e.valid and e.reason.startswith("roll not excited") and "at best" in e.reason
+
+
+def test_noise_that_barely_moved_i_x_off_its_prior_leaves_it_the_priors_std(learner):
+    """The paper car's over-damped roll: the roll rate holds next to nothing, all of it the
+    accelerometer's noise; I_x is then its prior, and its std the prior's, not more."""
+    prior = learner.priors["I_x"]
+    l2 = ran(learner, prior.value, 0.95 * prior.std, info=0.7)
+    feed(l2.roll_total, NIS_MATCHED, 0.0)
+    l2._noise_info = 0.7
+    e = l2.snapshot()["I_x"]
+    assert not e.valid and e.reason.startswith("roll not excited")
+    assert prior.std <= e.std <= 1.1 * prior.std
+
+
+def test_a_roll_rate_of_noise_alone_widens_i_x_no_further_than_it_moved_it(learner):
+    """A long drive whose roll rate holds noise alone moves I_x off its prior; the std then takes
+    the prior's with that distance, not the whole value's share."""
+    prior = learner.priors["I_x"]
+    l2 = ran(learner, 4200.0, 100.0, info=50.0)
+    feed(l2.roll_total, NIS_MATCHED, 0.0)
+    l2._noise_info = 50.0
+    e = l2.snapshot()["I_x"]
+    assert not e.valid and e.reason.startswith("roll not excited")
+    cap = math.hypot(prior.std, 4200.0 - prior.value)
+    quiet = prior.std / prior.value * 4200.0  # the drive's own information is none: the prior's relative std
+    assert cap <= e.std <= 1.01 * max(cap, quiet) < 4200.0 * 50.0 / 54.0  # the whole share: 3,900

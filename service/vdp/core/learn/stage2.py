@@ -15,12 +15,12 @@ from ... import channels as ch
 from .. import lateral, output_error
 from ..bounds import Bounds
 from ..compiled import kernel, sig_in, sig_out
-from ..params import STAGE2
+from ..params import BY_NAME, STAGE2
 from ..result import NOT_IDENTIFIABLE, NOT_RUN, Estimate
 from . import tuning
 from .axles import AxleSplit
 from .base import StageLearner
-from .verdict import Consistency, Hard, RollExcitation, _verdict, quad_form
+from .verdict import Consistency, Hard, RollExcitation, _verdict, accel_noise_excitation, quad_form
 
 log = logging.getLogger(__name__)
 
@@ -59,6 +59,11 @@ class Stage2(AxleSplit, StageLearner):
         self._info_window = 0.0
         self._excite: RollExcitation | None = None
         self.roll_updates = 0  # of them, those that had a roll-rate measurement
+        # of roll_info, what the accelerometer's noise alone puts in (accel_noise_excitation): the
+        # windows closed, and the open (or last) window's per roll-rate update since its roll_updates
+        self._noise_info = 0.0
+        self._noise_rate = 0.0
+        self._noise_from = 0
         # the batch check: windows' samples and their output-error fit
         self.check = output_error.Check(compiled=self.cfg.compiled, executor=self.cfg.check_executor)
         super().reset()
@@ -233,10 +238,26 @@ class Stage2(AxleSplit, StageLearner):
         if quiet is not None:  # no filter's covariance may claim more than the drive holds
             std = max(std, abs(value) * quiet)
         std = math.hypot(std, abs(value) * h_rel)
+        # the accelerometer's noise through eq (9): I_x read too large by up to this share (accel_share)
+        # of its value where the roll-rate rows outweigh the prior, little where they hold next to
+        # nothing (the paper car's over-damped roll); and never wider than the prior's std with the
+        # distance the rows moved I_x from the prior (a drive whose roll rate is all noise)
+        share = self.accel_share()
+        weight = self.roll_info / (self.roll_info + self._ix_prior_rel() ** -2) if self.roll_info > 0.0 else 0.0
+        p = self.priors["I_x"]
+        wide = min(math.hypot(std, abs(value) * share * weight), math.hypot(p.std, value - p.value))
+        std = max(std, wide)
         if why is None and quiet is not None:
             why = Hard(
                 f"roll not excited: the drive's roll rate tells I_x to {100 * quiet:.0f} % at best "
                 f"(its prior: {100 * self._ix_prior_rel():.0f} %); quick steering reversals at speed excite the roll"
+            )
+        elif why is None and share * weight > BY_NAME["I_x"].useful_rel:  # its std alone is then beyond use
+            why = Hard(
+                f"roll not excited: the accelerometer's noise makes up {100 * share:.0f} % of what the roll rate "
+                f"tells of I_x, the drive's own lateral transients the rest (eq (9) is driven by the measured a_y: "
+                f"I_x reads too large by up to that share, which its std carries); quick steering reversals at "
+                f"speed excite the roll"
             )
         return value, std, why
 
@@ -291,14 +312,31 @@ class Stage2(AxleSplit, StageLearner):
         return p.std / abs(p.value) if p.value else math.inf
 
     def not_excited(self) -> float | None:
-        """I_x's best relative std from the roll-rate rows' information (RollExcitation) and its
-        prior, when that does not even halve the prior's (the ``not_identifiable`` rule); None
-        when the drive excites the roll that much, or before any roll-rate row."""
+        """I_x's best relative std from the roll-rate rows' information (RollExcitation), less
+        what the accelerometer's noise put in (:meth:`noise_info`), and its prior, when that
+        does not even halve the prior's (the ``not_identifiable`` rule); None when the drive
+        excites the roll that much, or before any roll-rate row."""
         if self.roll_updates == 0:
             return None
         p = self._ix_prior_rel()
-        post = 1.0 / math.sqrt(1.0 / (p * p) + self.roll_info)
+        post = 1.0 / math.sqrt(1.0 / (p * p) + max(self.roll_info - self.noise_info(), 0.0))
         return post if post > 0.5 * p else None
+
+    def noise_info(self) -> float:
+        """Of :attr:`roll_info`, what the accelerometer's white noise alone is expected to have put
+        in (verdict.accel_noise_excitation, per roll-rate update of each window kept)."""
+        return self._noise_info + self._noise_rate * (self.roll_updates - self._noise_from)
+
+    def accel_share(self) -> float:
+        """The share of the roll-rate rows' information on ln I_x that the accelerometer's noise
+        makes up (0 to 1; 0 before any).  Eq (9) is driven by the measured a_y: where the drive's
+        own lateral transients are slow and small (an ordinary drive), the noise is most of what
+        moves the model's roll rate at the frequencies where I_x matters, and the filter, whose
+        gyro does not see that response, takes I_x too large to damp it, by up to this share of
+        its value (an errors-in-variables attenuation; docs/decisions/0029)."""
+        if not self.roll_info > 0.0:
+            return 0.0
+        return min(1.0, max(self.noise_info(), 0.0) / self.roll_info)
 
     def mismatch(self) -> tuple[float, str | None]:
         """From the innovations of every window kept: their size (NIS) and whiteness."""
@@ -475,6 +513,7 @@ class Stage2(AxleSplit, StageLearner):
             self.roll_total.drop(self.roll_window)
             self.roll_info -= self._info_window
             self._info_window = 0.0
+            self._noise_from = self.roll_updates  # the window's noise share goes with its information
             self.filter = None
             self.t_last = None
             self._settle.clear()
@@ -571,6 +610,11 @@ class Stage2(AxleSplit, StageLearner):
             self._info_window = 0.0
             ix = self.theta[self.keys.index("I_x")]
             self._excite = RollExcitation(self.known, ix, x0[lateral.PHI], x0[lateral.PHI_D], t)
+            n = self.cfg.noise
+            self._noise_info = self.noise_info()  # the window before, closed
+            noise = accel_noise_excitation(self.known, ix, self.cfg.tick, n.accel)  # per sample, of chi'^2
+            self._noise_rate = noise / (n.gyro * n.inflate) ** 2  # per roll-rate update, as roll_info takes it
+            self._noise_from = self.roll_updates
             self._us = [u]
             self.t_last = t
             return

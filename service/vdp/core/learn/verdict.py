@@ -7,6 +7,8 @@ from __future__ import annotations
 import math
 from collections import deque
 
+import numpy as np
+
 from .. import lateral
 from ..result import CONVERGED, UNCERTAIN
 from . import tuning
@@ -155,6 +157,38 @@ class RollExcitation:
         self.phi, self.w, self.chi, self.chi_d = lateral.roll_sensitivity_step(
             self.phi, self.w, self.chi, self.chi_d, u0, u1, self.i, self.c, self.kp, dt
         )
+
+
+def accel_noise_excitation(k, i_x: float, dt: float, accel_sd: float) -> float:
+    """E[chi'^2] that the accelerometer's white noise alone puts into :class:`RollExcitation`'s
+    chi' = d phi' / d ln I_x, per sample, once stationary.
+
+    Eq (9) is driven by the measured a_y (lateral.Known.roll_by_ay), noise and all: the noise
+    moves the model's roll rate, and that response depends on I_x, so it counts as information
+    on ln I_x, though the car never rolled with it (the gyro does not see it).  It is worse
+    than no information: a filter whose model's roll rate answers noise that the gyro does not
+    show takes I_x too large, to damp it (an errors-in-variables attenuation,
+    docs/decisions/0029).  The same trapezoidal step as RollExcitation's, linear in
+    (phi, phi', chi, chi', a_y before, a_y now): its stationary covariance under white a_y
+    (variance accel_sd^2 per sample) from the Lyapunov equation P = M P M' + G G' (the state
+    carries the previous a_y).  0.0 where the step is not stable (no stationary value)."""
+    kp, c, mh, i = k.k_phi - k.m * k.g * k.h, k.c_phi, k.m * k.h, max(i_x, 1.0)
+    if not (dt > 0.0 and accel_sd > 0.0 and kp > 0.0 and c > 0.0):
+        return 0.0
+    cols = []
+    for j in range(6):  # the step's columns: the four states, a_y before, a_y now
+        e = [0.0] * 6
+        e[j] = 1.0
+        cols.append(lateral.roll_sensitivity_step(e[0], e[1], e[2], e[3], e[4], e[5], i, c, kp, dt))
+    M = np.zeros((5, 5))
+    M[:4, :5] = np.array(cols[:5]).T
+    G = np.zeros(5)
+    G[:4], G[4] = cols[5], 1.0
+    if not np.max(np.abs(np.linalg.eigvals(M))) < 1.0:
+        return 0.0
+    Q = np.outer(G, G) * (mh * accel_sd) ** 2
+    P = np.linalg.solve(np.eye(25) - np.kron(M, M), Q.reshape(-1)).reshape(5, 5)
+    return max(float(P[3, 3]), 0.0)
 
 
 def _verdict(c: Consistency, size: str, colour: str, kind: str) -> tuple[float, str | None]:
