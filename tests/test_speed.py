@@ -103,3 +103,42 @@ def test_a_turn_is_not_learnt_as_the_accelerometers_bias(kind):
     bias_0, worst_0 = run(False)
     # what holding the bias is for (a coarse GNSS's rounding state takes part of the turn's error)
     assert bias_0 < (-0.1 if kind == "plain" else -0.01) and worst_0 > worst
+
+
+@pytest.mark.parametrize("kind", ["plain", "rounded"])
+def test_reversing_is_not_learnt_as_the_accelerometers_bias(kind):
+    """Backing out along a car park's lane: 0.5 m/s^2 backwards for 4 s, 10 s at 2 m/s, braking to a
+    stop, then pulling away forwards.  The GNSS speed is a magnitude, so the filter's dv/dt = a_x has
+    the wrong sign; told the gates see reverse (core.passes.reversing), it holds the bias, and pulling
+    away v_x stays within 5 cm/s of the truth (10 with a whole-mph GNSS).  Untold, the bias and the
+    speed take the sign error, and v_x pulling away is over five times further off."""
+    from vdp.core import gates, passes
+
+    assert passes._REVERSE == gates.REVERSE
+
+    def accel(t: float) -> float:
+        return -0.5 if 5.0 <= t < 9.0 else 1.0 if 19.0 <= t < 21.0 or 26.0 <= t < 30.0 else 0.0
+
+    def run(told: bool):
+        cfg = SpeedConfig(gnss_step=MPH) if kind == "rounded" else SpeedConfig()
+        filt = speed_filter(cfg)
+        dt, v, worst, bias = 0.02, 0.0, 0.0, 0.0
+        for k in range(int(32.0 / dt)):
+            t = k * dt
+            a = accel(t)
+            g = round(abs(v) / cfg.gnss_step) * cfg.gnss_step if cfg.gnss_step else abs(v)
+            gate = gates.REVERSE if 4.0 <= t < 23.0 and told else 0
+            filt.step(t, a, g if k % 5 == 0 else None, turn=passes.reversing(a, gate))
+            v += a * dt
+            if 26.5 <= t < 30.0:
+                worst = max(worst, abs(filt.v - v))
+            if t < 23.0:
+                bias = filt.bias
+        return bias, worst
+
+    bias, worst = run(True)
+    assert abs(bias) < 0.005 and worst < (0.05 if kind == "plain" else 0.1)
+    bias_0, worst_0 = run(False)  # (plain: 0.38 m/s^2 and 0.35 m/s; rounded: 0.03 m/s^2 and 1.0 m/s)
+    assert abs(bias_0) > 0.02 and worst_0 > 5.0 * worst
+    assert passes.reversing(0.0, gates.REVERSE) > 0.0 and passes.reversing(math.nan, gates.REVERSE) > 0.0
+    assert passes.reversing(1.0, gates.ABS) == passes.reversing(1.0, 0) == 0.0

@@ -153,12 +153,13 @@ class TwoStageEstimator:
         if self.tilt is not None:  # a_x and a_y into the road's axes; the speed filter follows the grade (core.road)
             s = self.tilt.correct(s)
             self.speed.cfg = replace(self.speed.cfg, bias_walk=self.tilt.speed_walk(self.cfg.speed.bias_walk))
-        v_x, v_std, ax_bias = self._speed(t, s)
+        gate = self.supervisor.gates.update(t, s.gap, s.values)  # (the speed filter holds its bias in reverse)
+        v_x, v_std, ax_bias = self._speed(t, s, gate)
         yaw_bias, roll_bias = self.gyro_bias.update(s, self.cfg.gate)
         s = s.derived(v_x=v_x, v_std=v_std, ax_bias=ax_bias, yaw_bias=yaw_bias, roll_bias=roll_bias)
         if self.mass is not None:
             self.mass.handle(t, s)
-        stage = self.supervisor.update(t, s, self.handover_t is not None)
+        stage = self.supervisor.update(t, s, self.handover_t is not None, gate)
         self._learn(t, s, stage)
         # no trace kept (trace_len=0: vdp batch, replay without --plot): no row built either
         if self.trace.maxlen != 0 and (self._next_trace is None or t >= self._next_trace):
@@ -317,13 +318,15 @@ class TwoStageEstimator:
         self.trace = deque(list(self.trace)[::2], maxlen=self.trace.maxlen)
         self._trace_every *= 2.0
 
-    def _speed(self, t: float, s) -> tuple[float, float, float]:
-        """Run the GNSS + IMU speed filter; return v_x, its std and the a_x bias."""
+    def _speed(self, t: float, s, gate: int = 0) -> tuple[float, float, float]:
+        """Run the GNSS + IMU speed filter (``gate``: the sample's, core.gates); return v_x, its std
+        and the a_x bias."""
         y = s.values
         gnss, has, noise = ps.speed_measured(self._p, ps.CHANNELS, y, s.fresh, s.age)
         if s.gap:
             self.speed.reset()
-        turn = ps.turning(self._p, y[ch.YAW])  # (> 0: the car turns, the speed filter holds its a_x bias)
+        # (> 0: the car turns or reverses, the speed filter holds its a_x bias)
+        turn = max(ps.turning(self._p, y[ch.YAW]), ps.reversing(y[ch.AX], gate))
         self.speed.step(t, y[ch.AX], gnss if has else None, None if math.isnan(noise) else noise, turn)
         std = self.speed.std
         # stage 1 takes the speed's error as correlated over speed_corr^2 x 10 ms (4 s); one

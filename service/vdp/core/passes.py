@@ -39,6 +39,7 @@ WS_FL, WS_FR, WS_RL, WS_RR, T_F, T_R, DELTA, AX, YAW, ROLL, SPEED = range(11)
 # that cache only when this file changes (tests/test_batched.py holds them equal)
 _SPEED_LOW, _STEERING, _YAWING, _LITTLE_AX, _LITTLE_STEER, _NOT_CONSTANT, _MISSING, _WAITING = range(1, 9)
 _GATED, _SHUTS = _WAITING, 6  # supervisor.GATED, gates.SHUTS: gate k's reason code is _GATED + k
+_REVERSE = 1  # gates.REVERSE
 
 
 def new_state() -> list[float]:
@@ -116,6 +117,17 @@ def turning(p, yaw):
     if not abs(yaw) >= p[YAW_MAX_1]:  # (NaN: no gyro, nothing known of a turn)
         return 0.0
     return yaw * yaw * p[WHEELBASE]
+
+
+def reversing(a_x, gate):
+    """The speed filter's ``turn`` while the gates see the car reverse (``gate``, core.gates' code):
+    the GNSS and wheel speeds are magnitudes, so the model's dv/dt = a_x has the wrong sign and leaves
+    out up to 2 |a_x|; the bias is held (at least 1 mm/s^2, so that it is held at a standstill too).
+    Without this a reverse out of a parking space taught the bias -0.24 m/s^2 (truth -0.01), which
+    took a minute to leave, and stage 1's C_K after it read 1.8 std low (benchmarks/gates.py)."""
+    if gate != _REVERSE:
+        return 0.0
+    return max(2.0 * abs(a_x), 1e-3) if math.isfinite(a_x) else 1e-3
 
 
 def speed_step(st, p, t, a_x, gnss, has_gnss, noise, turn):

@@ -30,6 +30,7 @@ def _calling(fn, **helpers):
 _speed_measured = _inline(ps.speed_measured)
 _speed_reset = _inline(ps.speed_reset)
 _turning = _inline(ps.turning)
+_reversing = _inline(ps.reversing)
 _speed_step = _inline(_calling(ps.speed_step, speed_reset=_speed_reset))
 _gyro_update = _inline(ps.gyro_update)
 _hyst = _inline(ps.hyst)
@@ -70,7 +71,7 @@ def prepass(T, Y, F, A, gap, gate, st, p, c, needs1, needs2, done_from, blk, fir
         gnss, has, noise = _speed_measured(p, c, y, F[i], A[i])
         if gap[i]:
             _speed_reset(st)
-        _speed_step(st, p, t, ax, gnss, has, noise, _turning(p, y[c[ps.YAW]]))
+        _speed_step(st, p, t, ax, gnss, has, noise, max(_turning(p, y[c[ps.YAW]]), _reversing(ax, gate[i])))
         v = st[ps.V]
         out[i, 0] = v
         out[i, 1] = math.sqrt(st[ps.P_VV]) if math.isfinite(v) else math.nan

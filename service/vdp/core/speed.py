@@ -34,6 +34,11 @@ estimator's yaw rate beyond stage 1's straight-line limit) the bias is held, a S
 consider state (no gain, its variance kept), and ``turn``, a bound on ``|r v_y|``, widens the
 speed's process noise so that the GNSS carries v_x through the turn.  The accelerometer's bias is learnt while driving
 straight, as the gyro offsets are.
+
+**Reversing.** The GNSS and wheel speeds are magnitudes, so backwards the model's dv/dt = a_x has
+the wrong sign.  While the gates see reverse (core.passes.reversing: the gear, or a signed speed
+below zero), the bias is held the same way, with ``turn`` = 2 |a_x|.  Unheld, backing out of a
+parking space taught it -0.24 m/s^2 for a minute, and stage 1's C_K read 1.8 std low after it.
 """
 
 from __future__ import annotations

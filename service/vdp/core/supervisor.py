@@ -161,10 +161,11 @@ class Supervisor:
         """Seconds the driving met each stage's conditions."""
         return {1: self.st[ps.EXC1], 2: self.st[ps.EXC2]}
 
-    def update(self, t: float, s, stage1_done: bool) -> int | None:
-        """Feed one sample; return the stage whose window is open (1, 2 or None)."""
+    def update(self, t: float, s, stage1_done: bool, gate: int | None = None) -> int | None:
+        """Feed one sample; return the stage whose window is open (1, 2 or None).  ``gate``: its
+        gate code where the caller took it from the gates already (the estimator, before the speed)."""
         y = s.values
-        g = self.gates.update(t, s.gap, y)
+        g = self.gates.update(t, s.gap, y) if gate is None else gate
         dt, c1, c2 = ps.supervise(self.st, self._p, t, s.gap, g, y[ch.AX], y[ch.DELTA], y[ch.YAW], s.v_x, y[ch.SPEED],
                                   y[ch.WS_RL], y[ch.WS_RR])  # fmt: skip
         d1 = self._reasons[c1] if c1 else None
