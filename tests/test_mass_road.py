@@ -468,3 +468,21 @@ def test_a_sign_flipped_a_x_gives_an_invalid_mass_not_a_crash():
     e = _learn(flipped).snapshot()
     assert e.value < 0 and e.status == "invalid" and not e.valid and "no car's" in e.reason
     assert e.progress is None or e.progress == 0.0
+
+
+def test_the_report_says_when_the_mass_read_valid_and_the_pitch_gain_beside_it():
+    """vdp replay's text report: one line under the table with the drive time after which the mass
+    first read valid and the IMU's pitch gain learnt beside it; nothing for a mass not learnt."""
+    from vdp.report import mass_lines
+
+    samples = _drive(1900.0, 200.0, kappa=0.03)
+    e = _learn(samples, cfg=MassConfig("report")).snapshot()
+    (line,) = mass_lines({"mass": e})
+    after = e.extra["valid_after_s"] / 60.0
+    assert line.startswith(f"mass: valid after {after:.1f} of 3.3 min of drive")
+    assert f"reads {100 * e.extra['pitch_gain_kappa']:.1f} % ±" in line and "level-road rows" in line
+    # without a GNSS speed: not valid, and the pitch gain not learnt, said so
+    (blind,) = mass_lines({"mass": _learn(_blind(samples), cfg=MassConfig("report")).snapshot()})
+    assert blind == "mass: not valid after 3.3 min of drive; the IMU's pitch gain is not learnt yet (it needs " \
+        "level road and a GNSS speed)"  # fmt: skip
+    assert mass_lines({"mass": MassLearner(VEH).snapshot()}) == mass_lines({}) == []  # no row yet, no mass

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from .core.params import BY_NAME, MASS, NAMES, PUBLISHED
-from .core.result import Estimate
+from .core.result import NOT_RUN, Estimate
 from .errors import ConfigError
 from .outfile import replacing, write_text
 from .result import RunResult, jsonable
@@ -167,7 +167,29 @@ def table(result: RunResult, truth: dict | None = None) -> str:
     # roll not excited, no roll-rate gyro, a measured l_f ...)
     lines += [f"! {n}: {params[n].reason}" for n in names if params[n].reason]
     lines += axle_lines(params, truth)
+    lines += mass_lines(params)
     return "\n".join(lines)
+
+
+def mass_lines(params: Mapping[str, Estimate]) -> list[str]:
+    """The learnt mass's story in one line (its ``extra``, core.mass): when it first read valid, in
+    the drive's time, and the IMU's pitch gain learnt beside it; none where it was not learnt."""
+    e = params.get("mass")
+    x = e.extra if e is not None else {}
+    if not x or "driven_s" not in x or e.status == NOT_RUN:
+        return []
+    after, driven = x.get("valid_after_s"), (x["driven_s"] or 0.0) / 60.0
+    part = [f"valid after {after / 60:.1f} of {driven:.1f} min of drive" if after is not None
+            else f"not valid after {driven:.1f} min of drive"]  # fmt: skip
+    if x.get("pitch_gain_kappa") is not None:
+        rows = x.get("pitch_level_rows") or 0
+        part.append(
+            f"the IMU's pitch with the body reads {100 * x['pitch_gain_kappa']:.1f} % ± "
+            f"{100 * (x.get('pitch_gain_std') or 0.0):.1f} % of a_x ({rows} level-road rows against the GNSS speed)"
+            if rows
+            else "the IMU's pitch gain is not learnt yet (it needs level road and a GNSS speed)"
+        )
+    return ["mass: " + "; ".join(part)]
 
 
 def axle_lines(params: Mapping[str, Estimate], truth: dict | None = None) -> list[str]:
