@@ -481,8 +481,26 @@ def test_the_report_says_when_the_mass_read_valid_and_the_pitch_gain_beside_it()
     after = e.extra["valid_after_s"] / 60.0
     assert line.startswith(f"mass: valid after {after:.1f} of 3.3 min of drive")
     assert f"reads {100 * e.extra['pitch_gain_kappa']:.1f} % ±" in line and "level-road rows" in line
+    assert line.endswith("the IMU tilts with the body: replay with --road to take that out of the six's a_x and a_y")
+    (level,) = mass_lines({"mass": _learn(_drive(1900.0, 200.0), cfg=MassConfig("report")).snapshot()})
+    assert "--road" not in level  # a pitch gain within its noise of 0: nothing to take out
     # without a GNSS speed: not valid, and the pitch gain not learnt, said so
     (blind,) = mass_lines({"mass": _learn(_blind(samples), cfg=MassConfig("report")).snapshot()})
     assert blind == "mass: not valid after 3.3 min of drive; the IMU's pitch gain is not learnt yet (it needs " \
         "level road and a GNSS speed)"  # fmt: skip
     assert mass_lines({"mass": MassLearner(VEH).snapshot()}) == mass_lines({}) == []  # no row yet, no mass
+
+
+def test_a_mass_not_learnt_says_which_rows_were_left_out_and_why():
+    """No row taught the mass: its reason lists what the drive's rows were left out for, and a drive
+    without any speed says what the balance needs."""
+    standing = []
+    for smp in _drive(1600.0, 30.0):
+        y = list(smp.values)
+        y[ch.SPEED] = 0.5
+        standing.append(smp._replace(values=tuple(y)))
+    e = _learn(standing).snapshot()
+    assert e.status == NOT_RUN and "left out: standstill or creep 29" in e.reason and "needs a speed" not in e.reason
+    blind = [smp._replace(values=smp.values[: ch.SPEED] + (math.nan,) + smp.values[ch.SPEED + 1 :]) for smp in standing]
+    e = _learn(blind).snapshot()
+    assert "left out: no speed 29" in e.reason and "the balance needs a speed" in e.reason

@@ -145,7 +145,9 @@ def table(result: RunResult, truth: dict | None = None) -> str:
     has_ekf = bool(ekf)  # (a column of dashes when the baseline did not run only raised questions)
     cmp_ = compare(params, truth) if truth is not None else {}
     cmp_ekf = compare(ekf, truth) if truth is not None and ekf else {}
-    head = f"{'param':8} {'value':>10} {'± std':>10} {'unit':7} {'status':17}"
+    # "valid": usable as it stands (learnt, in range, its std within the parameter's threshold); "!": a
+    # reason follows the table (a valid value may have one: a finding beside it)
+    head = f"{'param':8} {'value':>10} {'± std':>10} {'unit':7} {'valid':5} {'status':17}"
     head += f" {'EKF value':>10}" if has_ekf else ""
     if cmp_:
         head += f" {'truth':>10} {'UKF err':>8}" + (f" {'EKF err':>8}" if has_ekf else "")
@@ -155,7 +157,8 @@ def table(result: RunResult, truth: dict | None = None) -> str:
         p = params[name]
         e = ekf.get(name)
         status = p.status + ("!" if p.reason else "")  # a reason follows the table
-        row = f"{name:8} {_fmt(p.value):>10} {_fmt(p.std, 2):>10} {_unit(p.unit):7} {status:17}"
+        ok = "yes" if p.valid else "no"
+        row = f"{name:8} {_fmt(p.value):>10} {_fmt(p.std, 2):>10} {_unit(p.unit):7} {ok:5} {status:17}"
         row += f" {_fmt(e.value if e is not None else None):>10}" if has_ekf else ""
         if cmp_:
             c, ce = cmp_[name], cmp_ekf.get(name, {})
@@ -189,6 +192,10 @@ def mass_lines(params: Mapping[str, Estimate]) -> list[str]:
             if rows
             else "the IMU's pitch gain is not learnt yet (it needs level road and a GNSS speed)"
         )
+        k, ks = x["pitch_gain_kappa"], x.get("pitch_gain_std") or 0.0
+        if rows and abs(k) > max(2.0 * ks, 0.01):
+            # the six still read the tilted a_x and a_y: stage 1's load transfer, eq 9's a_y (core.road)
+            part.append("the IMU tilts with the body: replay with --road to take that out of the six's a_x and a_y")
     return ["mass: " + "; ".join(part)]
 
 
@@ -208,7 +215,10 @@ def axle_lines(params: Mapping[str, Estimate], truth: dict | None = None) -> lis
     if "C_alpha_front" in per and "C_alpha_rear" in per:
         line += f" (truth {_fmt(per['C_alpha_front'])} / {_fmt(per['C_alpha_rear'])})"
     why = x.get("per_axle_reason")
-    return [line, f"  not valid: {why}"] if why else [line]
+    if not why:
+        return [line]
+    # (a reason beside axles that are valid is a finding, not a verdict)
+    return [line, f"  {'valid; ' if x.get('per_axle_valid') else 'not valid: '}{why}"]
 
 
 def write_json(doc: dict | RunResult, path: str | Path) -> None:

@@ -297,7 +297,10 @@ class MassLearner:
         if n < 5:
             self._skip("missing torque or a_x")
             return
-        if nv < 3 or sv / nv < MIN_SPEED:
+        if nv < 3:
+            self._skip("no speed")
+            return
+        if sv / nv < MIN_SPEED:
             self._skip("standstill or creep")
             return
         if ay / n > MAX_LATERAL:
@@ -377,8 +380,13 @@ class MassLearner:
                          pitch_level_rows=self.pitch.level_rows)  # fmt: skip
         extra.update({f"skipped_{k.replace(' ', '_')}": v for k, v in self.skipped.items()})
         if self.rows == 0:
-            return Estimate(NAME, self.m0, prior_sd, UNIT, NOT_RUN, False, STAGE, 0,
-                            reason="no straight driving with torques yet: the profile's mass", progress=0.0,
+            why = "no straight driving with torques yet: the profile's mass"
+            if self.skipped:  # what the drive had, and why none of it taught the mass
+                left = ", ".join(f"{k} {v}" for k, v in sorted(self.skipped.items(), key=lambda kv: -kv[1]))
+                why += f" (rows of {ROW:g} s left out: {left})"
+                if "no speed" in self.skipped:
+                    why += "; the balance needs a speed: the GNSS speed, or the speed filter's from a free-rolling axle"
+            return Estimate(NAME, self.m0, prior_sd, UNIT, NOT_RUN, False, STAGE, 0, reason=why, progress=0.0,
                             hint="drive: accelerate and brake on a straight road", extra=extra)  # fmt: skip
         if not LO <= m <= HI:
             return Estimate(NAME, m, sd, UNIT, INVALID, False, STAGE, self.rows,
