@@ -51,9 +51,15 @@ def one(rep):
 
 
 def test_accel_x_sign_flipped(drive):
+    """The profile's own sign = -1 flips a right bus: the fix is to take it out (a user who added it
+    was told to add it again); a channel at sign 1 is told to set -1."""
+    from vdp.profilecheck.samples import _flip
+
     f = one(check_log(drive, chan(PAPER, "accel_x", sign=-1.0))[0])
-    assert f.subject == "accel_x" and "sign-flipped" in f.message and "sign = -1" in f.message
+    assert f.subject == "accel_x" and "sign-flipped" in f.message
+    assert f.message.endswith("remove sign = -1 from [channels.accel_x] (or set sign = 1)")
     assert set(f.params) == set(PARAMETERS)
+    assert _flip(PAPER, "accel_x") == "set sign = -1 in [channels.accel_x]"
 
 
 def test_steering_wheel_angle_declared_as_road_wheel_angle(drive):
@@ -145,7 +151,7 @@ def test_replay_warns_and_marks_the_parameters_not_valid(drive, tmp_path, capsys
     assert "mass estimation is off" in json.loads(out.read_text())["parameters"]["mass"]["reason"]
     capsys.readouterr()
     assert main(["profile", "check", str(drive), "--profile", str(prof)]) == 1
-    assert "set sign = -1" in capsys.readouterr().out
+    assert "remove sign = -1 from [channels.accel_x]" in capsys.readouterr().out  # (the profile set it)
     assert main(["profile", "check", str(drive), "--profile", str(ROOT / "profiles" / "paper.toml")]) == 0
 
 

@@ -123,6 +123,15 @@ def _fit(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.dot(x, y) / d) if d > 0 else math.nan
 
 
+def _flip(profile: Profile, name: str) -> str:
+    """The fix for a channel read with the wrong sign: set sign = -1, or, where the profile already
+    has it, take it back out."""
+    c = profile.channels.get(name)
+    if c is not None and getattr(c, "sign", 1.0) < 0:
+        return f"remove sign = -1 from [channels.{name}] (or set sign = 1)"
+    return f"set sign = -1 in [channels.{name}]"
+
+
 def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report | None = None) -> Report:
     """Check the profile against aligned samples: ``y[i, channel index]`` in SI (NaN where missing)."""
     rep = check_profile(profile, report)
@@ -212,7 +221,7 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
                 rep.add(
                     "accel_x_sign",
                     "accel_x",
-                    f"accel_x looks sign-flipped (a_x = {k:.2f} x dv/dt): set sign = -1 in [channels.accel_x]",
+                    f"accel_x looks sign-flipped (a_x = {k:.2f} x dv/dt): " + _flip(profile, "accel_x"),
                     DEPENDS["accel_x"],
                 )
             elif not 0.8 < abs(k) < 1.25:
@@ -260,7 +269,7 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
                 "yaw_rate_sign",
                 "yaw_rate",
                 "yaw_rate looks sign-flipped (against both a_y = v r and the steering angle): "
-                "set sign = -1 in [channels.yaw_rate]",
+                + _flip(profile, "yaw_rate"),
                 DEPENDS["yaw_rate"],
             )
         elif steer_sign is not None:
@@ -268,7 +277,7 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
                 "accel_y_sign",
                 "accel_y",
                 "accel_y looks sign-flipped (a_y has the opposite sign of v r, while the steering angle and the "
-                "yaw rate agree): set sign = -1 in [channels.accel_y]",
+                "yaw rate agree): " + _flip(profile, "accel_y"),
                 DEPENDS["accel_y"],
             )
         else:
@@ -296,7 +305,7 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
             "steering_sign",
             "steering_angle",
             "steering_angle has the opposite sign of the yaw rate (positive must be left for both): "
-            "set sign = -1 in [channels.steering_angle]",
+            + _flip(profile, "steering_angle"),
             DEPENDS["steering_angle"],
         )
     if turn is not None and "steering_angle" in have:
