@@ -104,6 +104,15 @@ def test_mass_13_percent_low(drive):
     assert abs(implied / PAPER.vehicle.mass - 1) < 0.03  # the true mass, from torques and a_x
 
 
+def test_torques_of_the_wrong_sign_are_named_as_a_sign_not_a_mass(drive):
+    """Both wheel torques read backwards: the balance implies a negative mass, which no load or unit
+    explains; the finding names the torques' sign (a user was told to set the mass to -175 kg)."""
+    p = chan(chan(PAPER, "wheel_torque_front", sign=-1.0), "wheel_torque_rear", sign=-1.0)
+    f = [f for f in check_log(drive, p)[0].findings if f.subject == "vehicle.mass"]
+    assert len(f) == 1 and "a negative mass" in f[0].message and "wrong sign" in f[0].message
+    assert "set the mass as driven" not in f[0].message
+
+
 def test_l_f_prior_beyond_the_wheelbase(drive):
     pri = dict(PAPER.priors)
     pri["l_f"] = Prior(2.8, 0.3)

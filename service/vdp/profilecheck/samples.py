@@ -377,6 +377,11 @@ def check_samples(profile: Profile, t: np.ndarray, y: np.ndarray, report: Report
                         else "set the mass as driven (kerb weight plus occupants and load), or check the "
                         "torque channels' unit and wheel_radius"
                     )
+                    if m_fit < 0:  # no load or unit makes a mass negative: the force and a_x disagree in sign
+                        first = (
+                            "a negative mass: a wheel torque channel (or their sum) has the wrong sign; check "
+                            "sign and scale in [channels.wheel_torque_front] and [channels.wheel_torque_rear]"
+                        )
                     rep.add(
                         "mass",
                         "vehicle.mass",
