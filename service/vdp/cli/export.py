@@ -23,7 +23,8 @@ def add_parser(sub):
         "export",
         help="write a result's parameters for CommonRoad, CARLA, or as plain JSON/TOML",
         description="Convert the JSON result of `vdp replay --json` into a simulator's parameter file. "
-        "Parameters that were never estimated (not_run, invalid) are left out of the simulator formats.",
+        "Parameters the drive did not give (not_run, not_identifiable: the prior's numbers, or invalid) are left "
+        "out of the simulator formats.",
     )
     p.add_argument("result", type=Path, help="a result JSON from vdp replay --json")
     p.add_argument("--format", required=True, metavar="F", help=f"one of {', '.join(FORMATS)}")
