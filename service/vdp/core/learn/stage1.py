@@ -231,8 +231,8 @@ class Stage1(StageLearner):
         with speed and the law leaves out (drag's pitching moment and lift move load from
         axle to axle with v^2: on the brush cars l_f read 0.9 % long).
 
-        The load sensitivity moves h by about LOAD_SENSITIVITY x h, and l_f with it by its
-        regression on h (:func:`load_sensitivity_shift`; C_K not: docs/decisions/0031).
+        The load sensitivity moves h by about LOAD_SENSITIVITY x h, and nothing else by h
+        (:func:`load_sensitivity_shift`, docs/decisions/0031).
         """
         b, k = self.bounds, self.known
         x = b.to_si(fit.t)
@@ -244,7 +244,7 @@ class Stage1(StageLearner):
             spread = self._split(U, Z, R, t0, P0, fit, by <= np.median(by))
             if spread is not None:
                 out = np.maximum(out, spread)
-        return np.hypot(out, load_sensitivity_shift(b.cov_to_si(fit.t, fit.cov), x, tuning.LOAD_SENSITIVITY))
+        return np.hypot(out, load_sensitivity_shift(x, tuning.LOAD_SENSITIVITY))
 
     def _split(self, U, Z, R, t0, P0, fit, lo) -> np.ndarray | None:
         """How far the parameters of the blocks in ``lo`` and of the others differ beyond their
@@ -534,18 +534,17 @@ def axle_split_shift(l_f: float, wheelbase: float, q: float) -> float:
     return l_f * (wheelbase - l_f) / wheelbase * e
 
 
-def load_sensitivity_shift(P: np.ndarray, x: np.ndarray, q: float) -> np.ndarray:
-    """How far each stage-1 parameter moves (SI, 1 sigma) with the tyre's unknown load sensitivity
-    q: h by q h, the others by their regression on h in the fit's covariance ``P`` (SI), P_ih / P_hh
-    (a Schmidt consider term), except C_K.  A stiffness per unit load that falls by q with the load
-    shows (1 - q) of the load transfer in the slips, so h reads low; at the axle loads the drive
-    runs at (where C_K is defined) the stiffness is what the slips show, so C_K takes none of it
-    (docs/decisions/0031: its share had been kept for a C_K +15 % on the ordinary drive that was the
-    speed filter's, 0028)."""
-    h = longitudinal.H
-    pull = P[:, h] / P[h, h] if P[h, h] > 0.0 else np.eye(len(x))[h]
-    out = np.abs(pull) * q * x[h]
-    out[longitudinal.C_K] = 0.0
+def load_sensitivity_shift(x: np.ndarray, q: float) -> np.ndarray:
+    """How far each stage-1 parameter (``x``, SI) moves, 1 sigma, with the tyre's unknown load
+    sensitivity q: h by q h, the others not by it.  A
+    stiffness per unit load that falls by q with the load shows (1 - q) of the load transfer in the
+    slips, so h reads low.  At the axle loads the drive runs at (where C_K is defined) the stiffness is
+    what the slips show, so C_K takes none of it; l_f takes the axles' split the same q makes
+    (:func:`axle_split_shift`, docs/decisions/0021).  A Schmidt share of h's move by each one's
+    regression on h had been kept too, for a C_K +15 % on the ordinary drive that was the speed
+    filter's (0028): it counted the load sensitivity twice (docs/decisions/0031)."""
+    out = np.zeros(len(x))
+    out[longitudinal.H] = q * x[longitudinal.H]
     return out
 
 
