@@ -449,3 +449,13 @@ def test_every_run_takes_its_estimator_settings_from_one_place():
         run_config("serve")
     with pytest.raises(ValueError, match="mass mode"):
         run_config("replay", mass="yes")
+
+
+def test_a_message_the_log_lacks_names_the_channels_the_run_goes_without(drive, repo_root, capsys):
+    """The status profile on a log without its status message: the coverage line names the message,
+    and the next line what it carries (a user saw reverse and ABS go ungated, and no word of it)."""
+    prof = repo_root / "profiles" / "paper_status.toml"
+    assert main(["replay", str(drive[1]), "--profile", str(prof), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "(missing: VEHICLE_STATUS)" in out
+    assert "  VEHICLE_STATUS carries abs_active, esc_active, reverse, tcs_active: the run has none of them" in out

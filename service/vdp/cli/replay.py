@@ -196,6 +196,10 @@ def run(args) -> int:
     head, check_rep, cov = checked.head, checked.report, checked.coverage
     if cov.missing:  # fewer than half seen stopped check_log; a few missing still cost their channels
         print(f"profile check: {args.log}: {cov.message()}")
+        for msg in cov.missing:  # what each missing message would have carried: the user sees what is lost
+            lost = sorted(n for n, c in profile.channels.items() if c.message == msg)
+            if lost:
+                print(f"  {msg} carries {', '.join(lost)}: the run has none of them")
     for line in profilecheck.lines(check_rep, mass_on=args.mass in ("auto", "on")):
         print(line)
     truth = report.load_truth(args.truth) if args.truth else None
