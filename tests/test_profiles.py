@@ -335,3 +335,16 @@ def test_paper_drive_converges_on_the_cars_layout(name, stage, tmp_path_factory)
         # std of about 2 % of its value from this drive on any bus layout, the paper's
         # included, and so says "uncertain", as it should.
         assert est.status in ("converged", "uncertain") and est.std < TOLERANCE[p] * truth[p], (p, est)
+
+
+def test_a_copied_profile_whose_dbc_is_not_beside_it_says_where_its_dbc_is_read_from(tmp_path):
+    """`cp profiles/paper.toml my.toml` elsewhere keeps `dbc = "../dbc/vdp.dbc"`: the error names the
+    folder the path is read from and the fix, not only the path it did not find."""
+    from vdp.errors import ProfileError
+
+    mine = tmp_path / "my.toml"
+    mine.write_text((ROOT / "profiles" / "paper.toml").read_text())
+    with pytest.raises(
+        ProfileError, match=r"does not exist \(.* is read from the profile's own folder, .*absolute one\)"
+    ):
+        load_profile(mine)

@@ -242,7 +242,11 @@ def load_profile(path: str | Path) -> Profile:
         else:
             dbc = (path.parent / dbc_s).resolve()
         if not dbc.is_file():
-            raise ProfileError(f"{where} [can]: dbc file '{dbc}' does not exist")
+            rel = "" if dbc_s.startswith("opendbc:") or Path(dbc_s).is_absolute() else (
+                f" ('{dbc_s}' is read from the profile's own folder, {path.parent}: a copied profile keeps "
+                f"its dbc line, so give the dbc's path from the new folder, or an absolute one)"
+            )  # fmt: skip
+            raise ProfileError(f"{where} [can]: dbc file '{dbc}' does not exist{rel}")
         if dbc in dbcs:
             raise ProfileError(f"{where} [can]: dbc '{dbc_s}' is listed twice")
         dbcs.append(dbc)
