@@ -148,16 +148,24 @@ class Stage2(AxleSplit, StageLearner):
         self.restarts += 1
         self.last_error = f"window dropped: {why}"
         log.warning("stage 2 %s window dropped: %s", self.kind, why)
+        self._undo_window()
+        self.window, self.roll_window = Consistency(), Consistency()
+        self.check.record.drop()
+
+    def _undo_window(self) -> None:
+        """The open window undone (a window that diverged, or one dropped): the parameters back to its
+        start, its innovations and roll information (with that information's noise share) out of the
+        totals, the filter closed."""
         theta, cov, cross = self._win_start
         self.theta, self.theta_P, self.cross = theta.copy(), cov.copy(), cross
         self.total.drop(self.window)
         self.roll_total.drop(self.roll_window)
-        self.window, self.roll_window = Consistency(), Consistency()
         self.roll_info -= self._info_window
         self._info_window = 0.0
-        self.check.record.drop()
+        self._noise_from = self.roll_updates  # the window's noise share goes with its information
         self.filter = None
         self.t_last = None
+        self._settle.clear()
 
     def l_f_correlation(self) -> np.ndarray | None:
         """Correlation of the published (C_alpha, I_z, I_x) with the considered l_f: the open
@@ -507,16 +515,7 @@ class Stage2(AxleSplit, StageLearner):
             why = f"innovations {self.window.recent():.0f}x their predicted size"
             log.info("stage 2 %s window diverged (%s); restarted from the window's start", self.kind, why)
             self.last_error = f"window restarted: {why}"
-            theta, cov, cross = self._win_start
-            self.theta, self.theta_P, self.cross = theta.copy(), cov.copy(), cross
-            self.total.drop(self.window)
-            self.roll_total.drop(self.roll_window)
-            self.roll_info -= self._info_window
-            self._info_window = 0.0
-            self._noise_from = self.roll_updates  # the window's noise share goes with its information
-            self.filter = None
-            self.t_last = None
-            self._settle.clear()
+            self._undo_window()
             return True
         return False
 
